@@ -1,0 +1,116 @@
+"""Spherical multi-beam lidar model, eq. 4.2 of seed 000, with analytic Jacobians.
+
+Pure NumPy, no I/O. Sensor frame: x forward at azimuth 0, z up along the spin axis; the
+azimuth theta turns clockwise seen from above (Velodyne convention), so y = -sin(theta).
+
+The per-fibre *factory* terms of the HDL-64E model generalise eq. 4.2 without changing it
+when they are zero:
+
+    a = theta + d_theta + alpha_i            (alpha_i: factory azimuth offset, rad)
+    e = phi_i + d_phi                        (phi_i: factory elevation, rad)
+    r = rho + d_rho + r0_i                   (r0_i: factory range offset, m)
+    h = r cos e - V_i sin e                  (V_i: vertical offset of the laser, m)
+    x =  h cos a + H_i sin a                 (H_i: horizontal offset of the laser, m)
+    y = -h sin a + H_i cos a
+    z =  r sin e + V_i cos e + Hz
+
+With alpha = r0 = V = H = 0 this is exactly eq. 4.2. The estimated offsets are the four of
+eq. 4.2: (d_rho [m], d_theta [rad], d_phi [rad], Hz [m]), in that order everywhere.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+OFFSET_NAMES = ("d_range_m", "d_azimuth_rad", "d_elevation_rad", "h_z_m")
+
+
+@dataclass(frozen=True)
+class FactoryTerms:
+    """Per-return factory model terms (arrays broadcastable to the returns).
+
+    elevation_rad: phi_i; azimuth_offset_rad: alpha_i; range_offset_m: r0_i;
+    vertical_offset_m: V_i; horizontal_offset_m: H_i.
+    """
+
+    elevation_rad: np.ndarray
+    azimuth_offset_rad: np.ndarray | float = 0.0
+    range_offset_m: np.ndarray | float = 0.0
+    vertical_offset_m: np.ndarray | float = 0.0
+    horizontal_offset_m: np.ndarray | float = 0.0
+
+
+def _angles(range_m, azimuth_rad, factory: FactoryTerms, offsets):
+    d_rho, d_theta, d_phi, _ = (offsets[..., k] for k in range(4))
+    a = azimuth_rad + d_theta + factory.azimuth_offset_rad
+    e = factory.elevation_rad + d_phi
+    r = range_m + d_rho + factory.range_offset_m
+    return a, e, r
+
+
+def to_xyz(range_m, azimuth_rad, factory: FactoryTerms, offsets) -> np.ndarray:
+    """Raw (range [m], encoder azimuth [rad]) -> sensor-frame xyz [m], eq. 4.2.
+
+    offsets: (..., 4) per-return (d_rho m, d_theta rad, d_phi rad, Hz m).
+    Returns (..., 3).
+    """
+    xyz, _ = to_xyz_with_jacobian(range_m, azimuth_rad, factory, offsets, jacobian=False)
+    return xyz
+
+
+def to_xyz_with_jacobian(range_m, azimuth_rad, factory: FactoryTerms, offsets, jacobian=True):
+    """Eq. 4.2 and its Jacobian d xyz / d offsets, shape (..., 3, 4) (eq. 4.3 terms p'_2..p'_5)."""
+    offsets = np.asarray(offsets, dtype=np.float64)
+    a, e, r = _angles(range_m, azimuth_rad, factory, offsets)
+    V, H = factory.vertical_offset_m, factory.horizontal_offset_m
+    ca, sa, ce, se = np.cos(a), np.sin(a), np.cos(e), np.sin(e)
+    h = r * ce - V * se
+    xyz = np.stack([h * ca + H * sa, -h * sa + H * ca, r * se + V * ce + offsets[..., 3]], axis=-1)
+    if not jacobian:
+        return xyz, None
+    J = np.zeros(xyz.shape + (4,))
+    # d/d rho (eq. 4.3, p'_2)
+    J[..., 0, 0], J[..., 1, 0], J[..., 2, 0] = ce * ca, -ce * sa, se
+    # d/d theta (eq. 4.3, p'_3)
+    J[..., 0, 1], J[..., 1, 1] = -h * sa + H * ca, -h * ca - H * sa
+    # d/d phi (eq. 4.3, p'_4)
+    dh = -r * se - V * ce
+    J[..., 0, 2], J[..., 1, 2], J[..., 2, 2] = dh * ca, -dh * sa, r * ce - V * se
+    # d/d Hz (eq. 4.3, p'_5)
+    J[..., 2, 3] = 1.0
+    return xyz, J
+
+
+def beam_rays(azimuth_rad, factory: FactoryTerms, offsets) -> tuple[np.ndarray, np.ndarray]:
+    """Origin and unit direction of each beam in the sensor frame: xyz = origin + r * direction.
+
+    r is the corrected range rho + d_rho + r0. Used by the simulator to cast rays.
+    """
+    azimuth_rad = np.asarray(azimuth_rad, dtype=np.float64)
+    offsets = np.broadcast_to(np.asarray(offsets, dtype=np.float64), azimuth_rad.shape + (4,))
+    range_at_origin = -(offsets[..., 0] + factory.range_offset_m)  # raw range giving r = 0
+    origin = to_xyz(range_at_origin, azimuth_rad, factory, offsets)
+    return origin, to_xyz(range_at_origin + 1.0, azimuth_rad, factory, offsets) - origin
+
+
+def from_xyz(xyz, factory: FactoryTerms, offsets) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Inverse of eq. 4.2: sensor-frame xyz of fibre returns -> (range m, encoder azimuth rad).
+
+    Also returns the off-cone distance [m]: how far the point lies from the fibre's cone
+    (0 for a point the model can produce). Azimuth is wrapped to [0, 2 pi).
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    offsets = np.asarray(offsets, dtype=np.float64)
+    x, y, z = xyz[..., 0], xyz[..., 1], xyz[..., 2] - offsets[..., 3]
+    V, H = factory.vertical_offset_m, factory.horizontal_offset_m
+    e = factory.elevation_rad + offsets[..., 2]
+    # x - i y = (h - i H) exp(-i a)... written with psi = atan2(-y, x): a = psi + atan2(H, h)
+    h = np.sqrt(np.maximum(x * x + y * y - np.square(H), 0.0))
+    a = np.arctan2(-y, x) + np.arctan2(H, h)
+    r = h * np.cos(e) + z * np.sin(e)
+    off_cone = z * np.cos(e) - h * np.sin(e) - V
+    range_m = r - offsets[..., 0] - factory.range_offset_m
+    azimuth = np.mod(a - offsets[..., 1] - factory.azimuth_offset_rad, 2 * np.pi)
+    return range_m, azimuth, off_cone

@@ -1,0 +1,11 @@
+"""graphcal: target-free joint self-calibration of mobile-mapping lidar with a GTSAM factor graph."""
+
+from graphcal.errors import ConfigError, GraphcalError, RecordingError
+from graphcal.recording import Recording
+from graphcal.sensor import SensorModel, sensor_from_catalog
+from graphcal.sim.scenario import Scenario
+from graphcal.sim.simulator import simulate
+
+__version__ = "0.1.0"
+__all__ = ["ConfigError", "GraphcalError", "Recording", "RecordingError", "Scenario", "SensorModel",
+           "sensor_from_catalog", "simulate", "__version__"]

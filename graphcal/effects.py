@@ -1,0 +1,185 @@
+"""Registry of physical effects beyond the nominal model of eq. 4.2 + extrinsic + trajectory.
+
+Each effect is a named, documented, switchable component with validated parameters. The
+simulator applies the switched-on effects through the hooks below (identity by default); the
+mismatch finder reasons about the same names (RECORDING.md, diagnosis.json `effect` names).
+
+Hooks, in the order the simulator calls them for every return:
+  pose_time(t_pose, t_fire, t_rev)   time at which the sensor pose is taken [s]
+  beam_azimuth(encoder_rad)          true beam azimuth for an encoder reading [rad]
+  measured_range(range_m, cos_inc)   raw range reported for an ideal raw range [m]
+  recorded_time(t_rec, t_fire, t_rev) time stamped on the return [s]
+and once for the recorded INS trajectory:
+  ins_rpy(elapsed_s, rpy_deg)        attitude written to trajectory.csv [deg]
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from graphcal.errors import ConfigError
+
+REGISTRY: dict[str, type["Effect"]] = {}
+
+
+def register(cls: type["Effect"]) -> type["Effect"]:
+    REGISTRY[cls.name] = cls
+    return cls
+
+
+class Effect(BaseModel):
+    """Base class: one sentence of physics, the unit of its headline magnitude, and hooks."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+    name: ClassVar[str]
+    physics: ClassVar[str]
+    unit: ClassVar[str]
+
+    def magnitude(self) -> float:
+        """Headline magnitude in `unit` (as reported in diagnosis.json)."""
+        raise NotImplementedError
+
+    def pose_time(self, t_pose, t_fire, t_rev):
+        return t_pose
+
+    def beam_azimuth(self, encoder_rad):
+        return encoder_rad
+
+    def measured_range(self, range_m, cos_incidence):
+        return range_m
+
+    def recorded_time(self, t_rec, t_fire, t_rev):
+        return t_rec
+
+    def ins_rpy(self, elapsed_s, rpy_deg):
+        return rpy_deg
+
+
+@register
+class IntraSweepMotion(Effect):
+    """On by default. Without it every revolution is cast from the pose at its start (a frozen
+    sweep). stamp='revolution' stamps each return with its revolution's start time instead
+    of its firing time (the left-out physics a model assuming per-return times misses)."""
+
+    name: ClassVar[str] = "intra_sweep_motion"
+    physics: ClassVar[str] = "the vehicle moves while the head spins, so each return is taken from its own pose"
+    unit: ClassVar[str] = "s"
+    stamp: Literal["firing", "revolution"] = "firing"
+
+    def magnitude(self) -> float:
+        return 0.0 if self.stamp == "firing" else 1.0
+
+    def pose_time(self, t_pose, t_fire, t_rev):
+        return t_fire
+
+    def recorded_time(self, t_rec, t_fire, t_rev):
+        return t_rev if self.stamp == "revolution" else t_rec
+
+
+@register
+class TimeOffset(Effect):
+    """Lidar clock ahead of the INS clock: stamped time = true time + offset_s."""
+
+    name: ClassVar[str] = "time_offset"
+    physics: ClassVar[str] = "the lidar timestamps are offset from the INS clock by a constant latency"
+    unit: ClassVar[str] = "s"
+    offset_s: float
+
+    def magnitude(self) -> float:
+        return self.offset_s
+
+    def recorded_time(self, t_rec, t_fire, t_rev):
+        return t_rec + self.offset_s
+
+
+@register
+class RangeScale(Effect):
+    """Measured range = (1 + scale) x true range (scale = measured/true - 1)."""
+
+    name: ClassVar[str] = "range_scale"
+    physics: ClassVar[str] = "the time-of-flight clock runs fast or slow, scaling every range"
+    unit: ClassVar[str] = "1"
+    scale: float
+
+    def magnitude(self) -> float:
+        return self.scale
+
+    def measured_range(self, range_m, cos_incidence):
+        return range_m * (1.0 + self.scale)
+
+
+@register
+class IncidenceRangeBias(Effect):
+    """Range bias growing with incidence: + bias_m (1 - cos alpha), bias_m at grazing (90 deg)."""
+
+    name: ClassVar[str] = "incidence_range_bias"
+    physics: ClassVar[str] = "the footprint spreads on oblique surfaces and the pulse detector fires late"
+    unit: ClassVar[str] = "m"
+    bias_m: float
+
+    def magnitude(self) -> float:
+        return self.bias_m
+
+    def measured_range(self, range_m, cos_incidence):
+        return range_m + self.bias_m * (1.0 - cos_incidence)
+
+
+@register
+class AzimuthEccentricity(Effect):
+    """Encoder disc off-centre: true azimuth = encoder + amplitude sin(encoder + phase)."""
+
+    name: ClassVar[str] = "azimuth_eccentricity"
+    physics: ClassVar[str] = "the encoder disc is off the spin axis, so the azimuth error is a sinusoid of azimuth"
+    unit: ClassVar[str] = "deg"
+    amplitude_deg: float
+    phase_deg: float = 0.0
+
+    def magnitude(self) -> float:
+        return self.amplitude_deg
+
+    def beam_azimuth(self, encoder_rad):
+        return encoder_rad + np.radians(self.amplitude_deg) * np.sin(encoder_rad + np.radians(self.phase_deg))
+
+
+@register
+class HeadingDrift(Effect):
+    """INS yaw written = true yaw + bias_deg + rate_deg_s x (time since the first pose)."""
+
+    name: ClassVar[str] = "heading_drift"
+    physics: ClassVar[str] = "the INS heading has a bias that drifts with time"
+    unit: ClassVar[str] = "deg/s"
+    rate_deg_s: float = 0.0
+    bias_deg: float = 0.0
+
+    def magnitude(self) -> float:
+        return self.rate_deg_s
+
+    def ins_rpy(self, elapsed_s, rpy_deg):
+        out = np.array(rpy_deg, dtype=np.float64, copy=True)
+        out[:, 2] += self.bias_deg + self.rate_deg_s * elapsed_s
+        return out
+
+
+def build_effects(spec: dict[str, dict] | None) -> list[Effect]:
+    """{'name': {params}} -> validated effects, in registry order (the order hooks compose)."""
+    spec = dict(spec or {})
+    unknown = sorted(set(spec) - set(REGISTRY))
+    if unknown:
+        raise ConfigError(f"unknown effect(s) {unknown}; known: {', '.join(REGISTRY)}")
+    effects = []
+    for name, cls in REGISTRY.items():
+        if name in spec:
+            try:
+                effects.append(cls(**(spec[name] or {})))
+            except ValidationError as error:
+                raise ConfigError(f"effect '{name}': {error.errors()[0]['loc']} {error.errors()[0]['msg']}") from None
+    return effects
+
+
+def describe(effects: list[Effect]) -> dict:
+    """What effects.yaml records: each switched-on effect with its parameters and magnitude."""
+    return {e.name: {**e.model_dump(), "magnitude": float(e.magnitude()), "unit": e.unit, "physics": e.physics}
+            for e in effects}

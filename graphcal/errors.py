@@ -1,0 +1,30 @@
+"""Exceptions that name the file, the field or row, and what was expected."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class GraphcalError(Exception):
+    """Base class of every error graphcal raises on purpose."""
+
+
+class RecordingError(GraphcalError):
+    """Bad input in a recording: says which file, which column/field/row, what was expected."""
+
+    def __init__(self, path: str | Path, problem: str, *, field: str | None = None,
+                 row: int | None = None, expected: str | None = None):
+        self.path, self.field, self.row, self.expected = Path(path), field, row, expected
+        where = str(path)
+        if field is not None:
+            where += f", field '{field}'"
+        if row is not None:
+            where += f", row {row}"
+        message = f"{where}: {problem}"
+        if expected:
+            message += f" (expected {expected})"
+        super().__init__(message)
+
+
+class ConfigError(GraphcalError):
+    """Invalid user configuration (scenario, calibration settings)."""

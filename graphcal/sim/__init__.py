@@ -1,0 +1,1 @@
+"""Raycasting simulator: scenes, drives, scenarios and the simulator itself."""

@@ -1,0 +1,63 @@
+"""Numeric CSV tables with a fixed header (trajectory.csv, odometry.csv, truth CSVs)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+
+from graphcal.atomic import atomic_path
+from graphcal.errors import RecordingError
+
+
+def read_csv_columns(path: Path, headers: Sequence[Sequence[str]],
+                     optional: Sequence[str] = ()) -> tuple[tuple[str, ...], np.ndarray]:
+    """Read a CSV whose header is one of `headers` (plus any of `optional`) into float64.
+
+    Returns (header actually found, values (rows, columns)). Raises RecordingError naming the
+    file, the column and the 1-based data row of the first bad value.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise RecordingError(path, "file not found")
+    try:
+        table = pacsv.read_csv(path)
+    except (pa.ArrowInvalid, OSError) as error:
+        raise RecordingError(path, f"not a readable CSV: {error}") from None
+    names = tuple(table.column_names)
+    header = next((tuple(h) for h in headers if tuple(n for n in names if n not in optional) == tuple(h)), None)
+    if header is None:
+        expected = " or ".join(",".join(h) for h in headers)
+        missing = [c for c in headers[0] if c not in names]
+        problem = f"header is {','.join(names)}" + (f"; missing column '{missing[0]}'" if missing else "")
+        raise RecordingError(path, problem, expected=f"header {expected}"
+                             + (f" (optional: {','.join(optional)})" if optional else ""))
+    found = header + tuple(n for n in optional if n in names)
+    columns = [_float_column(path, name, table.column(name)) for name in found]
+    return found, np.column_stack(columns) if columns else np.empty((0, 0))
+
+
+def _float_column(path: Path, name: str, column: pa.ChunkedArray) -> np.ndarray:
+    if not (pa.types.is_floating(column.type) or pa.types.is_integer(column.type)):
+        for row, value in enumerate(column.to_pylist()):
+            try:
+                float(value)
+            except (TypeError, ValueError):
+                raise RecordingError(path, f"value {value!r}", field=name, row=row + 1,
+                                     expected="a number") from None
+    values = column.to_numpy(zero_copy_only=False).astype(np.float64)
+    bad = np.flatnonzero(~np.isfinite(values))
+    if bad.size:
+        raise RecordingError(path, f"value {values[bad[0]]!r}", field=name, row=int(bad[0]) + 1,
+                             expected="a finite number")
+    return values
+
+
+def write_csv_columns(path: Path, header: Sequence[str], values: np.ndarray,
+                      formats: Sequence[str] | str = "%.9g") -> None:
+    """Write a numeric table atomically with a header line."""
+    with atomic_path(path) as tmp:
+        np.savetxt(tmp, values, delimiter=",", header=",".join(header), comments="", fmt=formats)

@@ -1,0 +1,61 @@
+"""trajectory.csv of RECORDING.md: geodetic or projected GNSS/INS poses, read and written."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from graphcal.errors import RecordingError
+from graphcal.tables import read_csv_columns, write_csv_columns
+
+GEODETIC_COLUMNS = ("time", "lat", "lon", "alt", "roll", "pitch", "yaw")
+PROJECTED_COLUMNS = ("time", "x", "y", "z", "roll", "pitch", "yaw")
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Body -> world poses as recorded.
+
+    geodetic: position is (lat deg, lon deg, ellipsoidal height m) and attitude is relative to
+    local East-North-Up; otherwise position is (x, y, z) m in the recording's CRS and attitude
+    is relative to the grid axes. rpy_deg: roll, pitch, yaw [deg], yaw counter-clockwise from
+    East (or grid x).
+    """
+
+    time: np.ndarray
+    position: np.ndarray
+    rpy_deg: np.ndarray
+    geodetic: bool
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        return GEODETIC_COLUMNS if self.geodetic else PROJECTED_COLUMNS
+
+    def save_csv(self, path: Path) -> None:
+        values = np.column_stack([self.time, self.position, self.rpy_deg])
+        write_csv_columns(path, self.columns, values, formats=["%.9f"] + ["%.10f" if self.geodetic else "%.6f"] * 2
+                          + ["%.6f"] + ["%.8f"] * 3)
+
+    @classmethod
+    def load_csv(cls, path: Path) -> "Trajectory":
+        """Read and validate: one of the two headers, finite numbers, strictly increasing time."""
+        header, values = read_csv_columns(path, (GEODETIC_COLUMNS, PROJECTED_COLUMNS))
+        if len(values) < 2:
+            raise RecordingError(path, f"{len(values)} pose(s)", expected="at least 2 poses to interpolate")
+        time = values[:, 0]
+        bad = np.flatnonzero(np.diff(time) <= 0)
+        if bad.size:
+            row = int(bad[0]) + 2
+            raise RecordingError(path, f"time {time[row - 1]!r} does not increase after {time[row - 2]!r}",
+                                 field="time", row=row, expected="strictly increasing times")
+        geodetic = header == GEODETIC_COLUMNS
+        if geodetic:
+            lat, lon = values[:, 1], values[:, 2]
+            for name, column, limit in (("lat", lat, 90.0), ("lon", lon, 180.0)):
+                out = np.flatnonzero(np.abs(column) > limit)
+                if out.size:
+                    raise RecordingError(path, f"value {column[out[0]]!r}", field=name, row=int(out[0]) + 1,
+                                         expected=f"degrees within +-{limit:g}")
+        return cls(time=time, position=values[:, 1:4], rpy_deg=values[:, 4:7], geodetic=geodetic)
