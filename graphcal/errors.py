@@ -26,5 +26,5 @@ class RecordingError(GraphcalError):
         super().__init__(message)
 
 
-class ConfigError(GraphcalError):
+class ConfigError(GraphcalError, ValueError):
     """Invalid user configuration (scenario, calibration settings)."""

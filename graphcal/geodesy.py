@@ -88,7 +88,7 @@ def grid_to_geodetic(crs: CRS, xyz_m) -> np.ndarray:
 
 def enu_to_grid_rotation(convergence_deg) -> Rotation:
     """Rotation taking ENU-relative attitudes to grid-relative ones: Rz(gamma)."""
-    return Rotation.from_euler("z", np.asarray(convergence_deg, dtype=np.float64), degrees=True)
+    return Rotation.from_euler("z", np.asarray(convergence_deg, dtype=np.float64)[..., None], degrees=True)
 
 
 def to_world(trajectory: Trajectory, crs_spec: str, source: str = "recording.yaml") -> WorldTrajectory:
