@@ -3,12 +3,32 @@
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import time
 from collections.abc import Callable
 from pathlib import Path
 
+from graphcal.errors import ConfigError
 from graphcal.sim.scenario import Scenario
 from graphcal.sim.simulator import simulate
+
+SCENARIOS_DIR = Path(__file__).resolve().parents[2] / "scenarios"
+
+
+def load_scenario_builder(name_or_path: str) -> Callable[..., Scenario]:
+    """The `scenario(size=, seed=)` function of a scenario script, by path or by name in scenarios/."""
+    path = Path(name_or_path)
+    if not path.suffix:
+        path = SCENARIOS_DIR / f"{name_or_path}.py"
+    if not path.is_file():
+        known = ", ".join(sorted(p.stem for p in SCENARIOS_DIR.glob("[!_]*.py")))
+        raise ConfigError(f"{name_or_path}: no such scenario (a script path, or one of: {known})")
+    spec = importlib.util.spec_from_file_location(f"graphcal_scenario_{path.stem}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    if not hasattr(module, "scenario"):
+        raise ConfigError(f"{path}: a scenario script must define scenario(size=..., seed=...)")
+    return module.scenario
 
 
 def run_scenario_script(build: Callable[..., Scenario], argv: list[str] | None = None) -> Path:

@@ -1,0 +1,78 @@
+"""Benchmark: simulate sim6_turn at full size (about 4 M returns), save it, load it back.
+
+Targets (issue 2): simulate <= 30 s and <= 3 GiB peak; load (validate every return and read
+every column) <= 3 s. Each stage runs in its own process so its peak memory is its own.
+Prints the figures and writes benchmarks/results/simulate.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import platform
+import resource
+import tempfile
+import time
+from pathlib import Path
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def _peak_gib() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # kB -> GiB (Linux)
+
+
+def _simulate(out: str, size: float, queue) -> None:
+    from graphcal.sim.script import load_scenario_builder
+    from graphcal.sim.simulator import simulate
+
+    started = time.perf_counter()
+    recording = simulate(load_scenario_builder("sim6_turn")(size=size, seed=0), quiet=True)
+    simulated = time.perf_counter()
+    recording.save(out)
+    queue.put({"returns": len(recording.points), "simulate_s": simulated - started,
+               "save_s": time.perf_counter() - simulated, "simulate_peak_gib": _peak_gib()})
+
+
+def _load(out: str, queue) -> None:
+    from graphcal.recording import Recording
+
+    started = time.perf_counter()
+    recording = Recording.load(out)
+    columns = recording.points.read()
+    queue.put({"load_s": time.perf_counter() - started, "load_peak_gib": _peak_gib(),
+               "loaded_returns": len(columns["time"])})
+
+
+def _run(target, *args) -> dict:
+    queue = mp.get_context("spawn").Queue()
+    process = mp.get_context("spawn").Process(target=target, args=(*args, queue))
+    process.start()
+    result = queue.get()
+    process.join()
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--size", type=float, default=1.0, help="fraction of firings (1 = full size)")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        out = str(Path(tmp) / "sim6_turn")
+        figures = {"benchmark": "simulate_sim6_turn", "size": args.size, "cpus": mp.cpu_count(),
+                   "python": platform.python_version()}
+        figures.update(_run(_simulate, out, args.size))
+        figures.update(_run(_load, out))
+    figures["targets"] = {"simulate_s": 30.0, "simulate_peak_gib": 3.0, "load_s": 3.0}
+    figures["met"] = all(figures[k] <= v for k, v in figures["targets"].items())
+    for key, value in figures.items():
+        print(f"{key:>20}: {value:.3f}" if isinstance(value, float) else f"{key:>20}: {value}")
+    from graphcal.atomic import atomic_path
+
+    with atomic_path(RESULTS / "simulate.json") as tmp:
+        tmp.write_text(json.dumps(figures, indent=2))
+
+
+if __name__ == "__main__":
+    main()
