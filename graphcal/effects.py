@@ -1,6 +1,7 @@
 """Registry of physical effects beyond the nominal model of eq. 4.2 + extrinsic + trajectory.
 
-Each effect is a named, documented, switchable component with validated parameters. The
+Each effect is a named, documented, switchable component with validated parameters
+(intra_sweep_motion is on unless switched off with False). The
 simulator applies the switched-on effects through the hooks below (identity by default); the
 mismatch finder reasons about the same names (RECORDING.md, diagnosis.json `effect` names).
 
@@ -66,10 +67,11 @@ class IntraSweepMotion(Effect):
 
     name: ClassVar[str] = "intra_sweep_motion"
     physics: ClassVar[str] = "the vehicle moves while the head spins, so each return is taken from its own pose"
-    unit: ClassVar[str] = "s"
+    unit: ClassVar[str] = "revolution"
     stamp: Literal["firing", "revolution"] = "firing"
 
     def magnitude(self) -> float:
+        """How far (in revolutions, at most) a stamp precedes its firing: 0 or 1."""
         return 0.0 if self.stamp == "firing" else 1.0
 
     def pose_time(self, t_pose, t_fire, t_rev):
@@ -144,28 +146,54 @@ class AzimuthEccentricity(Effect):
         return encoder_rad + np.radians(self.amplitude_deg) * np.sin(encoder_rad + np.radians(self.phase_deg))
 
 
+def _add_yaw(rpy_deg, yaw_deg):
+    out = np.array(rpy_deg, dtype=np.float64, copy=True)
+    out[:, 2] += yaw_deg
+    return out
+
+
+@register
+class HeadingBias(Effect):
+    """INS yaw written = true yaw + bias_deg."""
+
+    name: ClassVar[str] = "heading_bias"
+    physics: ClassVar[str] = "the INS heading is off by a constant angle"
+    unit: ClassVar[str] = "deg"
+    bias_deg: float
+
+    def magnitude(self) -> float:
+        return self.bias_deg
+
+    def ins_rpy(self, elapsed_s, rpy_deg):
+        return _add_yaw(rpy_deg, self.bias_deg)
+
+
 @register
 class HeadingDrift(Effect):
-    """INS yaw written = true yaw + bias_deg + rate_deg_s x (time since the first pose)."""
+    """INS yaw written = true yaw + rate_deg_s x (time since the first pose)."""
 
     name: ClassVar[str] = "heading_drift"
-    physics: ClassVar[str] = "the INS heading has a bias that drifts with time"
+    physics: ClassVar[str] = "the INS heading error grows linearly with time"
     unit: ClassVar[str] = "deg/s"
-    rate_deg_s: float = 0.0
-    bias_deg: float = 0.0
+    rate_deg_s: float
 
     def magnitude(self) -> float:
         return self.rate_deg_s
 
     def ins_rpy(self, elapsed_s, rpy_deg):
-        out = np.array(rpy_deg, dtype=np.float64, copy=True)
-        out[:, 2] += self.bias_deg + self.rate_deg_s * elapsed_s
-        return out
+        return _add_yaw(rpy_deg, self.rate_deg_s * np.asarray(elapsed_s))
 
 
-def build_effects(spec: dict[str, dict] | None) -> list[Effect]:
-    """{'name': {params}} -> validated effects, in registry order (the order hooks compose)."""
-    spec = dict(spec or {})
+ON_BY_DEFAULT = ("intra_sweep_motion",)
+
+
+def build_effects(spec: dict[str, dict | bool] | None) -> list[Effect]:
+    """{'name': {params}} -> validated effects, in registry order (the order hooks compose).
+
+    Effects of ON_BY_DEFAULT are added unless given as False; {'name': False} switches off.
+    """
+    spec = {**{name: {} for name in ON_BY_DEFAULT}, **(spec or {})}
+    spec = {name: params for name, params in spec.items() if params is not False}
     unknown = sorted(set(spec) - set(REGISTRY))
     if unknown:
         raise ConfigError(f"unknown effect(s) {unknown}; known: {', '.join(REGISTRY)}")
@@ -173,7 +201,10 @@ def build_effects(spec: dict[str, dict] | None) -> list[Effect]:
     for name, cls in REGISTRY.items():
         if name in spec:
             try:
-                effects.append(cls(**(spec[name] or {})))
+                params = spec[name]
+                if params is not True and not isinstance(params, dict):
+                    raise ConfigError(f"effect '{name}': {params!r} is neither parameters nor True/False")
+                effects.append(cls(**(params if isinstance(params, dict) else {})))
             except ValidationError as error:
                 raise ConfigError(f"effect '{name}': {error.errors()[0]['loc']} {error.errors()[0]['msg']}") from None
     return effects

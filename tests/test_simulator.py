@@ -99,7 +99,7 @@ def test_firing_timing_and_encoder_azimuth():
 
 def test_frozen_sweep_without_intra_sweep_motion():
     """Switching the effect off casts every revolution from its start pose."""
-    rec = simulate(small(effects={}), quiet=True)
+    rec = simulate(small(effects={"intra_sweep_motion": False}), quiet=True)
     points = rec.points.read()
     t_rev = points["time"] - (points["azimuth"] / (2 * np.pi * rec.sensor.rotation_hz))
     per_return = np.linalg.norm(georeference_truth(rec) - rec.truth.world_points(), axis=1)
@@ -119,7 +119,7 @@ def test_revolution_stamping_writes_the_revolution_time():
 
 def test_time_offset_shifts_the_stamps():
     offset = 0.02
-    rec = simulate(small(effects={"intra_sweep_motion": {}, "time_offset": {"offset_s": offset}}), quiet=True)
+    rec = simulate(small(effects={"time_offset": {"offset_s": offset}}), quiet=True)
     time = rec.points.read(["time"])["time"]
     shifted = np.linalg.norm(georeference_truth(rec, time=time - offset) - rec.truth.world_points(), axis=1)
     assert shifted.max() < 1e-4
@@ -128,14 +128,14 @@ def test_time_offset_shifts_the_stamps():
 
 def test_range_scale_scales_every_range():
     plain = simulate(small(seed=1), quiet=True).points.read()
-    scaled = simulate(small(seed=1, effects={"intra_sweep_motion": {}, "range_scale": {"scale": 1e-3}}),
+    scaled = simulate(small(seed=1, effects={"range_scale": {"scale": 1e-3}}),
                       quiet=True).points.read()
     np.testing.assert_allclose(scaled["range"], plain["range"] * 1.001, rtol=2e-7)
 
 
 def test_incidence_bias_grows_with_obliquity():
     plain = simulate(small(seed=1), quiet=True).points.read()
-    biased = simulate(small(seed=1, effects={"intra_sweep_motion": {}, "incidence_range_bias": {"bias_m": 0.1}}),
+    biased = simulate(small(seed=1, effects={"incidence_range_bias": {"bias_m": 0.1}}),
                       quiet=True).points.read()
     delta = biased["range"].astype(np.float64) - plain["range"]
     assert delta.min() > -1e-5 and delta.max() < 0.1 and delta.max() > 0.05
@@ -143,7 +143,7 @@ def test_incidence_bias_grows_with_obliquity():
 
 def test_azimuth_eccentricity_bends_the_beam_not_the_encoder():
     spec = {"amplitude_deg": 0.2, "phase_deg": 30.0}
-    rec = simulate(small(effects={"intra_sweep_motion": {}, "azimuth_eccentricity": spec}), quiet=True)
+    rec = simulate(small(effects={"azimuth_eccentricity": spec}), quiet=True)
     azimuth = rec.points.read(["azimuth"])["azimuth"].astype(np.float64)
     bent = azimuth + np.radians(0.2) * np.sin(azimuth + np.radians(30.0))
     assert np.linalg.norm(georeference_truth(rec, azimuth=bent) - rec.truth.world_points(), axis=1).max() < 1e-4
@@ -153,7 +153,7 @@ def test_azimuth_eccentricity_bends_the_beam_not_the_encoder():
 def test_heading_drift_and_ins_errors():
     ins = InsErrors(rate_hz=50.0, piecewise_error_m=0.13, piecewise_interval_s=0.2)
     rec = simulate(small(duration_s=3.0, drive=Drive(segments=straight(50), speed_knots=[(0, SPEED)]), ins=ins,
-                         effects={"intra_sweep_motion": {}, "heading_drift": {"rate_deg_s": 0.01, "bias_deg": 0.05}}),
+                         effects={"heading_drift": {"rate_deg_s": 0.01}, "heading_bias": {"bias_deg": 0.05}}),
                    quiet=True)
     recorded, true = rec.world.poses, to_world(rec.truth.trajectory, rec.crs).poses
     true_at = true.resample(recorded.time)
@@ -235,8 +235,27 @@ def test_scenario_validation_names_the_problem():
         small(sensor_model="HDL-16")
     with pytest.raises(ValidationError, match="size"):
         small(size=0.0)
+    with pytest.raises(ValidationError, match="not projected"):
+        small(crs="EPSG:4326")
+    with pytest.raises(ValidationError, match="unknown CRS"):
+        small(crs="EPSG:99999999")
     with pytest.raises(ConfigError, match="path is only"):
         simulate(small(duration_s=10.0), quiet=True)
+
+
+def test_effects_are_on_or_off_by_name():
+    from graphcal.effects import build_effects
+
+    assert [e.name for e in build_effects({})] == ["intra_sweep_motion"]  # on by default
+    assert [e.name for e in build_effects({"time_offset": {"offset_s": 0.01}})] == ["intra_sweep_motion",
+                                                                                    "time_offset"]
+    assert build_effects({"intra_sweep_motion": False}) == []
+
+
+def test_recorded_trajectory_covers_the_returns_at_any_ins_rate(tmp_path):
+    rec = simulate(small(duration_s=3.4, ins=InsErrors(rate_hz=1.0)), quiet=True)
+    rec.save(tmp_path / "rec")
+    assert graphcal.Recording.load(tmp_path / "rec").trajectory.time[-1] == pytest.approx(1003.4)
 
 
 def test_every_registered_effect_is_documented():

@@ -16,7 +16,7 @@ from graphcal.trajectory import Trajectory
 
 def true_poses(drive: Drive, start_time_s: float, duration_s: float, rate_hz: float) -> PoseTrack:
     """T_local_body sampled at rate_hz over [start, start + duration] (local frame, m, deg)."""
-    elapsed = np.arange(0.0, duration_s + 0.5 / rate_hz, 1.0 / rate_hz)
+    elapsed = np.unique(np.r_[np.arange(0.0, duration_s, 1.0 / rate_hz), duration_s])
     xyz, yaw = drive.pose_at_distance(drive.distance(elapsed))
     rpy = np.column_stack([np.zeros_like(yaw), np.zeros_like(yaw), yaw])
     return PoseTrack.from_rpy(start_time_s + elapsed, xyz, rpy)
@@ -27,7 +27,7 @@ def recorded_poses(truth: PoseTrack, errors: InsErrors, effects: list[Effect],
     """What the GNSS/INS writes: truth resampled at errors.rate_hz, plus a piecewise-linear
     position error, white noise and the switched-on INS effects (e.g. heading drift)."""
     t0, t1 = truth.span
-    time = np.arange(t0, t1 + 1e-9, 1.0 / errors.rate_hz)
+    time = np.unique(np.r_[np.arange(t0, t1, 1.0 / errors.rate_hz), t1])  # always ends at t1
     ins = truth.resample(time)
     position = ins.position_m.copy()
     if errors.piecewise_error_m > 0:

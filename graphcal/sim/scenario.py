@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
+from pyproj import CRS
+from pyproj.exceptions import CRSError
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from graphcal.effects import build_effects
@@ -79,7 +81,8 @@ class Scenario(BaseModel):
     min_range_m: float = Field(1.0, ge=0)
     max_range_m: float = Field(100.0, gt=0)
     ins: InsErrors = InsErrors()
-    effects: dict[str, dict] = Field(default_factory=lambda: {"intra_sweep_motion": {}})
+    effects: dict[str, dict | bool] = Field(default_factory=dict,
+                                            description="{name: params}; intra_sweep_motion is on unless False")
     crs: str = "EPSG:32631"
     origin_m: tuple[float, float, float] = Field((448000.0, 5411000.0, 50.0),
                                                  description="grid coordinates of the local origin")
@@ -91,6 +94,17 @@ class Scenario(BaseModel):
     def _known_sensor(cls, value: str) -> str:
         if value not in CATALOG:
             raise ValueError(f"unknown sensor {value!r}; known: {', '.join(CATALOG)}")
+        return value
+
+    @field_validator("crs")
+    @classmethod
+    def _projected_crs(cls, value: str) -> str:
+        try:
+            crs = CRS.from_user_input(value)
+        except CRSError:
+            raise ValueError(f"unknown CRS {value!r}; give a projected CRS such as EPSG:32631") from None
+        if not crs.is_projected:
+            raise ValueError(f"CRS {value!r} is not projected; give one such as EPSG:32631")
         return value
 
     @field_validator("effects")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import inspect
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -33,7 +34,7 @@ def load_scenario_builder(name_or_path: str) -> Callable[..., Scenario]:
 
 def run_scenario_script(build: Callable[..., Scenario], argv: list[str] | None = None) -> Path:
     """Parse --out/--size/--seed/--quiet, simulate build(size=, seed=) and write the recording."""
-    name = build.__module__.rsplit(".", 1)[-1]
+    name = Path(inspect.getfile(build)).stem
     parser = argparse.ArgumentParser(description=(build.__doc__ or name).strip().splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("out") / name, help="recording directory to write")
     parser.add_argument("--size", type=float, default=1.0, help="fraction of the sensor's firings kept (0-1]")
