@@ -47,7 +47,13 @@ def resolve_crs(spec: str, trajectory: Trajectory, source: str = "recording.yaml
         if not trajectory.geodetic:
             raise RecordingError(source, "crs is 'auto' but trajectory.csv is projected (x, y, z)",
                                  field="crs", expected="the projected CRS of the x, y columns, e.g. EPSG:32631")
-        return utm_crs(lat_deg=trajectory.position[0, 0], lon_deg=trajectory.position[0, 1])
+        lat, lon = trajectory.position[0, :2]
+        try:
+            return utm_crs(lat_deg=lat, lon_deg=lon)
+        except ValueError:
+            raise RecordingError(source, f"crs is 'auto' but the first fix (lat {lat:g}, lon {lon:g}) is outside "
+                                 "the UTM zones (80 S .. 84 N)", field="crs",
+                                 expected="an explicit projected CRS, e.g. a polar stereographic one") from None
     try:
         crs = CRS.from_user_input(spec)
     except CRSError:
@@ -56,13 +62,20 @@ def resolve_crs(spec: str, trajectory: Trajectory, source: str = "recording.yaml
     if not crs.is_projected:
         raise RecordingError(source, f"CRS {spec!r} is not projected", field="crs",
                              expected="a projected CRS (metres), e.g. a UTM zone")
+    units = {axis.unit_name for axis in crs.axis_info[:2]}
+    if any(axis.unit_conversion_factor != 1.0 for axis in crs.axis_info[:2]):
+        raise RecordingError(source, f"CRS {spec!r} has its grid in {', '.join(sorted(units))}", field="crs",
+                             expected="a projected CRS in metres (the lidar measures metres)")
     return crs
 
 
 def utm_crs(lat_deg: float, lon_deg: float) -> CRS:
-    """The WGS84 UTM zone that contains (lat, lon)."""
+    """The WGS84 UTM zone that contains (lat, lon); ValueError outside 80 S .. 84 N."""
+    lat_deg, lon_deg = float(lat_deg), float(lon_deg)
     info = query_utm_crs_info(datum_name="WGS 84", area_of_interest=AreaOfInterest(
         west_lon_degree=lon_deg, south_lat_degree=lat_deg, east_lon_degree=lon_deg, north_lat_degree=lat_deg))
+    if not info:
+        raise ValueError(f"lat {lat_deg:g}, lon {lon_deg:g} is in no UTM zone (80 S .. 84 N)")
     return CRS.from_epsg(int(info[0].code))
 
 

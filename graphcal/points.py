@@ -30,6 +30,19 @@ def _kind_ok(arrow_type: pa.DataType, kinds: Sequence[str]) -> bool:
                 "int": pa.types.is_integer}[k](arrow_type) for k in kinds)
 
 
+def _type_name(arrow_type: pa.DataType) -> str:
+    """The contract's spelling of a type (float64, int16, ...), Arrow's for non-numeric ones."""
+    if pa.types.is_floating(arrow_type) or pa.types.is_integer(arrow_type):
+        return np.dtype(arrow_type.to_pandas_dtype()).name
+    return str(arrow_type)
+
+
+def _expected_type(written: pa.DataType, kinds: Sequence[str]) -> str:
+    accepted = {"float64": None, "float": "floating-point", "int": "integer"}
+    extra = [accepted[k] for k in kinds if accepted[k]]
+    return _type_name(written) + (f" (any {' or '.join(extra)} type is read)" if extra else "")
+
+
 @dataclass(frozen=True)
 class PointSummary:
     """What validation learnt in one pass: row count, time span [s], returns per fibre."""
@@ -78,8 +91,10 @@ class PointTable:
         table = self._file.read(columns=columns)
         return {name: table.column(name).to_numpy() for name in columns}
 
-    def iter_batches(self, columns: Sequence[str], batch_rows: int = BATCH_ROWS) -> Iterator[dict[str, np.ndarray]]:
-        """Row batches of the given columns, so that no more than batch_rows rows are in memory."""
+    def iter_batches(self, columns: Sequence[str], batch_rows: int | None = None) -> Iterator[dict[str, np.ndarray]]:
+        """Row batches of the given columns, so that no more than batch_rows rows are in memory
+        (BATCH_ROWS, read at call time, when not given)."""
+        batch_rows = BATCH_ROWS if batch_rows is None else batch_rows
         if self._file is None:
             for start in range(0, len(self), batch_rows):
                 yield {name: self._arrays[name][start:start + batch_rows] for name in columns}
@@ -120,19 +135,21 @@ class PointTable:
         for name, (written, kinds, required) in SCHEMA.items():
             if name not in types:
                 if required:
-                    raise RecordingError(source, "missing column", field=name, expected=f"a {written} column")
+                    raise RecordingError(source, "missing column", field=name,
+                                         expected=f"a column of type {_expected_type(written, kinds)}")
                 continue
             if not _kind_ok(types[name], kinds):
-                raise RecordingError(source, f"column type is {types[name]}", field=name, expected=str(written))
+                raise RecordingError(source, f"column type is {_type_name(types[name])}", field=name,
+                                     expected=_expected_type(written, kinds))
 
 
 def _check_batch(batch, start, previous_time, n_fibres, source) -> None:
     def fail(name, mask, problem, expected):
         index = int(np.flatnonzero(mask)[0])
-        raise RecordingError(source, f"{problem} {batch[name][index]!r} at row index {start + index}",
+        raise RecordingError(source, f"{problem} {batch[name][index].item()!r} at row index {start + index}",
                              field=name, expected=expected)
 
-    for name in ("time", "range", "azimuth", "intensity"):
+    for name in batch:  # every column: Parquet nulls read as NaN, in integer columns too
         finite = np.isfinite(batch[name])
         if not finite.all():
             fail(name, ~finite, "value", "finite numbers")
@@ -146,10 +163,12 @@ def _check_batch(batch, start, previous_time, n_fibres, source) -> None:
         fail("azimuth", np.abs(azimuth) > 2 * np.pi + 1e-4, "azimuth", "radians within +-2 pi (degrees given?)")
     time = batch["time"]
     if len(time) and time[0] < previous_time:
-        raise RecordingError(source, f"time {time[0]!r} at row index {start} is before {previous_time!r}",
+        raise RecordingError(source, f"time {float(time[0])!r} at row index {start} is before "
+                                     f"{float(previous_time)!r}",
                              field="time", expected="rows sorted by time")
     decreasing = np.diff(time) < 0
     if decreasing.any():
         index = int(np.flatnonzero(decreasing)[0]) + 1
-        raise RecordingError(source, f"time {time[index]!r} at row index {start + index} is before {time[index - 1]!r}",
+        raise RecordingError(source, f"time {float(time[index])!r} at row index {start + index} is before "
+                                     f"{float(time[index - 1])!r}",
                              field="time", expected="rows sorted by time")

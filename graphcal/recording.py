@@ -28,7 +28,10 @@ def read_yaml(path: Path):
     try:
         return yaml.safe_load(path.read_text())
     except yaml.YAMLError as error:
-        raise RecordingError(path, f"not valid YAML: {error}") from None
+        mark = getattr(error, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(error, "problem", None) or str(error).splitlines()[0]
+        raise RecordingError(path, f"not valid YAML{where}: {problem}") from None
 
 
 @dataclass

@@ -96,9 +96,13 @@ class SensorModel:
         """Parse sensor.yaml content, raising RecordingError naming the faulty field."""
         if not isinstance(data, dict):
             raise RecordingError(path, "not a mapping", expected="model, rotation_hz, reference_fibre, fibres")
-        for key in ("model", "rotation_hz", "reference_fibre", "fibres"):
+        expected = {"model": "the sensor model name", "rotation_hz": "a rate in Hz",
+                    "reference_fibre": "a fibre id", "fibres": "a list of {id, elevation_deg}"}
+        for key, what in expected.items():
             if key not in data:
-                raise RecordingError(path, "missing field", field=key)
+                raise RecordingError(path, "missing field", field=key, expected=what)
+        if not isinstance(data["model"], str) or not data["model"]:
+            raise RecordingError(path, f"model is {data['model']!r}", field="model", expected="the sensor model name")
         rotation_hz = _number(data["rotation_hz"], path, "rotation_hz")
         if not rotation_hz > 0:
             raise RecordingError(path, f"rotation_hz is {rotation_hz}", field="rotation_hz",
@@ -112,12 +116,13 @@ class SensorModel:
                 raise RecordingError(path, f"fibre row {row!r}", field="fibres", row=row_index,
                                      expected=f"id {row_index} (one row per laser, id = index)")
             if "elevation_deg" not in row:
-                raise RecordingError(path, "missing elevation_deg", field="fibres", row=row_index)
+                raise RecordingError(path, "missing elevation_deg", field="fibres", row=row_index,
+                                     expected="the fibre's elevation in degrees")
             for name in columns:
                 if name in row:
                     columns[name][row_index] = _number(row[name], path, f"fibres[{row_index}].{name}")
         reference = data["reference_fibre"]
-        if not isinstance(reference, int) or not 0 <= reference < len(fibres):
+        if isinstance(reference, bool) or not isinstance(reference, int) or not 0 <= reference < len(fibres):
             raise RecordingError(path, f"reference_fibre is {reference!r}", field="reference_fibre",
                                  expected=f"a fibre id in 0..{len(fibres) - 1}")
         timing = CATALOG[data["model"]].timing if data["model"] in CATALOG else None

@@ -24,15 +24,20 @@ def read_csv_columns(path: Path, headers: Sequence[Sequence[str]],
     if not path.is_file():
         raise RecordingError(path, "file not found")
     try:
-        table = pacsv.read_csv(path)
+        # only an empty cell is missing: 'nan', 'NULL', 'N/A' ... are values, rejected by name below
+        table = pacsv.read_csv(path, convert_options=pacsv.ConvertOptions(null_values=[""]))
     except (pa.ArrowInvalid, OSError) as error:
         raise RecordingError(path, f"not a readable CSV: {error}") from None
     names = tuple(table.column_names)
     header = next((tuple(h) for h in headers if tuple(n for n in names if n not in optional) == tuple(h)), None)
     if header is None:
         expected = " or ".join(",".join(h) for h in headers)
-        missing = [c for c in headers[0] if c not in names]
-        problem = f"header is {','.join(names)}" + (f"; missing column '{missing[0]}'" if missing else "")
+        # name what differs from the closest of the accepted headers
+        closest = min(headers, key=lambda h: sum(c not in names for c in h))
+        missing = [c for c in closest if c not in names]
+        unexpected = [n for n in names if n not in closest and n not in optional]
+        problem = (f"header is {','.join(names)}" + (f"; missing column '{missing[0]}'" if missing else "")
+                   + (f"; unexpected column '{unexpected[0]}'" if unexpected and not missing else ""))
         raise RecordingError(path, problem, expected=f"header {expected}"
                              + (f" (optional: {','.join(optional)})" if optional else ""))
     found = header + tuple(n for n in optional if n in names)
@@ -41,6 +46,9 @@ def read_csv_columns(path: Path, headers: Sequence[Sequence[str]],
 
 
 def _float_column(path: Path, name: str, column: pa.ChunkedArray) -> np.ndarray:
+    if column.null_count:
+        row = int(np.flatnonzero(column.is_null().to_numpy(zero_copy_only=False))[0])
+        raise RecordingError(path, "empty value", field=name, row=row + 1, expected="a number")
     if not (pa.types.is_floating(column.type) or pa.types.is_integer(column.type)):
         for row, value in enumerate(column.to_pylist()):
             try:
@@ -51,7 +59,7 @@ def _float_column(path: Path, name: str, column: pa.ChunkedArray) -> np.ndarray:
     values = column.to_numpy(zero_copy_only=False).astype(np.float64)
     bad = np.flatnonzero(~np.isfinite(values))
     if bad.size:
-        raise RecordingError(path, f"value {values[bad[0]]!r}", field=name, row=int(bad[0]) + 1,
+        raise RecordingError(path, f"value {float(values[bad[0]])!r}", field=name, row=int(bad[0]) + 1,
                              expected="a finite number")
     return values
 

@@ -48,7 +48,8 @@ class Trajectory:
         bad = np.flatnonzero(np.diff(time) <= 0)
         if bad.size:
             row = int(bad[0]) + 2
-            raise RecordingError(path, f"time {time[row - 1]!r} does not increase after {time[row - 2]!r}",
+            raise RecordingError(path, f"time {float(time[row - 1])!r} does not increase after "
+                                       f"{float(time[row - 2])!r}",
                                  field="time", row=row, expected="strictly increasing times")
         geodetic = header == GEODETIC_COLUMNS
         if geodetic:
@@ -56,6 +57,6 @@ class Trajectory:
             for name, column, limit in (("lat", lat, 90.0), ("lon", lon, 180.0)):
                 out = np.flatnonzero(np.abs(column) > limit)
                 if out.size:
-                    raise RecordingError(path, f"value {column[out[0]]!r}", field=name, row=int(out[0]) + 1,
+                    raise RecordingError(path, f"value {float(column[out[0]])!r}", field=name, row=int(out[0]) + 1,
                                          expected=f"degrees within +-{limit:g}")
         return cls(time=time, position=values[:, 1:4], rpy_deg=values[:, 4:7], geodetic=geodetic)

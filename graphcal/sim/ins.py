@@ -14,9 +14,16 @@ from graphcal.sim.scenario import InsErrors
 from graphcal.trajectory import Trajectory
 
 
+def sample_times(start_s: float, end_s: float, rate_hz: float) -> np.ndarray:
+    """start, start + 1/rate, ... and end itself; no two times closer than half a period."""
+    n = int(np.floor((end_s - start_s) * rate_hz + 0.5))
+    times = start_s + np.arange(n) / rate_hz
+    return np.r_[times[times < end_s - 0.5 / rate_hz], end_s]
+
+
 def true_poses(drive: Drive, start_time_s: float, duration_s: float, rate_hz: float) -> PoseTrack:
     """T_local_body sampled at rate_hz over [start, start + duration] (local frame, m, deg)."""
-    elapsed = np.unique(np.r_[np.arange(0.0, duration_s, 1.0 / rate_hz), duration_s])
+    elapsed = sample_times(0.0, duration_s, rate_hz)
     xyz, yaw = drive.pose_at_distance(drive.distance(elapsed))
     rpy = np.column_stack([np.zeros_like(yaw), np.zeros_like(yaw), yaw])
     return PoseTrack.from_rpy(start_time_s + elapsed, xyz, rpy)
@@ -27,7 +34,7 @@ def recorded_poses(truth: PoseTrack, errors: InsErrors, effects: list[Effect],
     """What the GNSS/INS writes: truth resampled at errors.rate_hz, plus a piecewise-linear
     position error, white noise and the switched-on INS effects (e.g. heading drift)."""
     t0, t1 = truth.span
-    time = np.unique(np.r_[np.arange(t0, t1, 1.0 / errors.rate_hz), t1])  # always ends at t1
+    time = sample_times(t0, t1, errors.rate_hz)
     ins = truth.resample(time)
     position = ins.position_m.copy()
     if errors.piecewise_error_m > 0:
