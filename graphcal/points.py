@@ -158,6 +158,9 @@ def _check_batch(batch, start, previous_time, n_fibres, source) -> None:
         fail("fibre", (fibre < 0) | (fibre >= n_fibres), "fibre id", f"an id of sensor.yaml, 0..{n_fibres - 1}")
     if (batch["range"] < 0).any():
         fail("range", batch["range"] < 0, "negative range", "ranges >= 0 m")
+    intensity = batch["intensity"]
+    if len(intensity) and (intensity.min() < 0 or intensity.max() > 255):
+        fail("intensity", (intensity < 0) | (intensity > 255), "intensity", "reflectivity within 0-255")
     azimuth = batch["azimuth"]
     if (np.abs(azimuth) > 2 * np.pi + 1e-4).any():
         fail("azimuth", np.abs(azimuth) > 2 * np.pi + 1e-4, "azimuth", "radians within +-2 pi (degrees given?)")

@@ -35,13 +35,18 @@ class PoseTrack:
         return float(self.time[0]), float(self.time[-1])
 
     def interpolate(self, t) -> tuple[np.ndarray, Rotation]:
-        """Pose at times t (M,) [s] inside the span: (position (M,3) m, Rotation (M))."""
-        t = np.asarray(t, dtype=np.float64)
+        """Pose at times t (M,) [s] inside the span: (position (M,3) m, Rotation (M)).
+
+        Raises ValueError for a time outside the span (no extrapolation)."""
+        t = np.atleast_1d(np.asarray(t, dtype=np.float64))
+        if t.size and (t.min() < self.time[0] or t.max() > self.time[-1]):
+            raise ValueError(f"times [{t.min():.6f}, {t.max():.6f}] s outside the poses' span "
+                             f"[{self.time[0]:.6f}, {self.time[-1]:.6f}] s")
         index = np.clip(np.searchsorted(self.time, t, side="right") - 1, 0, len(self.time) - 2)
         t0, t1 = self.time[index], self.time[index + 1]
         alpha = ((t - t0) / (t1 - t0))[:, None]
         position = (1.0 - alpha) * self.position_m[index] + alpha * self.position_m[index + 1]
-        return position, Slerp(self.time, self.rotation)(np.clip(t, self.time[0], self.time[-1]))
+        return position, Slerp(self.time, self.rotation)(t)
 
     def transform(self, t, p_body) -> np.ndarray:
         """Body-frame points (M,3) observed at times t (M,) -> world frame (M,3) [m]."""

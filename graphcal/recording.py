@@ -6,9 +6,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 
-import yaml
-
-from graphcal.atomic import atomic_directory, write_yaml
+from graphcal.atomic import atomic_directory
 from graphcal.errors import RecordingError
 from graphcal.extrinsic import Extrinsic
 from graphcal.geodesy import WorldTrajectory, resolve_crs, to_world
@@ -17,21 +15,9 @@ from graphcal.points import PointSummary, PointTable
 from graphcal.sensor import SensorModel
 from graphcal.trajectory import Trajectory
 from graphcal.truth import Truth
+from graphcal.yamlfile import read_yaml, write_yaml
 
 FORMAT = "graphcal-recording/1"
-
-
-def read_yaml(path: Path):
-    """Parse a YAML file, or raise RecordingError naming it."""
-    if not path.is_file():
-        raise RecordingError(path, "file not found")
-    try:
-        return yaml.safe_load(path.read_text())
-    except yaml.YAMLError as error:
-        mark = getattr(error, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        problem = getattr(error, "problem", None) or str(error).splitlines()[0]
-        raise RecordingError(path, f"not valid YAML{where}: {problem}") from None
 
 
 @dataclass

@@ -25,7 +25,7 @@ class FiringTiming:
     laser_spacing_s: float
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class SensorModel:
     """Nominal multi-beam model. Angles in degrees, lengths in metres, fibre id = row index.
 

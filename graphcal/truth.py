@@ -8,13 +8,12 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
-import yaml
 
-from graphcal.atomic import atomic_path, write_yaml
-from graphcal.errors import RecordingError
+from graphcal.atomic import atomic_path
 from graphcal.extrinsic import Extrinsic
 from graphcal.intrinsics import load_offsets_csv, save_offsets_csv
 from graphcal.trajectory import Trajectory
+from graphcal.yamlfile import read_yaml, write_yaml
 
 WORLD_POINTS = "points.parquet"
 
@@ -54,13 +53,7 @@ class Truth:
 
     @classmethod
     def load(cls, directory: Path, n_fibres: int) -> "Truth":
-        def yaml_file(name):
-            path = directory / name
-            if not path.is_file():
-                raise RecordingError(path, "file not found")
-            return yaml.safe_load(path.read_text())
-
         return cls(intrinsics=load_offsets_csv(directory / "intrinsics.csv", n_fibres),
-                   extrinsic=Extrinsic.from_dict(yaml_file("extrinsic.yaml"), directory / "extrinsic.yaml"),
+                   extrinsic=Extrinsic.from_dict(read_yaml(directory / "extrinsic.yaml"), directory / "extrinsic.yaml"),
                    trajectory=Trajectory.load_csv(directory / "trajectory.csv"),
-                   effects=yaml_file("effects.yaml") or {}, _directory=directory)
+                   effects=read_yaml(directory / "effects.yaml") or {}, _directory=directory)

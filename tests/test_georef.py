@@ -10,7 +10,14 @@ from scipy.spatial.transform import Rotation
 
 import graphcal
 from graphcal import Recording, RecordingError
-from graphcal.geodesy import geodetic_to_grid, grid_to_geodetic, map_factors, resolve_crs, to_world, utm_crs
+from graphcal.geodesy import (
+    geodetic_to_grid,
+    grid_to_geodetic,
+    map_factors,
+    resolve_crs,
+    to_world,
+    utm_crs,
+)
 from graphcal.poses import PoseTrack
 from graphcal.sim.drive import Drive, straight, turn
 from graphcal.sim.scenario import Scenario
@@ -362,3 +369,12 @@ def test_transform_and_resample(track):
     resampled = track.resample(t)
     np.testing.assert_array_equal(resampled.time, t)
     assert angle_deg(resampled.rotation, true_rotation(t - 500.0)).max() < 1e-9
+
+
+def test_interpolate_refuses_times_outside_the_span(track):
+    start, end = track.span
+    with pytest.raises(ValueError, match="outside the poses' span"):
+        track.interpolate(np.array([start, end + 0.01]))
+    position, rotation = track.interpolate(start)  # a scalar time is one pose
+    np.testing.assert_allclose(position, track.position_m[:1])
+    assert len(rotation) == 1

@@ -269,8 +269,9 @@ def test_optional_scan_column_may_be_absent_and_other_int_float_widths_are_accep
     ("range", 999, -1.5, ["negative range -1.5 at row index 999", "expected ranges >= 0 m"]),
     ("fibre", 321, 40, ["fibre id 40 at row index 321", "0..31"]),
     ("fibre", 322, -1, ["fibre id -1 at row index 322", "0..31"]),
+    ("intensity", 55, 300.0, ["intensity 300.0 at row index 55", "reflectivity within 0-255"]),
 ], ids=["range-nan", "intensity-inf", "azimuth-minus-inf", "time-nan", "negative-range", "fibre-40",
-        "fibre-negative"])
+        "fibre-negative", "intensity-above-255"])
 def test_bad_point_value(rec_dir, column, row, value, fragments):
     rewrite_points(rec_dir, lambda table: set_value(table, column, row, value))
     error = load_error(rec_dir, "points.parquet", f"field '{column}'", *fragments)

@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 import yaml
 
-from factors.spherical import FactoryTerms, beam_rays, from_xyz, to_xyz, to_xyz_with_jacobian
+from factors.spherical import (
+    FactoryTerms,
+    beam_rays,
+    from_xyz,
+    to_xyz,
+    to_xyz_with_jacobian,
+)
 from graphcal.sensor import CATALOG, SensorModel, sensor_from_catalog
 
 SHARED_CALIBRATION = Path(__file__).resolve().parents[2] / "shared/data/real/nebula_velodyne_rosbag2/calibration"

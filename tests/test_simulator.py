@@ -6,11 +6,25 @@ from pydantic import ValidationError
 
 import graphcal
 from graphcal.errors import ConfigError
-from graphcal.georeference import georeference
 from graphcal.geodesy import to_world
+from graphcal.georeference import georeference
 from graphcal.sim.drive import Drive, loop, straight, turn
-from graphcal.sim.scenario import ExtrinsicSpec, InsErrors, IntrinsicErrors, Scenario, draw_offsets
-from graphcal.sim.scene import Box, Facade, Ground, ParkedCar, Pole, RaycastScene, street
+from graphcal.sim.scenario import (
+    ExtrinsicSpec,
+    InsErrors,
+    IntrinsicErrors,
+    Scenario,
+    draw_offsets,
+)
+from graphcal.sim.scene import (
+    Box,
+    Facade,
+    Ground,
+    ParkedCar,
+    Pole,
+    RaycastScene,
+    street,
+)
 from graphcal.sim.simulator import simulate
 
 SPEED = 10.0

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from pyproj import CRS
 from pyproj.exceptions import CRSError
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from graphcal.effects import build_effects
 from graphcal.sensor import CATALOG
