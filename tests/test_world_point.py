@@ -1,0 +1,109 @@
+"""Jacobians of the world point of a return against finite differences through GTSAM's retract."""
+
+import gtsam
+import numpy as np
+import pytest
+
+from factors import so3
+from factors.world_point import Corrections, Returns, world_points
+from graphcal.sensor import sensor_from_catalog
+
+N = 300
+
+
+def _rotation(rng, scale):
+    return so3.exp(rng.normal(0, scale, (1, 3)))[0]
+
+
+@pytest.fixture()
+def problem():
+    rng = np.random.default_rng(7)
+    sensor = sensor_from_catalog("HDL-64E")  # factory terms non-zero: the general form
+    fibre = rng.integers(0, sensor.n_fibres, N)
+    returns = Returns(range_m=rng.uniform(2, 60, N), azimuth_rad=rng.uniform(0, 2 * np.pi, N),
+                      factory=sensor.factory_terms(fibre),
+                      R_nav=so3.exp(rng.normal(0, 0.5, (N, 3))), X_nav=rng.normal(0, 50, (N, 3)),
+                      alpha=rng.uniform(0, 1, N))
+    offsets = np.column_stack([rng.normal(0, 0.05, N), rng.normal(0, 0.02, N), rng.normal(0, 0.02, N),
+                               rng.normal(0, 0.05, N)])
+    E = gtsam.Pose3(gtsam.Rot3(_rotation(rng, 1.0)), rng.normal(0, 1, 3))
+    controls = [gtsam.Pose3(gtsam.Rot3(_rotation(rng, 0.01)), rng.normal(0, 0.1, 3)) for _ in range(2)]
+    return returns, offsets, E, controls
+
+
+def _corrections(controls, pose, n=N):
+    lo, hi = controls
+    tile = lambda a: np.broadcast_to(a, (n,) + np.shape(a)).copy()  # noqa: E731
+    return Corrections(tile(lo.translation()), tile(hi.translation()),
+                       tile(lo.rotation().matrix()) if pose else None,
+                       tile(hi.rotation().matrix()) if pose else None)
+
+
+def _evaluate(returns, offsets, E, controls, pose):
+    p, J = world_points(returns, offsets, E.rotation().matrix(), E.translation(), _corrections(controls, pose))
+    return p, J
+
+
+def _numeric(f, x0_dim, step):
+    columns = []
+    for k in range(x0_dim):
+        d = np.zeros(x0_dim)
+        d[k] = step
+        columns.append((f(d) - f(-d)) / (2 * step))
+    return np.stack(columns, axis=2)
+
+
+@pytest.mark.parametrize("pose", [False, True], ids=["translation", "pose"])
+def test_jacobians_match_finite_differences(problem, pose):
+    returns, offsets, E, controls = problem
+    _, J = _evaluate(returns, offsets, E, controls, pose)
+
+    numeric = _numeric(lambda d: _evaluate(returns, offsets + d, E, controls, pose)[0], 4, 1e-6)
+    np.testing.assert_allclose(J.intrinsic, numeric, atol=1e-6)
+
+    numeric = _numeric(lambda d: _evaluate(returns, offsets, E.retract(d), controls, pose)[0], 6, 1e-6)
+    np.testing.assert_allclose(J.extrinsic, numeric, atol=1e-6)
+
+    for index, analytic in ((0, J.control_lo), (1, J.control_hi)):
+        def moved(d, index=index):
+            changed = list(controls)
+            if pose:
+                changed[index] = controls[index].retract(d)
+            else:  # a Point3 key: additive; rotations stay unused
+                changed[index] = gtsam.Pose3(controls[index].rotation(), controls[index].translation() + d)
+            return _evaluate(returns, offsets, E, changed, pose)[0]
+        numeric = _numeric(moved, 6 if pose else 3, 1e-6)
+        np.testing.assert_allclose(analytic, numeric, atol=1e-6)
+
+
+def test_translation_corrections_interpolate_linearly(problem):
+    """eq. 5.4: the correction at a return is (1 - alpha) dX_lo + alpha dX_hi."""
+    returns, offsets, E, controls = problem
+    zero = [gtsam.Pose3(), gtsam.Pose3()]
+    base, _ = _evaluate(returns, offsets, E, zero, pose=False)
+    moved, _ = _evaluate(returns, offsets, E, controls, pose=False)
+    a = returns.alpha[:, None]
+    expected = (1 - a) * controls[0].translation() + a * controls[1].translation()
+    np.testing.assert_allclose(moved - base, expected, atol=1e-12)
+
+
+def test_pose_correction_turns_about_the_vehicle(problem):
+    """A pure yaw correction at both controls rotates each point about its own X_nav."""
+    returns, offsets, E, _ = problem
+    yaw = gtsam.Pose3(gtsam.Rot3.Yaw(0.01), np.zeros(3))
+    base, _ = _evaluate(returns, offsets, E, [gtsam.Pose3(), gtsam.Pose3()], pose=True)
+    turned, _ = _evaluate(returns, offsets, E, [yaw, yaw], pose=True)
+    expected = (base - returns.X_nav) @ gtsam.Rot3.Yaw(0.01).matrix().T + returns.X_nav
+    np.testing.assert_allclose(turned, expected, atol=1e-9)
+
+
+def test_right_jacobians_are_inverse_and_match_the_exponential():
+    rng = np.random.default_rng(1)
+    w = np.vstack([rng.normal(0, 0.6, (20, 3)), rng.normal(0, 1e-8, (3, 3))])  # |w| < pi: Log is unique
+    np.testing.assert_allclose(so3.right_jacobian(w) @ so3.right_jacobian_inverse(w),
+                               np.broadcast_to(np.eye(3), (len(w), 3, 3)), atol=1e-9)
+    d = 1e-7 * rng.normal(0, 1, (len(w), 3))
+    lhs = so3.exp(w + d)
+    rhs = so3.exp(w) @ so3.exp(np.einsum("nij,nj->ni", so3.right_jacobian(w), d))
+    np.testing.assert_allclose(lhs, rhs, atol=1e-13)
+    np.testing.assert_allclose(so3.log(so3.exp(w[:20])), w[:20], atol=1e-12)
