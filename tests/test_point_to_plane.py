@@ -1,0 +1,124 @@
+"""Block point-to-plane factor: Jacobians vs finite differences, exact compression, robust rows."""
+
+import gtsam
+import numpy as np
+import pytest
+
+from factors import so3
+from factors.point_to_plane import Block, BlockKeys, compress, make_factor, residuals
+from factors.world_point import Returns
+from graphcal.sensor import sensor_from_catalog
+
+X = gtsam.symbol_shorthand.X
+I = gtsam.symbol_shorthand.I  # noqa: E741
+E = gtsam.symbol_shorthand.E
+N = 400
+
+
+def _returns(rng, sensor, fibre):
+    fibres = np.full(N, fibre)
+    return Returns(range_m=rng.uniform(3, 40, N), azimuth_rad=rng.uniform(0, 2 * np.pi, N),
+                   factory=sensor.factory_terms(fibres), R_nav=so3.exp(rng.normal(0, 0.3, (N, 3))),
+                   X_nav=rng.normal(0, 20, (N, 3)), alpha=rng.uniform(0, 1, N))
+
+
+def _problem(pose: bool, shared_control: bool = True):
+    rng = np.random.default_rng(11)
+    sensor = sensor_from_catalog("HDL-32E")
+    normal = rng.normal(0, 1, (N, 3))
+    # p in interval (0, 1), m in (1, 2): key X(1) is both p_hi and m_lo
+    keys = BlockKeys(intrinsic_p=I(3), intrinsic_m=I(5), extrinsic=E(0), p_lo=X(0), p_hi=X(1),
+                     m_lo=X(1) if shared_control else X(2), m_hi=X(2) if shared_control else X(3))
+    block = Block(p=_returns(rng, sensor, 3), m=_returns(rng, sensor, 5),
+                  normal=normal / np.linalg.norm(normal, axis=1, keepdims=True),
+                  weight=rng.uniform(0.2, 1.0, N), keys=keys, pose_corrections=pose)
+    values = gtsam.Values()
+    values.insert(I(3), rng.normal(0, 0.02, 4))
+    values.insert(I(5), rng.normal(0, 0.02, 4))
+    values.insert(E(0), gtsam.Pose3(gtsam.Rot3(so3.exp(rng.normal(0, 1, (1, 3)))[0]), rng.normal(0, 1, 3)))
+    for c in range(4):
+        if pose:
+            values.insert(X(c), gtsam.Pose3(gtsam.Rot3(so3.exp(rng.normal(0, 0.01, (1, 3)))[0]),
+                                            rng.normal(0, 0.1, 3)))
+        else:
+            values.insert(X(c), rng.normal(0, 0.1, 3))
+    return block, values
+
+
+def _perturbed(values, key, delta):
+    step = gtsam.VectorValues()
+    step.insert(key, delta)
+    return values.retract(step)
+
+
+@pytest.mark.parametrize("pose", [False, True], ids=["translation", "pose"])
+@pytest.mark.parametrize("shared", [True, False], ids=["shared-control", "distinct-controls"])
+def test_block_jacobians_match_finite_differences(pose, shared):
+    block, values = _problem(pose, shared)
+    _, J = residuals(block, values)
+    assert set(J) == set(block.keys.unique())
+    for key, analytic in J.items():
+        dim = analytic.shape[1]
+        numeric = np.zeros_like(analytic)
+        for k in range(dim):
+            d = np.zeros(dim)
+            d[k] = 1e-6
+            plus, _ = residuals(block, _perturbed(values, key, d), jacobians=False)
+            minus, _ = residuals(block, _perturbed(values, key, -d), jacobians=False)
+            numeric[:, k] = (plus - minus) / 2e-6
+        np.testing.assert_allclose(analytic, numeric, atol=1e-4 * max(1.0, np.abs(numeric).max()))
+
+
+@pytest.mark.parametrize("pose", [False, True], ids=["translation", "pose"])
+def test_stacked_factor_linearises_to_the_analytic_jacobians(pose):
+    block, values = _problem(pose)
+    factor = make_factor(block, compressed=False)
+    r, J = residuals(block, values)
+    assert factor.error(values) == pytest.approx(0.5 * r @ r, rel=1e-12)
+    A, b = factor.linearize(values).jacobian()
+    np.testing.assert_allclose(A, np.hstack([J[k] for k in block.keys.unique()]), atol=1e-12)
+    np.testing.assert_allclose(b, -r, atol=1e-12)
+
+
+@pytest.mark.parametrize("pose", [False, True], ids=["translation", "pose"])
+def test_compressed_factor_keeps_cost_gradient_and_hessian(pose):
+    block, values = _problem(pose)
+    stacked, small = make_factor(block, compressed=False), make_factor(block, compressed=True)
+    assert small.dim() == sum(J.shape[1] for J in residuals(block, values)[1].values()) + 1 < stacked.dim()
+    assert small.error(values) == pytest.approx(stacked.error(values), rel=1e-10)
+    A, b = stacked.linearize(values).jacobian()
+    A_small, b_small = small.linearize(values).jacobian()
+    np.testing.assert_allclose(A_small.T @ A_small, A.T @ A, rtol=1e-9, atol=1e-9 * np.abs(A.T @ A).max())
+    np.testing.assert_allclose(A_small.T @ b_small, A.T @ b, rtol=1e-9, atol=1e-9 * np.abs(A.T @ b).max())
+    assert b_small @ b_small == pytest.approx(b @ b, rel=1e-10)
+
+
+def test_compress_is_exact_for_rank_deficient_blocks():
+    rng = np.random.default_rng(0)
+    A = np.hstack([rng.normal(size=(50, 2)), np.zeros((50, 1))])
+    r = rng.normal(size=50)
+    z, R = compress(r, A)
+    assert z @ z == pytest.approx(r @ r)
+    np.testing.assert_allclose(R.T @ R, A.T @ A, atol=1e-12)
+
+
+def test_robust_loss_weights_each_row():
+    block, values = _problem(pose=False)
+    k = 1.0
+    huber = gtsam.noiseModel.mEstimator.Huber.Create(k, gtsam.noiseModel.mEstimator.Base.ReweightScheme.Scalar)
+    factor = make_factor(block, compressed=False, robust=huber)
+    r, _ = residuals(block, values, jacobians=False)
+    per_row = np.where(np.abs(r) <= k, 0.5 * r**2, k * np.abs(r) - 0.5 * k**2)
+    assert factor.error(values) == pytest.approx(per_row.sum(), rel=1e-9)
+    with pytest.raises(ValueError, match="stacked"):
+        make_factor(block, compressed=True, robust=huber)
+
+
+def test_reference_fibre_and_fixed_slots_have_no_key():
+    block, values = _problem(pose=False)
+    fixed = Block(p=block.p, m=block.m, normal=block.normal, weight=block.weight,
+                  keys=BlockKeys(intrinsic_m=I(5)), pose_corrections=False)
+    factor = make_factor(fixed)
+    assert list(factor.keys()) == [I(5)]
+    A, _ = factor.linearize(values).jacobian()
+    assert A.shape[1] == 4
