@@ -1,0 +1,96 @@
+"""Data association of eq. 4.4: for each fibre i, the nearest return of each neighbouring fibre
+j in [i-N, i+N] (elevation order), with the normal and dimensionality features at p.
+
+Plain NumPy arrays in and out, so that it can run tile by tile on workers while the factor
+graph stays on the driver. Points are world coordinates minus a local origin [m].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import open3d as o3d
+from scipy.spatial import cKDTree
+
+
+@dataclass(frozen=True)
+class Features:
+    """Per-point local shape from the k nearest neighbours: unit normal (N,3) and the
+    dimensionality features of the sqrt-eigenvalues s1 >= s2 >= s3 of the covariance:
+    linearity (s1-s2)/s1, planarity (s2-s3)/s1, scattering s3/s1 (each in [0, 1])."""
+
+    normal: np.ndarray
+    linearity: np.ndarray
+    planarity: np.ndarray
+    scattering: np.ndarray
+
+
+@dataclass(frozen=True)
+class Correspondences:
+    """Pairs (p, m) as row indices into the cloud, with the normal at p and a weight in [0, 1]."""
+
+    index_p: np.ndarray
+    index_m: np.ndarray
+    normal: np.ndarray
+    weight: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.index_p)
+
+
+def local_features(points_m: np.ndarray, radius_m: float = 0.5, max_nn: int = 20) -> Features:
+    """Normals and dimensionality features from neighbourhoods of radius_m (at most max_nn points).
+    Points with fewer than 3 neighbours get planarity 0 (weight 0)."""
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points_m, dtype=np.float64)))
+    cloud.estimate_covariances(o3d.geometry.KDTreeSearchParamHybrid(radius=radius_m, max_nn=max_nn))
+    eigenvalues, eigenvectors = np.linalg.eigh(np.asarray(cloud.covariances))  # ascending
+    s = np.sqrt(np.clip(eigenvalues, 0.0, None))[:, ::-1]  # s1 >= s2 >= s3
+    s1 = np.where(s[:, 0] > 0, s[:, 0], 1.0)
+    valid = s[:, 1] > 0
+    return Features(normal=eigenvectors[:, :, 0],
+                    linearity=np.where(valid, (s[:, 0] - s[:, 1]) / s1, 0.0),
+                    planarity=np.where(valid, (s[:, 1] - s[:, 2]) / s1, 0.0),
+                    scattering=np.where(valid, s[:, 2] / s1, 0.0))
+
+
+def neighbour_fibres(elevation_deg: np.ndarray, n_steps: int) -> dict[int, list[int]]:
+    """For each fibre, the fibres within n_steps of it in elevation order (itself excluded)."""
+    order = np.argsort(elevation_deg, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return {int(i): [int(order[r]) for r in range(max(rank[i] - n_steps, 0), min(rank[i] + n_steps + 1, len(order)))
+                     if order[r] != i] for i in range(len(order))}
+
+
+def associate(points_m: np.ndarray, fibre: np.ndarray, features: Features, neighbours: dict[int, list[int]],
+              gate_m: float, min_planarity: float = 0.3, max_pairs_per_fibre_pair: int | None = None,
+              rng: np.random.Generator | None = None) -> Correspondences:
+    """Nearest return m of fibre j for every return p of fibre i (j a neighbour of i), kept when
+    |p - m| < gate_m and p is planar enough; weight = planarity at p (eq. 4.4 w_ijk).
+
+    max_pairs_per_fibre_pair subsamples each (i, j) pair's correspondences at random (rng)."""
+    by_fibre = {int(f): np.flatnonzero(fibre == f) for f in np.unique(fibre)}
+    trees = {f: cKDTree(points_m[rows]) for f, rows in by_fibre.items() if len(rows)}
+    parts = []
+    for i, rows_i in by_fibre.items():
+        rows_i = rows_i[features.planarity[rows_i] >= min_planarity]
+        if not len(rows_i):
+            continue
+        for j in neighbours.get(i, []):
+            if j not in trees:
+                continue
+            distance, nearest = trees[j].query(points_m[rows_i], k=1, distance_upper_bound=gate_m, workers=-1)
+            found = np.isfinite(distance)
+            p, m = rows_i[found], by_fibre[j][nearest[found]]
+            if max_pairs_per_fibre_pair is not None and len(p) > max_pairs_per_fibre_pair:
+                keep = np.sort((rng or np.random.default_rng(0)).choice(len(p), max_pairs_per_fibre_pair,
+                                                                         replace=False))
+                p, m = p[keep], m[keep]
+            parts.append((p, m))
+    if not parts:
+        empty = np.zeros(0, dtype=np.int64)
+        return Correspondences(empty, empty, np.zeros((0, 3)), np.zeros(0))
+    index_p = np.concatenate([p for p, _ in parts])
+    index_m = np.concatenate([m for _, m in parts])
+    return Correspondences(index_p, index_m, features.normal[index_p], features.planarity[index_p])
