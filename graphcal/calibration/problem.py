@@ -1,0 +1,95 @@
+"""Fixed per-return data of a calibration and the current estimate: world points at an estimate.
+
+World frame minus a local origin [m] (float precision); control times ~control_interval_s
+apart span the returns (seed 001: about 1 s); each return sits between controls c and c+1
+with weight alpha (eq. 5.4).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import gtsam
+import numpy as np
+
+from factors.world_point import Corrections, Returns, world_points
+from graphcal.recording import Recording
+from graphcal.sensor import SensorModel
+
+
+@dataclass(frozen=True)
+class ReturnData:
+    """Per-return arrays (N) of the returns used, and the control times [s]."""
+
+    sensor: SensorModel
+    fibre: np.ndarray
+    range_m: np.ndarray
+    azimuth_rad: np.ndarray
+    time_s: np.ndarray
+    R_nav: np.ndarray
+    X_nav: np.ndarray
+    control: np.ndarray
+    alpha: np.ndarray
+    control_times_s: np.ndarray
+    origin_m: np.ndarray
+
+    def returns(self, rows: np.ndarray) -> Returns:
+        """The factor-side view of some rows."""
+        return Returns(self.range_m[rows], self.azimuth_rad[rows], self.sensor.factory_terms(self.fibre[rows]),
+                       self.R_nav[rows], self.X_nav[rows], self.alpha[rows])
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """Current calibration: offsets (n_fibres, 4) in (m, rad, rad, m), T_body_lidar, and the
+    trajectory corrections at each control time (Pose3; identity rotation when translation-only)."""
+
+    offsets: np.ndarray
+    extrinsic: gtsam.Pose3
+    corrections: tuple
+
+    def with_(self, **changes) -> "Estimate":
+        return replace(self, **changes)
+
+
+def prepare(recording: Recording, control_interval_s: float, max_points: int | None = None,
+            rng: np.random.Generator | None = None) -> ReturnData:
+    """Read the returns (a random subset of max_points if given) and the INS pose at each one's time."""
+    columns = recording.points.read(["time", "fibre", "range", "azimuth"])
+    rows = np.arange(len(columns["time"]))
+    if max_points is not None and len(rows) > max_points:
+        rows = np.sort((rng or np.random.default_rng(0)).choice(len(rows), max_points, replace=False))
+    time = columns["time"][rows]
+    position, rotation = recording.world.poses.interpolate(time)
+    origin = np.round(position.mean(axis=0))
+    n_controls = max(2, int(np.ceil((time[-1] - time[0]) / control_interval_s)) + 1)
+    control_times = np.linspace(time[0], time[-1], n_controls)
+    control = np.clip(np.searchsorted(control_times, time, side="right") - 1, 0, n_controls - 2)
+    alpha = (time - control_times[control]) / (control_times[control + 1] - control_times[control])
+    return ReturnData(recording.sensor, columns["fibre"][rows].astype(np.int64),
+                      columns["range"][rows].astype(np.float64), columns["azimuth"][rows].astype(np.float64),
+                      time, rotation.as_matrix(), position - origin, control, alpha, control_times, origin)
+
+
+def initial_estimate(recording: Recording, data: ReturnData) -> Estimate:
+    """Zero offsets, the nominal extrinsic of extrinsic.yaml, no trajectory correction."""
+    E = gtsam.Pose3(gtsam.Rot3(recording.extrinsic.R_body_lidar), np.asarray(recording.extrinsic.lever_arm_m))
+    return Estimate(np.zeros((recording.sensor.n_fibres, 4)), E, tuple(gtsam.Pose3() for _ in data.control_times_s))
+
+
+def corrections_at(estimate: Estimate, control: np.ndarray, pose: bool) -> Corrections:
+    """Per-return corrections at the controls before/after each return."""
+    translation = np.array([c.translation() for c in estimate.corrections])
+    if not pose:
+        return Corrections(translation[control], translation[control + 1])
+    rotation = np.array([c.rotation().matrix() for c in estimate.corrections])
+    return Corrections(translation[control], translation[control + 1], rotation[control], rotation[control + 1])
+
+
+def world_at(data: ReturnData, estimate: Estimate, pose: bool, rows: np.ndarray | None = None) -> np.ndarray:
+    """World points minus the local origin [m] of the given rows (all if None) at an estimate."""
+    rows = np.arange(len(data.time_s)) if rows is None else rows
+    R_E, t_E = estimate.extrinsic.rotation().matrix(), estimate.extrinsic.translation()
+    p, _ = world_points(data.returns(rows), estimate.offsets[data.fibre[rows]], R_E, t_E,
+                        corrections_at(estimate, data.control[rows], pose), jacobians=False)
+    return p
