@@ -10,6 +10,7 @@ Hooks, in the order the simulator calls them for every return:
   beam_azimuth(encoder_rad)          true beam azimuth for an encoder reading [rad]
   measured_range(range_m, cos_inc)   raw range reported for an ideal raw range [m]
   recorded_time(t_rec, t_fire, t_rev) time stamped on the return [s]
+  max_stamp_shift_s()                the most it moves a stamp off the firing time [s]
 and once for the recorded INS trajectory:
   ins_rpy(elapsed_s, rpy_deg)        attitude written to trajectory.csv [deg]
 """
@@ -55,6 +56,11 @@ class Effect(BaseModel):
     def recorded_time(self, t_rec, t_fire, t_rev):
         return t_rec
 
+    def max_stamp_shift_s(self) -> float:
+        """Largest |recorded - firing| time this effect adds [s] (the recording keeps clear of
+        the trajectory's ends by this much)."""
+        return 0.0
+
     def ins_rpy(self, elapsed_s, rpy_deg):
         return rpy_deg
 
@@ -95,6 +101,9 @@ class TimeOffset(Effect):
 
     def recorded_time(self, t_rec, t_fire, t_rev):
         return t_rec + self.offset_s
+
+    def max_stamp_shift_s(self) -> float:
+        return abs(self.offset_s)
 
 
 @register

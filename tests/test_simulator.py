@@ -140,6 +140,13 @@ def test_time_offset_shifts_the_stamps():
     assert rec.truth.effects["time_offset"]["magnitude"] == offset
 
 
+def test_switched_off_effect_changes_nothing():
+    plain = simulate(small(seed=2), quiet=True).points.read()
+    off = simulate(small(seed=2, effects={"time_offset": False, "range_scale": False}), quiet=True).points.read()
+    for name in plain:
+        np.testing.assert_array_equal(plain[name], off[name])
+
+
 def test_range_scale_scales_every_range():
     plain = simulate(small(seed=1), quiet=True).points.read()
     scaled = simulate(small(seed=1, effects={"range_scale": {"scale": 1e-3}}),

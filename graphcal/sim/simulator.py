@@ -69,22 +69,20 @@ def simulate(scenario: Scenario, quiet: bool = False) -> Recording:
                      points=PointTable.from_arrays(**columns), _truth=truth)
 
 
-def firing_times(scenario: Scenario, sensor: SensorModel) -> tuple[np.ndarray, float]:
-    """Start time of every kept firing cycle [s] (every 1/size-th cycle) and the lidar start."""
+def firing_times(scenario: Scenario, sensor: SensorModel, effects: list[Effect]) -> tuple[np.ndarray, float]:
+    """Start time of every kept firing cycle [s] (every 1/size-th cycle) and the lidar start.
+    The lidar keeps clear of the trajectory's ends so that every stamped time is inside it."""
     timing = sensor.timing
     stride = max(int(round(1.0 / scenario.size)), 1)
-    lidar_start = scenario.start_time_s + _EDGE_S + _max_time_shift(scenario)
-    lidar_end = scenario.start_time_s + scenario.duration_s - _EDGE_S - _max_time_shift(scenario)
+    margin = _EDGE_S + sum(effect.max_stamp_shift_s() for effect in effects)
+    lidar_start = scenario.start_time_s + margin
+    lidar_end = scenario.start_time_s + scenario.duration_s - margin
     n_cycles = int((lidar_end - lidar_start) / timing.cycle_s)
     return lidar_start + np.arange(0, n_cycles, stride) * timing.cycle_s, lidar_start
 
 
-def _max_time_shift(scenario: Scenario) -> float:
-    return abs(float(scenario.effects.get("time_offset", {}).get("offset_s", 0.0)))
-
-
 def _cast_all(scenario, rig: _Rig, scene: RaycastScene, rng, quiet):
-    cycles, lidar_start = firing_times(scenario, rig.sensor)
+    cycles, lidar_start = firing_times(scenario, rig.sensor, rig.effects)
     chunk_s = 0.01 if scene.moving else 0.25
     edges = np.searchsorted(cycles, np.arange(cycles[0], cycles[-1] + chunk_s, chunk_s))
     chunks = [slice(a, b) for a, b in zip(edges, np.r_[edges[1:], len(cycles)]) if b > a]
