@@ -44,14 +44,18 @@ class BlockKeys:
     m_lo: int | None = None
     m_hi: int | None = None
 
-    def unique(self) -> list[int]:
-        """Distinct estimated keys, in slot order (the CustomFactor's key list)."""
-        out = []
+    def first_slots(self) -> dict[int, str]:
+        """Each distinct estimated key with the first slot holding it, in slot order."""
+        out: dict[int, str] = {}
         for slot in SLOTS:
             key = getattr(self, slot)
             if key is not None and key not in out:
-                out.append(key)
+                out[key] = slot
         return out
+
+    def unique(self) -> list[int]:
+        """Distinct estimated keys, in slot order (the CustomFactor's key list)."""
+        return list(self.first_slots())
 
 
 @dataclass(frozen=True)
@@ -133,13 +137,8 @@ def compress(r: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def key_widths(block: Block) -> dict[int, int]:
     """Tangent dimension of each distinct key: Vector4 intrinsics 4, Pose3 6, Point3 3."""
-    keys = block.keys
-    width = {}
-    for slot in SLOTS:
-        key = getattr(keys, slot)
-        if key is not None and key not in width:
-            width[key] = 4 if slot.startswith("intrinsic") else 6 if (slot == "extrinsic" or block.pose_corrections) else 3
-    return width
+    return {key: 4 if slot.startswith("intrinsic") else 6 if (slot == "extrinsic" or block.pose_corrections) else 3
+            for key, slot in block.keys.first_slots().items()}
 
 
 def _error(block: Block, compressed: bool, this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:

@@ -39,13 +39,12 @@ class Correspondences:
 
 
 def local_features(points_m: np.ndarray, radius_m: float = 0.5, max_nn: int = 20,
-                   query_index: np.ndarray | None = None, tree: cKDTree | None = None) -> Features:
+                   query_index: np.ndarray | None = None) -> Features:
     """Normals and dimensionality features at points[query_index] (all points if None), from
     their max_nn nearest neighbours within radius_m. Fewer than 3 neighbours: planarity 0."""
     points_m = np.asarray(points_m, dtype=np.float64)
-    tree = tree or cKDTree(points_m)
     queries = points_m if query_index is None else points_m[query_index]
-    distance, nearest = tree.query(queries, k=max_nn, distance_upper_bound=radius_m, workers=-1)
+    distance, nearest = cKDTree(points_m).query(queries, k=max_nn, distance_upper_bound=radius_m, workers=-1)
     found = np.isfinite(distance)
     count = found.sum(axis=1)
     neighbourhood = points_m[np.where(found, nearest, 0)]  # (M, k, 3), padded rows masked below

@@ -7,7 +7,7 @@ with weight alpha (eq. 5.4).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
@@ -47,9 +47,6 @@ class Estimate:
     offsets: np.ndarray
     extrinsic: gtsam.Pose3
     corrections: tuple
-
-    def with_(self, **changes) -> "Estimate":
-        return replace(self, **changes)
 
 
 def prepare(recording: Recording, control_interval_s: float, max_points: int | None = None,

@@ -42,11 +42,10 @@ class History:
         self.rows.append(row)
 
 
-def energy_cm2(data: ReturnData, estimate: Estimate, pairs: Correspondences, pose: bool) -> tuple[float, float]:
-    """(J [cm^2], weight sum) of eq. 4.4 at an estimate, for fixed correspondences and normals."""
-    p = world_at(data, estimate, pose, pairs.index_p)
-    m = world_at(data, estimate, pose, pairs.index_m)
-    d = np.einsum("ni,ni->n", pairs.normal, p - m)
+def energy_cm2(p_m: np.ndarray, m_m: np.ndarray, pairs: Correspondences) -> tuple[float, float]:
+    """(J [cm^2], weight sum) of eq. 4.4 for the paired world points p, m (K,3) [m], with the
+    correspondences' fixed normals and weights."""
+    d = np.einsum("ni,ni->n", pairs.normal, p_m - m_m)
     weight_sum = float(pairs.weight.sum())
     return float((pairs.weight * d * d).sum() / weight_sum * 1e4), weight_sum
 
@@ -157,14 +156,15 @@ def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
             features = local_features(points, config.feature_radius_m, config.feature_neighbours, candidates)
         pairs = associate(points, data.fibre, features, neighbours, gate, config.min_planarity,
                           config.max_pairs_per_fibre_pair, rng, candidates)
-        before, weight_sum = energy_cm2(data, estimate, pairs, pose)
+        before, weight_sum = energy_cm2(points[pairs.index_p], points[pairs.index_m], pairs)
         graph, values = build_graph(data, estimate, pairs, config, estimates, nominal_extrinsic)
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(config.lm_iterations)
         solved = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
         updated = read_back(solved, estimate, estimates, data, pose)
         step = step_size(estimate, updated)
-        after, _ = energy_cm2(data, updated, pairs, pose)
+        after, _ = energy_cm2(world_at(data, updated, pose, pairs.index_p),
+                              world_at(data, updated, pose, pairs.index_m), pairs)
         history.add(mode=mode, iteration=len(history.rows), energy_cm2=before, energy_after_cm2=after,
                     weight_sum=weight_sum, pairs=len(pairs), gate_m=gate, max_step=step,
                     refreshed=iteration % config.refresh_every == 0)
