@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import open3d as o3d
 from scipy.spatial import cKDTree
 
 
@@ -38,24 +39,16 @@ class Correspondences:
         return len(self.index_p)
 
 
-def local_features(points_m: np.ndarray, radius_m: float = 0.5, max_nn: int = 20,
-                   query_index: np.ndarray | None = None) -> Features:
-    """Normals and dimensionality features at points[query_index] (all points if None), from
-    their max_nn nearest neighbours within radius_m. Fewer than 3 neighbours: planarity 0."""
-    points_m = np.asarray(points_m, dtype=np.float64)
-    queries = points_m if query_index is None else points_m[query_index]
-    distance, nearest = cKDTree(points_m).query(queries, k=max_nn, distance_upper_bound=radius_m, workers=-1)
-    found = np.isfinite(distance)
-    count = found.sum(axis=1)
-    neighbourhood = points_m[np.where(found, nearest, 0)]  # (M, k, 3), padded rows masked below
-    mask = found[:, :, None]
-    mean = (neighbourhood * mask).sum(axis=1) / np.maximum(count, 1)[:, None]
-    centred = (neighbourhood - mean[:, None, :]) * mask
-    covariance = np.einsum("mki,mkj->mij", centred, centred) / np.maximum(count, 1)[:, None, None]
-    eigenvalues, eigenvectors = np.linalg.eigh(covariance)  # ascending
+def local_features(points_m: np.ndarray, radius_m: float = 0.5, max_nn: int = 20) -> Features:
+    """Normals and dimensionality features at every point, from the covariance of its max_nn
+    nearest neighbours within radius_m (open3d, multi-threaded). Degenerate neighbourhoods
+    (fewer than 3 points, or a line) get planarity 0."""
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points_m, dtype=np.float64)))
+    cloud.estimate_covariances(o3d.geometry.KDTreeSearchParamHybrid(radius=radius_m, max_nn=max_nn))
+    eigenvalues, eigenvectors = np.linalg.eigh(np.asarray(cloud.covariances))  # ascending
     s = np.sqrt(np.clip(eigenvalues, 0.0, None))[:, ::-1]  # s1 >= s2 >= s3
     s1 = np.where(s[:, 0] > 0, s[:, 0], 1.0)
-    valid = (count >= 3) & (s[:, 1] > 0)
+    valid = s[:, 1] > 0
     return Features(normal=eigenvectors[:, :, 0],
                     linearity=np.where(valid, (s[:, 0] - s[:, 1]) / s1, 0.0),
                     planarity=np.where(valid, (s[:, 1] - s[:, 2]) / s1, 0.0),
@@ -72,12 +65,16 @@ def neighbour_fibres(elevation_deg: np.ndarray, n_steps: int) -> dict[int, list[
 
 
 def associate(points_m: np.ndarray, fibre: np.ndarray, features: Features, neighbours: dict[int, list[int]],
-              gate_m: float, min_planarity: float = 0.3, max_pairs_per_fibre_pair: int | None = None,
-              rng: np.random.Generator | None = None, candidates: np.ndarray | None = None) -> Correspondences:
-    """Nearest return m of fibre j for every candidate return p of fibre i (j a neighbour of i),
-    kept when |p - m| < gate_m and p is planar enough; weight = planarity at p (eq. 4.4 w_ijk).
+              gate_m: float, min_planarity: float = 0.3, min_normal_cos: float = 0.0,
+              max_plane_distance_m: float = np.inf, max_pairs_per_fibre_pair: int | None = None, rng: np.random.Generator | None = None,
+              candidates: np.ndarray | None = None) -> Correspondences:
+    """Nearest return m of fibre j for every candidate return p of fibre i (j a neighbour of i).
 
-    candidates: the rows of the cloud that `features` describe, in order (all rows if None).
+    A pair is kept when |p - m| < gate_m, both p and m are planar enough (planarity >=
+    min_planarity) and lie on the same surface (|n_p . n_m| >= min_normal_cos, and m within
+    max_plane_distance_m of the plane at p): pairs across an edge, or between two parallel faces
+    (a car's cabin side above its body side), would pull the offsets even at the true calibration. Weight = planarity at p (eq. 4.4
+    w_ijk). features describe every point; candidates are the rows that may be p (all if None).
     max_pairs_per_fibre_pair subsamples each (i, j) pair's correspondences at random (rng)."""
     candidates = np.arange(len(points_m)) if candidates is None else np.asarray(candidates)
     rng = rng or np.random.default_rng(0)
@@ -86,23 +83,26 @@ def associate(points_m: np.ndarray, fibre: np.ndarray, features: Features, neigh
     planar = features.planarity >= min_planarity
     parts = []
     for i in by_fibre:
-        slots = np.flatnonzero((fibre[candidates] == i) & planar)  # positions in candidates
-        if not len(slots):
+        p_rows = candidates[(fibre[candidates] == i) & planar[candidates]]
+        if not len(p_rows):
             continue
         for j in neighbours.get(i, []):
             if j not in trees:
                 continue
-            distance, nearest = trees[j].query(points_m[candidates[slots]], k=1, distance_upper_bound=gate_m,
-                                               workers=-1)
+            distance, nearest = trees[j].query(points_m[p_rows], k=1, distance_upper_bound=gate_m, workers=-1)
             found = np.isfinite(distance)
-            slot, m = slots[found], by_fibre[j][nearest[found]]
-            if max_pairs_per_fibre_pair is not None and len(slot) > max_pairs_per_fibre_pair:
-                keep = np.sort(rng.choice(len(slot), max_pairs_per_fibre_pair, replace=False))
-                slot, m = slot[keep], m[keep]
-            parts.append((slot, m))
+            p, m = p_rows[found], by_fibre[j][nearest[found]]
+            normal = features.normal[p]
+            same_surface = (planar[m] & (np.abs(np.einsum("ni,ni->n", normal, features.normal[m])) >= min_normal_cos)
+                            & (np.abs(np.einsum("ni,ni->n", normal, points_m[p] - points_m[m])) <= max_plane_distance_m))
+            p, m = p[same_surface], m[same_surface]
+            if max_pairs_per_fibre_pair is not None and len(p) > max_pairs_per_fibre_pair:
+                keep = np.sort(rng.choice(len(p), max_pairs_per_fibre_pair, replace=False))
+                p, m = p[keep], m[keep]
+            parts.append((p, m))
     if not parts:
         empty = np.zeros(0, dtype=np.int64)
         return Correspondences(empty, empty, np.zeros((0, 3)), np.zeros(0))
-    slot = np.concatenate([s for s, _ in parts])
+    index_p = np.concatenate([p for p, _ in parts])
     index_m = np.concatenate([m for _, m in parts])
-    return Correspondences(candidates[slot], index_m, features.normal[slot], features.planarity[slot])
+    return Correspondences(index_p, index_m, features.normal[index_p], features.planarity[index_p])

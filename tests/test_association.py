@@ -58,6 +58,41 @@ def test_associate_pairs_points_of_neighbouring_fibres_on_a_plane():
     assert len(capped) == 100
 
 
+def test_pairs_across_an_edge_are_refused():
+    """Ground meets a wall: a ground point's nearest neighbour on the other fibre may lie on the
+    wall, a pair that would pull the offsets even at the true calibration."""
+    rng = np.random.default_rng(3)
+    n = 3000
+    ground = np.column_stack([rng.uniform(0, 4, n), rng.uniform(0, 4, n), np.zeros(n)])
+    wall = np.column_stack([np.full(n, 4.0), rng.uniform(0, 4, n), rng.uniform(0, 4, n)])
+    points = np.vstack([ground, wall])
+    fibre = rng.integers(0, 2, 2 * n)
+    features = local_features(points, radius_m=0.5)
+    pairs = {(planarity, angle): associate(points, fibre, features, {0: [1], 1: [0]}, gate_m=0.5,
+                                           min_planarity=planarity, min_normal_cos=np.cos(np.radians(angle)))
+             for planarity, angle in ((0.0, 90.0), (0.0, 20.0), (0.5, 20.0))}
+    crossing = {key: np.sum((p.index_p < n) != (p.index_m < n)) for key, p in pairs.items()}
+    assert crossing[0.0, 90.0] > 20 and crossing[0.0, 20.0] < crossing[0.0, 90.0] / 2 and crossing[0.5, 20.0] == 0
+    strict = pairs[0.5, 20.0]
+    distance = np.abs(np.einsum("ni,ni->n", strict.normal, points[strict.index_p] - points[strict.index_m]))
+    assert len(strict) > 0.9 * 2 * n * 0.9 and distance.max() < 0.02  # the true geometry: nothing to pull
+
+
+def test_pairs_between_parallel_faces_are_refused():
+    """A cabin side 0.1 m inside the body side: both planar, same normal, but not one surface."""
+    rng = np.random.default_rng(4)
+    n = 3000
+    body = np.column_stack([rng.uniform(0, 4, n), np.zeros(n), rng.uniform(0, 1.0, n)])
+    cabin = np.column_stack([rng.uniform(0, 4, n), np.full(n, -0.1), rng.uniform(1.0, 1.5, n)])
+    points = np.vstack([body, cabin])
+    fibre = np.r_[np.zeros(n, int), np.ones(n, int)]  # the lower fibre sees the body, the upper the cabin
+    features = local_features(points + np.c_[np.zeros((2 * n, 2)), (points[:, 2] > 1.0) * 5.0], radius_m=0.5)
+    loose = associate(points, fibre, features, {0: [1], 1: [0]}, gate_m=0.5, min_planarity=0.0)
+    strict = associate(points, fibre, features, {0: [1], 1: [0]}, gate_m=0.5, min_planarity=0.0,
+                       max_plane_distance_m=0.05)
+    assert len(loose) > 100 and len(strict) == 0
+
+
 def test_gate_zero_finds_nothing():
     points = np.random.default_rng(2).uniform(0, 1, (100, 3))
     features = local_features(points, radius_m=0.5)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 Mode = Literal["intrinsic", "extrinsic", "trajectory", "joint", "joint_trajectory",
@@ -18,29 +19,53 @@ STAGES = {"extrinsic_then_intrinsic": ("extrinsic", "intrinsic"),
 
 
 class CalibrationConfig(BaseModel):
-    """Settings of graphcal.calibrate. Lengths in m, angles in deg, times in s."""
+    """Settings of graphcal.calibrate. Lengths in m, angles in deg, times in s.
+
+    Each stage runs a coarse phase (loose association, the gate opening from gate_start_m to
+    gate_max_m) until the largest step falls below fine_below_m, then a fine phase (strict
+    association: only clearly planar p and m on the same surface, a fixed gate) until the largest
+    step falls below tolerance_m or max_outer_iterations is reached."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
     mode: Mode = "intrinsic"
+    max_points: int | None = Field(None, ge=1000, description="use a random subset of this many returns")
     neighbours: int = Field(2, ge=1, description="N: fibres j in [i-N, i+N] in elevation order")
-    refresh_every: int = Field(7, ge=1, description="K: outer iterations between feature refreshes")
+    refresh_every: int = Field(2, ge=1, description="K: outer iterations between feature refreshes")
     feature_radius_m: float = Field(0.5, gt=0)
     feature_neighbours: int = Field(20, ge=5)
-    min_planarity: float = Field(0.3, ge=0, le=1)
+    min_planarity: float = Field(0.3, ge=0, le=1, description="coarse phase: p and m both at least this planar")
+    max_normal_angle_deg: float = Field(30.0, gt=0, le=90, description="coarse phase: normals at p and m agree within")
+    max_plane_distance_m: float = Field(np.inf, gt=0, description="coarse phase: m this close to the plane at p")
     gate_start_m: float = Field(0.3, gt=0, description="association gate at the first iteration")
     gate_max_m: float = Field(1.0, gt=0, description="the gate opens by gate_growth per iteration up to this")
     gate_growth: float = Field(1.2, ge=1)
+    fine_below_m: float = Field(0.01, gt=0, description="switch to the fine phase when max |dX| is below")
+    fine_min_planarity: float = Field(0.7, ge=0, le=1)
+    fine_max_normal_angle_deg: float = Field(10.0, gt=0, le=90)
+    fine_max_plane_distance_m: float = Field(0.05, gt=0)
+    fine_gate_m: float = Field(0.3, gt=0)
     max_pairs_per_fibre_pair: int = Field(4000, ge=10)
     sigma0_m: float = Field(0.01, gt=0, description="nominal point noise: residuals are whitened by it")
     control_interval_s: float = Field(1.0, gt=0)
     pose_corrections: bool = Field(False, description="Pose3 trajectory corrections (else Point3)")
     lambda_rigid: float = Field(1.0, gt=0, description="weight of E_def (eq. 5.1), per m^2 of correction")
     deformation: Literal["prior", "monnier"] = "prior"
+    intrinsic_sigma_range_m: float = Field(0.3, gt=0, description="prior on d_range and Hz about the nominal 0")
+    intrinsic_sigma_angle_deg: float = Field(10.0, gt=0, description="prior on d_azimuth and d_elevation")
     extrinsic_sigma_lever_arm_m: float = Field(1.0, gt=0)
     extrinsic_sigma_boresight_deg: float = Field(10.0, gt=0)
-    max_outer_iterations: int = Field(30, ge=1, description="n_max")
+    max_outer_iterations: int = Field(40, ge=1, description="n_max, per stage")
     tolerance_m: float = Field(1e-5, gt=0, description="delta: stop when max |dX| (m, or rad x 1 m) is below")
+    step_sigma_m: float = Field(0.02, gt=0, description="damping of one outer step, lengths")
+    step_sigma_deg: float = Field(0.5, gt=0, description="damping of one outer step, angles")
     lm_iterations: int = Field(5, ge=1)
     robust: Literal["none", "huber", "cauchy"] = "none"
     robust_k: float = Field(2.0, gt=0, description="in units of sigma0")
     seed: int = 0
+
+    def fine(self) -> "CalibrationConfig":
+        """The settings of the fine phase."""
+        return self.model_copy(update={"min_planarity": self.fine_min_planarity,
+                                       "max_normal_angle_deg": self.fine_max_normal_angle_deg,
+                                       "max_plane_distance_m": self.fine_max_plane_distance_m,
+                                       "gate_start_m": self.fine_gate_m, "gate_max_m": self.fine_gate_m})

@@ -19,9 +19,11 @@ from graphcal.sensor import SensorModel
 
 @dataclass(frozen=True)
 class ReturnData:
-    """Per-return arrays (N) of the returns used, and the control times [s]."""
+    """Per-return arrays (N) of the returns used (rows: their row in points.parquet), and the
+    control times [s]."""
 
     sensor: SensorModel
+    rows: np.ndarray
     fibre: np.ndarray
     range_m: np.ndarray
     azimuth_rad: np.ndarray
@@ -63,7 +65,7 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
     control_times = np.linspace(time[0], time[-1], n_controls)
     control = np.clip(np.searchsorted(control_times, time, side="right") - 1, 0, n_controls - 2)
     alpha = (time - control_times[control]) / (control_times[control + 1] - control_times[control])
-    return ReturnData(recording.sensor, columns["fibre"][rows].astype(np.int64),
+    return ReturnData(recording.sensor, rows, columns["fibre"][rows].astype(np.int64),
                       columns["range"][rows].astype(np.float64), columns["azimuth"][rows].astype(np.float64),
                       time, rotation.as_matrix(), position - origin, control, alpha, control_times, origin)
 

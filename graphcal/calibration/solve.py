@@ -7,19 +7,14 @@ sigma = sigma0 / sqrt(lambda_rigid W) on each control correction.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
 
 from factors.point_to_plane import Block, BlockKeys, FixedValues, make_factor
-from graphcal.association import (
-    Correspondences,
-    associate,
-    local_features,
-    neighbour_fibres,
-)
-from graphcal.calibration.config import ESTIMATES, CalibrationConfig
+from graphcal.association import Correspondences, associate, local_features, neighbour_fibres
+from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.problem import Estimate, ReturnData, world_at
 from graphcal.progress import progress
 
@@ -27,9 +22,8 @@ I = gtsam.symbol_shorthand.I  # noqa: E741  per-fibre intrinsic offsets, Vector4
 E = gtsam.symbol_shorthand.E  # extrinsic T_body_lidar, Pose3
 X = gtsam.symbol_shorthand.X  # trajectory correction at a control time, Point3 or Pose3
 
-# weak priors that keep directions the data cannot see well-posed (m, rad, rad, m)
-INTRINSIC_PRIOR_SIGMA = np.array([1.0, 0.3, 0.3, 1.0])
 CANDIDATES_PER_FIBRE = 20_000
+HELD_SIGMA = 1e-7  # prior sigma (m or rad) that holds an unobservable parameter at its nominal value
 
 
 @dataclass
@@ -42,6 +36,32 @@ class History:
         self.rows.append(row)
 
 
+@dataclass(frozen=True)
+class Priors:
+    """Prior 1-sigmas about the nominal values, SI (m, rad): intrinsics (n_fibres, 4); extrinsic
+    (6,) rotation then lever arm, both in body axes; control_held (C, 3 or 6) marks control
+    components held at zero (their other prior is E_def, set from the weight sum)."""
+
+    intrinsic: np.ndarray
+    extrinsic: np.ndarray
+    control_held: np.ndarray
+
+    @classmethod
+    def of(cls, config: CalibrationConfig, n_fibres: int, n_controls: int) -> "Priors":
+        one = np.r_[config.intrinsic_sigma_range_m, np.radians(config.intrinsic_sigma_angle_deg),
+                    np.radians(config.intrinsic_sigma_angle_deg), config.intrinsic_sigma_range_m]
+        extrinsic = np.r_[np.full(3, np.radians(config.extrinsic_sigma_boresight_deg)),
+                          np.full(3, config.extrinsic_sigma_lever_arm_m)]
+        return cls(np.tile(one, (n_fibres, 1)), extrinsic,
+                   np.zeros((n_controls, 6 if config.pose_corrections else 3), bool))
+
+    def extrinsic_noise(self, R_body_lidar: np.ndarray):
+        """Gaussian noise on the Pose3 tangent [w, v] (lidar axes) for body-axes sigmas."""
+        rotate = np.zeros((6, 6))
+        rotate[:3, :3] = rotate[3:, 3:] = R_body_lidar.T
+        return gtsam.noiseModel.Gaussian.Covariance(rotate @ np.diag(self.extrinsic ** 2) @ rotate.T)
+
+
 def energy_cm2(p_m: np.ndarray, m_m: np.ndarray, pairs: Correspondences) -> tuple[float, float]:
     """(J [cm^2], weight sum) of eq. 4.4 for the paired world points p, m (K,3) [m], with the
     correspondences' fixed normals and weights."""
@@ -51,16 +71,21 @@ def energy_cm2(p_m: np.ndarray, m_m: np.ndarray, pairs: Correspondences) -> tupl
 
 
 def build_graph(data: ReturnData, estimate: Estimate, pairs: Correspondences, config: CalibrationConfig,
-                estimates: tuple[bool, bool, bool], nominal_extrinsic: gtsam.Pose3):
-    """One graph: a block factor per (fibre i, fibre j, control of p, control of m), plus priors."""
+                estimates: tuple[bool, bool, bool], nominal_extrinsic: gtsam.Pose3, priors: Priors,
+                damped: bool = True):
+    """One graph: a block factor per (fibre i, fibre j, control of p, control of m), plus priors.
+
+    damped adds a prior at the current estimate on every key (sigmas step_sigma_m/deg): one outer
+    iteration cannot run far along directions the current pairs barely see. It leaves the fixed
+    point unchanged (at convergence the estimate stops moving) and is left out when sigmas are
+    computed."""
     est_int, est_ext, est_traj = estimates
     pose = config.pose_corrections
     ref = data.sensor.reference_fibre
     fi, fj = data.fibre[pairs.index_p], data.fibre[pairs.index_m]
     cp = data.control[pairs.index_p] if est_traj else np.zeros(len(pairs), int)
     cm = data.control[pairs.index_m] if est_traj else np.zeros(len(pairs), int)
-    group = np.stack([fi, fj, cp, cm], axis=1)
-    unique, inverse = np.unique(group, axis=0, return_inverse=True)
+    unique, inverse = np.unique(np.stack([fi, fj, cp, cm], axis=1), axis=0, return_inverse=True)
     order = np.argsort(inverse.ravel(), kind="stable")
     bounds = np.searchsorted(inverse.ravel()[order], np.arange(len(unique) + 1))
     robust = None
@@ -85,35 +110,56 @@ def build_graph(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
                       sigma0_m=config.sigma0_m)
         graph.add(make_factor(block, compressed=robust is None, robust=robust))
 
+    step_m, step_rad = config.step_sigma_m, np.radians(config.step_sigma_deg)
     if est_int:
         for fibre in range(data.sensor.n_fibres):
             if fibre != ref:
                 values.insert(I(fibre), estimate.offsets[fibre])
                 graph.add(gtsam.PriorFactorVector(I(fibre), np.zeros(4),
-                                                  gtsam.noiseModel.Diagonal.Sigmas(INTRINSIC_PRIOR_SIGMA)))
+                                                  gtsam.noiseModel.Diagonal.Sigmas(priors.intrinsic[fibre])))
+                if damped:
+                    graph.add(gtsam.PriorFactorVector(I(fibre), estimate.offsets[fibre], gtsam.noiseModel.Diagonal.Sigmas(
+                        np.array([step_m, step_rad, step_rad, step_m]))))
     if est_ext:
         values.insert(E(0), estimate.extrinsic)
-        sigmas = np.r_[np.full(3, np.radians(config.extrinsic_sigma_boresight_deg)),
-                       np.full(3, config.extrinsic_sigma_lever_arm_m)]
-        graph.add(gtsam.PriorFactorPose3(E(0), nominal_extrinsic, gtsam.noiseModel.Diagonal.Sigmas(sigmas)))
+        graph.add(gtsam.PriorFactorPose3(E(0), nominal_extrinsic,
+                                         priors.extrinsic_noise(nominal_extrinsic.rotation().matrix())))
+        if damped:
+            graph.add(gtsam.PriorFactorPose3(E(0), estimate.extrinsic, gtsam.noiseModel.Diagonal.Sigmas(
+                np.r_[np.full(3, step_rad), np.full(3, step_m)])))
     if est_traj:
-        _add_trajectory(graph, values, estimate, config, float(pairs.weight.sum()))
+        _add_trajectory(graph, values, estimate, config, control_prior_sigma(config, pairs), priors, damped)
     return graph, values
 
 
-def _add_trajectory(graph, values, estimate: Estimate, config: CalibrationConfig, weight_sum: float) -> None:
+def control_prior_sigma(config: CalibrationConfig, pairs: Correspondences) -> float:
+    """sigma [m, or rad x 1 m] of E_def's prior on each control correction (eq. 5.3)."""
+    return config.sigma0_m / np.sqrt(config.lambda_rigid * float(pairs.weight.sum()))
+
+
+def _add_trajectory(graph, values, estimate: Estimate, config: CalibrationConfig, sigma: float, priors: Priors,
+                    damped: bool) -> None:
     """Control corrections and E_def (eq. 5.3) or Monnier's successive differences."""
-    sigma = config.sigma0_m / np.sqrt(config.lambda_rigid * weight_sum)
     pose = config.pose_corrections
-    noise = gtsam.noiseModel.Isotropic.Sigma(6 if pose else 3, sigma)  # rotations: rad x 1 m
+    width = 6 if pose else 3
+    noise = gtsam.noiseModel.Isotropic.Sigma(width, sigma)  # rotations: rad x 1 m
+    step = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, np.radians(config.step_sigma_deg)),
+                                                  np.full(3, config.step_sigma_m)] if pose
+                                            else np.full(3, config.step_sigma_m))
+    prior = (lambda c, n: gtsam.PriorFactorPose3(X(c), gtsam.Pose3(), n)) if pose else \
+        (lambda c, n: gtsam.PriorFactorPoint3(X(c), np.zeros(3), n))
     for c, correction in enumerate(estimate.corrections):
         values.insert(X(c), correction if pose else correction.translation())
+        if damped:
+            graph.add(gtsam.PriorFactorPose3(X(c), correction, step) if pose
+                      else gtsam.PriorFactorPoint3(X(c), correction.translation(), step))
         if config.deformation == "prior" or c == 0:
-            graph.add(gtsam.PriorFactorPose3(X(c), gtsam.Pose3(), noise) if pose
-                      else gtsam.PriorFactorPoint3(X(c), np.zeros(3), noise))
+            graph.add(prior(c, noise))
         if config.deformation == "monnier" and c > 0:
             graph.add(gtsam.BetweenFactorPose3(X(c - 1), X(c), gtsam.Pose3(), noise) if pose
                       else gtsam.BetweenFactorPoint3(X(c - 1), X(c), np.zeros(3), noise))
+        if priors.control_held[c].any():
+            graph.add(prior(c, gtsam.noiseModel.Diagonal.Sigmas(np.where(priors.control_held[c], HELD_SIGMA, 1e6))))
 
 
 def read_back(values: gtsam.Values, estimate: Estimate, estimates, data: ReturnData, pose: bool) -> Estimate:
@@ -139,40 +185,88 @@ def step_size(a: Estimate, b: Estimate) -> float:
     return float(max(steps))
 
 
-def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig, mode: str,
-                nominal_extrinsic: gtsam.Pose3, history: History, quiet: bool = False):
-    """Outer iterations of one single-stage mode until max |dX| < tolerance or n_max.
-    Returns (estimate, last graph, last values)."""
-    estimates = ESTIMATES[mode]
+@dataclass(frozen=True)
+class Association:
+    """What one association step needs besides the points: fixed across outer iterations."""
+
+    neighbours: dict
+    candidates: np.ndarray
+    seed: int
+
+    @classmethod
+    def of(cls, data: ReturnData, config: CalibrationConfig) -> "Association":
+        candidates = _candidates(data, np.random.default_rng(config.seed))
+        return cls(neighbour_fibres(data.sensor.elevation_deg, config.neighbours), candidates, config.seed)
+
+    def pairs(self, points_m: np.ndarray, fibre: np.ndarray, features, gate_m: float,
+              config: CalibrationConfig) -> Correspondences:
+        """The same subsample of pairs for the same cloud (a fresh seeded draw each time)."""
+        return associate(points_m, fibre, features, self.neighbours, gate_m, config.min_planarity,
+                         np.cos(np.radians(config.max_normal_angle_deg)), config.max_plane_distance_m,
+                         config.max_pairs_per_fibre_pair,
+                         np.random.default_rng(self.seed), self.candidates)
+
+
+def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig, stage: str,
+                estimates: tuple[bool, bool, bool], nominal_extrinsic: gtsam.Pose3, priors: Priors,
+                history: History, quiet: bool = False) -> Estimate:
+    """Outer iterations of one stage (which parameter groups move: estimates): coarse phase, then
+    fine phase once max |dX| < fine_below_m, until max |dX| < tolerance or n_max."""
     pose = config.pose_corrections
-    rng = np.random.default_rng(config.seed)
-    neighbours = neighbour_fibres(data.sensor.elevation_deg, config.neighbours)
-    candidates = _candidates(data, rng)
-    features, gate, graph, values = None, config.gate_start_m, None, None
-    for iteration in progress(range(config.max_outer_iterations), f"calibrating ({mode})",
-                              total=config.max_outer_iterations, quiet=quiet):
+    association = Association.of(data, config)
+    phase, settings, features, gate = "coarse", config, None, config.gate_start_m
+    since_refresh = config.refresh_every
+    for _ in progress(range(config.max_outer_iterations), f"calibrating ({stage})",
+                      total=config.max_outer_iterations, quiet=quiet):
         points = world_at(data, estimate, pose)
-        if iteration % config.refresh_every == 0:
-            features = local_features(points, config.feature_radius_m, config.feature_neighbours, candidates)
-        pairs = associate(points, data.fibre, features, neighbours, gate, config.min_planarity,
-                          config.max_pairs_per_fibre_pair, rng, candidates)
+        refreshed = since_refresh >= config.refresh_every
+        if refreshed:
+            features, since_refresh = local_features(points, config.feature_radius_m, config.feature_neighbours), 0
+        since_refresh += 1
+        pairs = association.pairs(points, data.fibre, features, gate, settings)
         before, weight_sum = energy_cm2(points[pairs.index_p], points[pairs.index_m], pairs)
-        graph, values = build_graph(data, estimate, pairs, config, estimates, nominal_extrinsic)
+        graph, values = build_graph(data, estimate, pairs, config, estimates, nominal_extrinsic, priors)
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(config.lm_iterations)
-        solved = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-        updated = read_back(solved, estimate, estimates, data, pose)
+        updated = read_back(gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize(),
+                            estimate, estimates, data, pose)
         step = step_size(estimate, updated)
         after, _ = energy_cm2(world_at(data, updated, pose, pairs.index_p),
                               world_at(data, updated, pose, pairs.index_m), pairs)
-        history.add(mode=mode, iteration=len(history.rows), energy_cm2=before, energy_after_cm2=after,
-                    weight_sum=weight_sum, pairs=len(pairs), gate_m=gate, max_step=step,
-                    refreshed=iteration % config.refresh_every == 0)
-        estimate, values = updated, solved
-        gate = min(gate * config.gate_growth, config.gate_max_m)
-        if step < config.tolerance_m:
+        history.add(mode=stage, iteration=len(history.rows), phase=phase, energy_cm2=before,
+                    energy_after_cm2=after, weight_sum=weight_sum, pairs=len(pairs), gate_m=gate, max_step=step,
+                    refreshed=refreshed)
+        estimate = updated
+        if phase == "fine" and step < config.tolerance_m:
             break
-    return estimate, graph, values
+        if phase == "coarse" and step < config.fine_below_m:
+            phase, settings, gate, since_refresh = "fine", config.fine(), config.fine_gate_m, config.refresh_every
+        elif phase == "coarse":
+            gate = min(gate * config.gate_growth, config.gate_max_m)
+    return estimate
+
+
+def hold_at_nominal(estimate: Estimate, priors: Priors, nominal_extrinsic: gtsam.Pose3, sensor_fibres: int) -> Estimate:
+    """The estimate with every held parameter (prior sigma HELD_SIGMA) set back to nominal."""
+    offsets = np.where(priors.intrinsic <= HELD_SIGMA, 0.0, estimate.offsets)
+    held_ext = priors.extrinsic <= HELD_SIGMA
+    extrinsic = estimate.extrinsic
+    if held_ext.any():
+        R = nominal_extrinsic.rotation().matrix()
+        tangent = nominal_extrinsic.localCoordinates(estimate.extrinsic)
+        body = np.r_[R @ tangent[:3], R @ tangent[3:]]
+        body[held_ext] = 0.0
+        extrinsic = nominal_extrinsic.retract(np.r_[R.T @ body[:3], R.T @ body[3:]])
+    corrections = tuple(_zero_components(c, held) for c, held in zip(estimate.corrections, priors.control_held))
+    return replace(estimate, offsets=offsets, extrinsic=extrinsic, corrections=corrections)
+
+
+def _zero_components(correction: gtsam.Pose3, held: np.ndarray) -> gtsam.Pose3:
+    if not held.any():
+        return correction
+    tangent = np.r_[gtsam.Rot3.Logmap(correction.rotation()), correction.translation()]
+    tangent[-len(held):][held] = 0.0
+    return gtsam.Pose3(gtsam.Rot3.Expmap(tangent[:3]), tangent[3:])
 
 
 def _candidates(data: ReturnData, rng: np.random.Generator) -> np.ndarray:

@@ -53,7 +53,9 @@ class Ground(_Object):
 
 class Facade(_Object):
     """A building front from start_xy to end_xy, with pilasters every `relief_spacing_m`
-    protruding `relief_depth_m` towards the street side (left of start->end), 0 for none."""
+    protruding `relief_depth_m` towards the street side (left of start->end), 0 for none, and
+    horizontal ledges (cornices, balcony slabs) along the whole front at `ledge_heights_m`
+    (their horizontal top and underside faces are what the upward fibres see level)."""
 
     kind: Literal["facade"] = "facade"
     start_xy: Vec2
@@ -63,6 +65,9 @@ class Facade(_Object):
     relief_spacing_m: float = Field(0.0, ge=0)
     relief_depth_m: float = Field(0.3, ge=0)
     relief_width_m: float = Field(0.6, gt=0)
+    ledge_heights_m: tuple[float, ...] = Field((), description="heights of the ledges' centres [m]")
+    ledge_depth_m: float = Field(0.5, gt=0)
+    ledge_thickness_m: float = Field(0.2, gt=0)
 
     def mesh(self) -> o3d.geometry.TriangleMesh:
         start, end = np.asarray(self.start_xy), np.asarray(self.end_xy)
@@ -76,6 +81,9 @@ class Facade(_Object):
             for s in np.arange(self.relief_spacing_m / 2, length, self.relief_spacing_m):
                 xy = start + along * s + left * self.relief_depth_m / 2
                 mesh += _box((self.relief_width_m, self.relief_depth_m, self.height_m), (*xy, self.height_m / 2), yaw)
+        for height in self.ledge_heights_m:
+            xy = (start + end) / 2 + left * self.ledge_depth_m / 2
+            mesh += _box((length, self.ledge_depth_m, self.ledge_thickness_m), (*xy, height), yaw)
         return mesh
 
 
@@ -123,15 +131,15 @@ SceneObject = Annotated[Union[Ground, Facade, Pole, Box, ParkedCar], Field(discr
 
 
 def street(length_m: float, width_m: float, height_m: float = 12.0, relief_spacing_m: float = 6.0,
-           start_x_m: float = -10.0) -> list:
+           start_x_m: float = -10.0, ledge_heights_m: tuple[float, ...] = ()) -> list:
     """Ground and two facades along the x axis, `width_m` apart, centred on y = 0."""
     half = width_m / 2
     end_x = start_x_m + length_m
     return [Ground(center_xy=(start_x_m + length_m / 2, 0.0), size_m=(length_m + 40, width_m + 40)),
             Facade(start_xy=(end_x, half), end_xy=(start_x_m, half), height_m=height_m,
-                   relief_spacing_m=relief_spacing_m),
+                   relief_spacing_m=relief_spacing_m, ledge_heights_m=ledge_heights_m),
             Facade(start_xy=(start_x_m, -half), end_xy=(end_x, -half), height_m=height_m,
-                   relief_spacing_m=relief_spacing_m)]
+                   relief_spacing_m=relief_spacing_m, ledge_heights_m=ledge_heights_m)]
 
 
 class RaycastScene:

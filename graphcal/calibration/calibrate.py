@@ -1,0 +1,133 @@
+"""graphcal.calibrate: the pipeline of one calibration, one line per step."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import gtsam
+import numpy as np
+
+from graphcal.association import local_features
+from graphcal.calibration.config import ESTIMATES, STAGES, CalibrationConfig
+from graphcal.calibration.observability import (
+    CONTROL_NAMES,
+    EXTRINSIC_NAMES,
+    INTRINSIC_NAMES,
+    Uncertainty,
+    intrinsic_sigmas,
+    pose_sigmas,
+)
+from graphcal.calibration.problem import Estimate, ReturnData, initial_estimate, prepare, world_at
+from graphcal.calibration.result import Calibration, CalibrationResult
+from graphcal.calibration.solve import (
+    E,
+    HELD_SIGMA,
+    I,
+    X,
+    Association,
+    History,
+    Priors,
+    build_graph,
+    control_prior_sigma,
+    hold_at_nominal,
+    solve_stage,
+)
+from graphcal.intrinsics import offsets_to_file_units
+from graphcal.recording import Recording
+
+
+def calibrate(recording: Recording, config: CalibrationConfig | None = None, quiet: bool = False) -> CalibrationResult:
+    """Estimate what config.mode asks for (intrinsics, extrinsic, trajectory corrections, or
+    successive stages) from the recording alone; every estimated parameter gets a 1-sigma, and
+    the parameters the data cannot observe are held at their nominal value and named."""
+    config = config or CalibrationConfig()
+    started = time.perf_counter()
+    data = prepare(recording, config.control_interval_s, config.max_points, np.random.default_rng(config.seed))
+    estimate = initial_estimate(recording, data)
+    nominal = estimate.extrinsic
+    priors = Priors.of(config, data.sensor.n_fibres, len(data.control_times_s))
+    stages = STAGES.get(config.mode, (config.mode,))
+    estimated = tuple(any(ESTIMATES[stage][k] for stage in stages) for k in range(3))
+    history = History()
+    for stage in stages:
+        estimate = solve_stage(data, estimate, config, stage, ESTIMATES[stage], nominal, priors, history, quiet)
+    final = final_fit(data, estimate, config, estimated, nominal, priors)
+    unobservable = final.uncertainty.unobservable()
+    if unobservable:  # hold them at nominal and solve again: they must not drag the others
+        priors = holding(priors, unobservable)
+        estimate = solve_stage(data, hold_at_nominal(estimate, priors, nominal), config, "unobservable held",
+                               estimated, nominal, priors, history, quiet)
+        final = final_fit(data, estimate, config, estimated, nominal, priors)
+    calibration = Calibration(data.sensor.model, data.sensor.reference_fibre, estimate, data.control_times_s,
+                              tuple(unobservable))
+    return CalibrationResult(calibration, final.uncertainty, estimated, history.rows, data.rows[final.pairs.index_p],
+                             final.residual_m, final.pairs.weight, config, time.perf_counter() - started)
+
+
+class FinalFit:
+    """Association at the final estimate (strict settings), per-pair residuals and the marginals
+    of the undamped graph."""
+
+    def __init__(self, pairs, residual_m: np.ndarray, uncertainty: Uncertainty):
+        self.pairs, self.residual_m, self.uncertainty = pairs, residual_m, uncertainty
+
+
+def final_fit(data: ReturnData, estimate: Estimate, config: CalibrationConfig, estimated, nominal: gtsam.Pose3,
+              priors: Priors) -> FinalFit:
+    fine = config.fine()
+    points = world_at(data, estimate, config.pose_corrections)
+    features = local_features(points, config.feature_radius_m, config.feature_neighbours)
+    pairs = Association.of(data, fine).pairs(points, data.fibre, features, fine.fine_gate_m, fine)
+    residual = np.einsum("ni,ni->n", pairs.normal, points[pairs.index_p] - points[pairs.index_m])
+    graph, values = build_graph(data, estimate, pairs, config, estimated, nominal, priors, damped=False)
+    return FinalFit(pairs, residual, uncertainty(gtsam.Marginals(graph, values), data, estimate, config, estimated,
+                                                 nominal, priors, control_prior_sigma(config, pairs)))
+
+
+def uncertainty(marginals: gtsam.Marginals, data: ReturnData, estimate: Estimate, config: CalibrationConfig,
+                estimated, nominal: gtsam.Pose3, priors: Priors, control_sigma: float) -> Uncertainty:
+    """Posterior and prior sigmas in file units (m, deg) for every estimated parameter."""
+    est_int, est_ext, est_traj = estimated
+    n = data.sensor.n_fibres
+    intrinsics = np.full((n, 4), np.nan)
+    prior_int = offsets_to_file_units(priors.intrinsic)
+    if est_int:
+        for fibre in range(n):
+            if fibre != data.sensor.reference_fibre:
+                intrinsics[fibre] = intrinsic_sigmas(marginals, I(fibre), offsets_to_file_units(np.ones((1, 4)))[0])
+    extrinsic = extrinsic_prior = None
+    if est_ext:
+        R = estimate.extrinsic.rotation().matrix()
+        extrinsic = pose_sigmas(marginals.marginalCovariance(E(0)), R)
+        extrinsic_prior = priors.extrinsic * np.r_[np.full(3, np.degrees(1.0)), np.ones(3)]
+    controls = controls_prior = None
+    if est_traj:
+        to_units = np.r_[np.full(3, np.degrees(1.0)), np.ones(3)]
+        rows, prior_rows = [], []
+        for c, correction in enumerate(estimate.corrections):
+            cov = marginals.marginalCovariance(X(c))
+            if config.pose_corrections:
+                rows.append(pose_sigmas(cov, correction.rotation().matrix()))
+            else:
+                rows.append(np.r_[np.full(3, np.nan), np.sqrt(np.diag(cov))])
+            held = np.r_[np.zeros(6 - priors.control_held.shape[1], bool), priors.control_held[c]]
+            prior_rows.append(np.where(held, HELD_SIGMA, control_sigma) * to_units)
+        controls, controls_prior = np.array(rows), np.array(prior_rows)
+    return Uncertainty(intrinsics, prior_int, extrinsic, extrinsic_prior, controls, controls_prior)
+
+
+def holding(priors: Priors, names: list[str]) -> Priors:
+    """Priors with the named parameters' sigmas shrunk to HELD_SIGMA (held at nominal)."""
+    intrinsic, extrinsic, control = priors.intrinsic.copy(), priors.extrinsic.copy(), priors.control_held.copy()
+    for name in names:
+        owner, parameter = name.split(".")
+        index = int(owner.split("_")[1]) if "_" in owner else 0
+        if owner.startswith("fibre_"):
+            intrinsic[index, INTRINSIC_NAMES.index(parameter)] = HELD_SIGMA
+        elif owner == "extrinsic":
+            extrinsic[EXTRINSIC_NAMES.index(parameter)] = HELD_SIGMA
+        else:
+            column = CONTROL_NAMES.index(parameter) - (6 - control.shape[1])
+            control[index, column] = True
+    return replace(priors, intrinsic=intrinsic, extrinsic=extrinsic, control_held=control)

@@ -1,0 +1,65 @@
+"""1-sigma of every estimated parameter from gtsam.Marginals, and which ones the data cannot see.
+
+The graph's cost is (W / sigma0^2) J + priors, so the marginal covariances are those of a
+least-squares fit with point noise sigma0 (Cramér-Rao bound when sigma0 is the true noise).
+A parameter is unobservable when the data add almost nothing to its prior: its posterior sigma
+stays above UNOBSERVABLE_RATIO times its prior sigma (the data carry less than a third of the
+information about it). Such a parameter is held at its nominal value and reported by name.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+# posterior / prior sigma above which a parameter counts as unobservable (information ratio < 1/3)
+UNOBSERVABLE_RATIO = 0.5 * np.sqrt(3.0)
+
+INTRINSIC_NAMES = ("d_range_m", "d_azimuth_deg", "d_elevation_deg", "h_z_m")
+EXTRINSIC_NAMES = ("roll_deg", "pitch_deg", "yaw_deg", "lever_arm_x_m", "lever_arm_y_m", "lever_arm_z_m")
+CONTROL_NAMES = ("rotation_x_deg", "rotation_y_deg", "rotation_z_deg", "x_m", "y_m", "z_m")
+
+
+@dataclass(frozen=True)
+class Uncertainty:
+    """Posterior and prior 1-sigma per parameter, in the file units of each name (m or deg):
+    intrinsics (n_fibres, 4), NaN where not estimated; extrinsic (6,) as rotation about body
+    x/y/z then lever arm in body axes, or None; control corrections (C, 6) as rotation about
+    world x/y/z then translation (rotation columns NaN for translation-only), or None."""
+
+    intrinsics: np.ndarray
+    intrinsics_prior: np.ndarray
+    extrinsic: np.ndarray | None
+    extrinsic_prior: np.ndarray | None
+    controls: np.ndarray | None
+    controls_prior: np.ndarray | None
+
+    def unobservable(self) -> list[str]:
+        """Names of the parameters whose posterior sigma stays near the prior's."""
+        names = []
+        flag = self.intrinsics > UNOBSERVABLE_RATIO * self.intrinsics_prior
+        names += [f"fibre_{i}.{INTRINSIC_NAMES[k]}" for i, k in zip(*np.nonzero(flag))]
+        if self.extrinsic is not None:
+            names += [f"extrinsic.{EXTRINSIC_NAMES[k]}"
+                      for k in np.flatnonzero(self.extrinsic > UNOBSERVABLE_RATIO * self.extrinsic_prior)]
+        if self.controls is not None:
+            flag = self.controls > UNOBSERVABLE_RATIO * self.controls_prior
+            names += [f"control_{c}.{CONTROL_NAMES[k]}" for c, k in zip(*np.nonzero(flag))]
+        return names
+
+
+def intrinsic_sigmas(marginals: gtsam.Marginals, key, to_file_units: np.ndarray) -> np.ndarray:
+    """(4,) sigmas of a Vector4 intrinsic key in file units."""
+    return np.sqrt(np.diag(marginals.marginalCovariance(key))) * to_file_units
+
+
+def pose_sigmas(covariance_tangent: np.ndarray, R_out_tangent: np.ndarray) -> np.ndarray:
+    """(6,) sigmas [deg x3, m x3] of a Pose3 whose tangent [w, v] covariance is given, with both
+    the rotation and translation perturbations rotated into the reporting axes by R_out_tangent
+    (GTSAM's retract perturbs R Exp(w), t + R v)."""
+    rotate = np.zeros((6, 6))
+    rotate[:3, :3] = rotate[3:, 3:] = R_out_tangent
+    covariance = rotate @ covariance_tangent @ rotate.T
+    return np.sqrt(np.diag(covariance)) * np.r_[np.full(3, np.degrees(1.0)), np.ones(3)]

@@ -1,0 +1,182 @@
+"""What a calibration produces: the estimate with its 1-sigmas (calibration.yaml of
+RECORDING.md), the per-iteration history and the per-point residuals; saved atomically."""
+
+from __future__ import annotations
+
+import datetime
+from dataclasses import dataclass
+from pathlib import Path
+
+import gtsam
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from scipy.spatial.transform import Rotation
+
+from graphcal.atomic import atomic_path
+from graphcal.calibration.config import CalibrationConfig
+from graphcal.calibration.observability import CONTROL_NAMES, EXTRINSIC_NAMES, INTRINSIC_NAMES, Uncertainty
+from graphcal.calibration.problem import Estimate
+from graphcal.errors import RecordingError
+from graphcal.extrinsic import Extrinsic
+from graphcal.intrinsics import offsets_from_file_units, offsets_to_file_units
+from graphcal.rotations import rpy_deg_from_rotation
+from graphcal.sensor import SensorModel
+from graphcal.tables import write_csv_columns
+from graphcal.yamlfile import read_yaml, write_yaml
+
+FORMAT = "graphcal-calibration/1"
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """The estimate alone, as calibration.yaml holds it: offsets (n_fibres, 4) in (m, rad, rad, m)
+    from the nominal model, T_body_lidar, trajectory corrections at control_times_s (Pose3 about
+    the vehicle in world axes; identity when none were estimated), unobservable parameter names
+    (held at their nominal value)."""
+
+    sensor_model: str
+    reference_fibre: int
+    estimate: Estimate
+    control_times_s: np.ndarray
+    unobservable: tuple[str, ...] = ()
+
+    def extrinsic(self) -> Extrinsic:
+        pose = self.estimate.extrinsic
+        rpy = rpy_deg_from_rotation(Rotation.from_matrix(pose.rotation().matrix()))
+        return Extrinsic(tuple(float(v) for v in pose.translation()), tuple(float(v) for v in rpy))
+
+    @classmethod
+    def load(cls, path: str | Path, sensor: SensorModel) -> "Calibration":
+        """Read calibration.yaml (the file or its folder) for a recording with this sensor."""
+        path = Path(path)
+        path = path / "calibration.yaml" if path.is_dir() else path
+        data = read_yaml(path)
+        if not isinstance(data, dict) or data.get("format") != FORMAT:
+            raise RecordingError(path, f"format is {data.get('format') if isinstance(data, dict) else data!r}",
+                                 field="format", expected=FORMAT)
+        model = (data.get("sensor") or {}).get("model")
+        if model != sensor.model:
+            raise RecordingError(path, f"sensor model {model!r}", field="sensor.model",
+                                 expected=f"{sensor.model!r}, the recording's sensor")
+        rows = data.get("intrinsics") or []
+        if len(rows) != sensor.n_fibres:
+            raise RecordingError(path, f"{len(rows)} intrinsic rows", field="intrinsics",
+                                 expected=f"one row per fibre ({sensor.n_fibres})")
+        offsets = np.zeros((sensor.n_fibres, 4))
+        for index, row in enumerate(rows):
+            if not isinstance(row, dict) or row.get("fibre") != index:
+                raise RecordingError(path, f"row {index} is {row!r}", field=f"intrinsics[{index}].fibre",
+                                     expected=f"fibre: {index}")
+            offsets[index] = [_number(row.get(name), path, f"intrinsics[{index}].{name}", null_ok=True)
+                              for name in INTRINSIC_NAMES]
+        extrinsic = Extrinsic.from_dict({k: data.get("extrinsic", {}).get(k) for k in ("lever_arm_m", "boresight_deg")},
+                                        path)
+        corrections, times = [], []
+        for index, row in enumerate(data.get("trajectory_corrections") or []):
+            where = f"trajectory_corrections[{index}]"
+            times.append(_number(row.get("time"), path, f"{where}.time"))
+            d_position = [_number(v, path, f"{where}.d_position_m") for v in row.get("d_position_m", [0, 0, 0])]
+            d_rotation = [_number(v, path, f"{where}.d_rotation_deg") for v in row.get("d_rotation_deg", [0, 0, 0])]
+            corrections.append(gtsam.Pose3(gtsam.Rot3.Expmap(np.radians(d_rotation)), np.asarray(d_position)))
+        if len(times) == 1 or np.any(np.diff(times) <= 0):
+            raise RecordingError(path, "control times not increasing", field="trajectory_corrections.time",
+                                 expected="none, or at least two strictly increasing times")
+        pose = gtsam.Pose3(gtsam.Rot3(extrinsic.R_body_lidar), np.asarray(extrinsic.lever_arm_m))
+        return cls(model, int(data["sensor"].get("reference_fibre", sensor.reference_fibre)),
+                   Estimate(offsets_from_file_units(offsets), pose, tuple(corrections)), np.asarray(times),
+                   tuple(data.get("unobservable") or ()))
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    """graphcal.calibrate's answer: the calibration, 1-sigmas (file units, see Uncertainty),
+    which parameter groups were estimated, the history (one dict per outer iteration: J [cm^2]
+    before/after the solve, weight sum, pairs, gate, step), and the final per-point residuals
+    (row of the return p in the recording, signed point-to-plane distance [m], weight)."""
+
+    calibration: Calibration
+    uncertainty: Uncertainty
+    estimated: tuple[bool, bool, bool]
+    history: list[dict]
+    residual_rows: np.ndarray
+    residual_m: np.ndarray
+    residual_weight: np.ndarray
+    config: CalibrationConfig
+    seconds: float
+
+    @property
+    def energy_cm2(self) -> tuple[float, float]:
+        """J [cm^2] before the first solve and after the last."""
+        return self.history[0]["energy_cm2"], self.history[-1]["energy_after_cm2"]
+
+    @property
+    def unobservable(self) -> tuple[str, ...]:
+        return self.calibration.unobservable
+
+    def save(self, directory: str | Path, command: str = "graphcal.calibrate") -> Path:
+        """calibration.yaml, config.yaml, history.csv and residuals.parquet into directory."""
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        write_yaml(directory / "calibration.yaml", self.to_yaml_dict(command))
+        write_yaml(directory / "config.yaml", self.config.model_dump())
+        columns = list(self.history[0])
+        numeric = [c for c in columns if c != "mode"]
+        write_csv_columns(directory / "history.csv", ["stage"] + numeric,
+                          np.array([[row["mode"]] + [row[c] for c in numeric] for row in self.history], dtype=object),
+                          formats=["%s"] + ["%.9g"] * len(numeric))
+        table = pa.table({"row": self.residual_rows.astype(np.int64), "residual_m": self.residual_m.astype(np.float32),
+                          "weight": self.residual_weight.astype(np.float32)})
+        with atomic_path(directory / "residuals.parquet") as tmp:
+            pq.write_table(table, tmp)
+        return directory / "calibration.yaml"
+
+    def to_yaml_dict(self, command: str) -> dict:
+        cal, unc = self.calibration, self.uncertainty
+        unobservable = set(cal.unobservable)
+        offsets = offsets_to_file_units(cal.estimate.offsets)
+        rows = []
+        for fibre, values in enumerate(offsets):
+            row = {"fibre": fibre}
+            names = [f"fibre_{fibre}.{name}" for name in INTRINSIC_NAMES]
+            row.update({name: (None if full in unobservable else float(v))
+                        for name, full, v in zip(INTRINSIC_NAMES, names, values)})
+            row["sigma"] = (None if fibre == cal.reference_fibre or not self.estimated[0] else
+                            {name: (None if full in unobservable else float(s))
+                             for name, full, s in zip(INTRINSIC_NAMES, names, unc.intrinsics[fibre])})
+            rows.append(row)
+        extrinsic = cal.extrinsic().to_dict()
+        if unc.extrinsic is not None:
+            sigma = [None if f"extrinsic.{name}" in unobservable else float(s)
+                     for name, s in zip(EXTRINSIC_NAMES, unc.extrinsic)]
+            extrinsic["sigma"] = {"boresight_deg": sigma[:3], "lever_arm_m": sigma[3:]}
+        corrections = []
+        if self.estimated[2]:
+            for c, (time, pose) in enumerate(zip(cal.control_times_s, cal.estimate.corrections)):
+                row = {"time": float(time), "d_position_m": [float(v) for v in pose.translation()],
+                       "d_rotation_deg": [float(v) for v in np.degrees(gtsam.Rot3.Logmap(pose.rotation()))]}
+                sigma = unc.controls[c]
+                row["sigma"] = {name: (None if np.isnan(s) else float(s)) for name, s in zip(CONTROL_NAMES, sigma)}
+                corrections.append(row)
+        before, after = self.energy_cm2
+        from graphcal import __version__  # noqa: PLC0415 (graphcal/__init__ imports this module)
+        return {"format": FORMAT, "sensor": {"model": cal.sensor_model, "reference_fibre": cal.reference_fibre},
+                "intrinsics": rows, "extrinsic": extrinsic, "trajectory_corrections": corrections,
+                "effects": [], "unobservable": sorted(unobservable),
+                "energy_cm2": {"before": float(before), "after": float(after)},
+                "provenance": {"command": command, "graphcal": __version__, "gtsam": _gtsam_version(),
+                               "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+                               "seconds": round(self.seconds, 2)}}
+
+
+def _gtsam_version() -> str:
+    from importlib.metadata import version
+    return version("gtsam")
+
+
+def _number(value, path: Path, field: str, null_ok: bool = False) -> float:
+    if value is None and null_ok:
+        return 0.0  # an unobservable parameter: held at its nominal value
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        raise RecordingError(path, f"{field} is {value!r}", field=field, expected="a finite number")
+    return float(value)
