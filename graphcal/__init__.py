@@ -1,5 +1,9 @@
 """graphcal: target-free joint self-calibration of mobile-mapping lidar with a GTSAM factor graph."""
 
+from graphcal.calibration.calibrate import calibrate
+from graphcal.calibration.config import CalibrationConfig
+from graphcal.calibration.evaluate import Evaluation, apply_calibration, evaluate
+from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.errors import ConfigError, GraphcalError, RecordingError
 from graphcal.recording import Recording
 from graphcal.sensor import SensorModel, sensor_from_catalog
@@ -7,5 +11,6 @@ from graphcal.sim.scenario import Scenario
 from graphcal.sim.simulator import simulate
 
 __version__ = "0.1.0"
-__all__ = ["ConfigError", "GraphcalError", "Recording", "RecordingError", "Scenario", "SensorModel",
+__all__ = ["Calibration", "CalibrationConfig", "CalibrationResult", "Evaluation", "apply_calibration", "calibrate",
+           "evaluate", "ConfigError", "GraphcalError", "Recording", "RecordingError", "Scenario", "SensorModel",
            "sensor_from_catalog", "simulate", "__version__"]

@@ -56,8 +56,9 @@ def calibrate(recording: Recording, config: CalibrationConfig | None = None, qui
     unobservable = final.uncertainty.unobservable()
     if unobservable:  # hold them at nominal and solve again: they must not drag the others
         priors = holding(priors, unobservable)
-        estimate = solve_stage(data, hold_at_nominal(estimate, priors, nominal), config, "unobservable held",
-                               estimated, nominal, priors, history, quiet)
+        estimate = hold_at_nominal(solve_stage(data, hold_at_nominal(estimate, priors, nominal), config,
+                                               "unobservable held", estimated, nominal, priors, history, quiet),
+                                   priors, nominal)
         final = final_fit(data, estimate, config, estimated, nominal, priors)
     calibration = Calibration(data.sensor.model, data.sensor.reference_fibre, estimate, data.control_times_s,
                               tuple(unobservable))

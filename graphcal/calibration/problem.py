@@ -52,8 +52,9 @@ class Estimate:
 
 
 def prepare(recording: Recording, control_interval_s: float, max_points: int | None = None,
-            rng: np.random.Generator | None = None) -> ReturnData:
-    """Read the returns (a random subset of max_points if given) and the INS pose at each one's time."""
+            rng: np.random.Generator | None = None, control_times_s: np.ndarray | None = None) -> ReturnData:
+    """Read the returns (a random subset of max_points if given) and the INS pose at each one's
+    time; control times about control_interval_s apart span them, unless given."""
     columns = recording.points.read(["time", "fibre", "range", "azimuth"])
     rows = np.arange(len(columns["time"]))
     if max_points is not None and len(rows) > max_points:
@@ -61,10 +62,13 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
     time = columns["time"][rows]
     position, rotation = recording.world.poses.interpolate(time)
     origin = np.round(position.mean(axis=0))
-    n_controls = max(2, int(np.ceil((time[-1] - time[0]) / control_interval_s)) + 1)
-    control_times = np.linspace(time[0], time[-1], n_controls)
-    control = np.clip(np.searchsorted(control_times, time, side="right") - 1, 0, n_controls - 2)
-    alpha = (time - control_times[control]) / (control_times[control + 1] - control_times[control])
+    if control_times_s is None:
+        n_controls = max(2, int(np.ceil((time[-1] - time[0]) / control_interval_s)) + 1)
+        control_times = np.linspace(time[0], time[-1], n_controls)
+    else:
+        control_times = np.asarray(control_times_s, dtype=np.float64)
+    control = np.clip(np.searchsorted(control_times, time, side="right") - 1, 0, len(control_times) - 2)
+    alpha = np.clip((time - control_times[control]) / (control_times[control + 1] - control_times[control]), 0, 1)
     return ReturnData(recording.sensor, rows, columns["fibre"][rows].astype(np.int64),
                       columns["range"][rows].astype(np.float64), columns["azimuth"][rows].astype(np.float64),
                       time, rotation.as_matrix(), position - origin, control, alpha, control_times, origin)

@@ -3,6 +3,7 @@ RECORDING.md), the per-iteration history and the per-point residuals; saved atom
 
 from __future__ import annotations
 
+import csv
 import datetime
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +23,6 @@ from graphcal.extrinsic import Extrinsic
 from graphcal.intrinsics import offsets_from_file_units, offsets_to_file_units
 from graphcal.rotations import rpy_deg_from_rotation
 from graphcal.sensor import SensorModel
-from graphcal.tables import write_csv_columns
 from graphcal.yamlfile import read_yaml, write_yaml
 
 FORMAT = "graphcal-calibration/1"
@@ -120,11 +120,10 @@ class CalibrationResult:
         directory.mkdir(parents=True, exist_ok=True)
         write_yaml(directory / "calibration.yaml", self.to_yaml_dict(command))
         write_yaml(directory / "config.yaml", self.config.model_dump())
-        columns = list(self.history[0])
-        numeric = [c for c in columns if c != "mode"]
-        write_csv_columns(directory / "history.csv", ["stage"] + numeric,
-                          np.array([[row["mode"]] + [row[c] for c in numeric] for row in self.history], dtype=object),
-                          formats=["%s"] + ["%.9g"] * len(numeric))
+        with atomic_path(directory / "history.csv") as tmp, tmp.open("w", newline="") as stream:
+            writer = csv.DictWriter(stream, fieldnames=list(self.history[0]))
+            writer.writeheader()
+            writer.writerows(self.history)
         table = pa.table({"row": self.residual_rows.astype(np.int64), "residual_m": self.residual_m.astype(np.float32),
                           "weight": self.residual_weight.astype(np.float32)})
         with atomic_path(directory / "residuals.parquet") as tmp:

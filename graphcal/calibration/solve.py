@@ -246,7 +246,7 @@ def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
     return estimate
 
 
-def hold_at_nominal(estimate: Estimate, priors: Priors, nominal_extrinsic: gtsam.Pose3, sensor_fibres: int) -> Estimate:
+def hold_at_nominal(estimate: Estimate, priors: Priors, nominal_extrinsic: gtsam.Pose3) -> Estimate:
     """The estimate with every held parameter (prior sigma HELD_SIGMA) set back to nominal."""
     offsets = np.where(priors.intrinsic <= HELD_SIGMA, 0.0, estimate.offsets)
     held_ext = priors.extrinsic <= HELD_SIGMA

@@ -1,0 +1,104 @@
+"""Apply a calibration to a recording, and compare a calibration with the simulator's truth/."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import gtsam
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from graphcal.calibration.problem import Estimate, prepare, world_at
+from graphcal.calibration.result import Calibration, CalibrationResult
+from graphcal.errors import GraphcalError
+from graphcal.metrics import DistanceStats, cloud_to_cloud
+from graphcal.recording import Recording
+
+_RMS_UNITS = np.array([100.0, np.degrees(1.0), np.degrees(1.0), 100.0])  # (m, rad, rad, m) -> (cm, deg, deg, cm)
+
+
+def apply_calibration(calibration: Calibration, recording: Recording) -> np.ndarray:
+    """World coordinates [m, the recording's projected CRS] of every return with the
+    calibration's offsets, extrinsic and trajectory corrections (interpolated at each return's
+    time; held at the first/last control outside their span). Shape (N, 3), recording order."""
+    if calibration.sensor_model != recording.sensor.model:
+        raise GraphcalError(f"calibration is for a {calibration.sensor_model}, the recording has a "
+                            f"{recording.sensor.model}")
+    corrected = len(calibration.control_times_s) >= 2
+    data = prepare(recording, np.inf, control_times_s=calibration.control_times_s if corrected else None)
+    estimate = calibration.estimate
+    if not corrected:
+        estimate = replace(estimate, corrections=tuple(gtsam.Pose3() for _ in data.control_times_s))
+    return world_at(data, estimate, pose=True) + data.origin_m
+
+
+def nominal_calibration(recording: Recording) -> Calibration:
+    """Zero offsets, the extrinsic of extrinsic.yaml, no trajectory correction."""
+    sensor, extrinsic = recording.sensor, recording.extrinsic
+    pose = gtsam.Pose3(gtsam.Rot3(extrinsic.R_body_lidar), np.asarray(extrinsic.lever_arm_m))
+    return Calibration(sensor.model, sensor.reference_fibre, Estimate(np.zeros((sensor.n_fibres, 4)), pose, ()),
+                       np.zeros(0))
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """A calibration against truth/: eq. 4.6 RMS of the intrinsic offsets (cm, deg, deg, cm) over
+    the fibres but the reference, before (nominal) and after; extrinsic errors (lever arm m,
+    rotation deg) before/after; cloud-to-cloud distance to the true cloud before/after; J [cm^2]."""
+
+    intrinsic_rms_before: np.ndarray
+    intrinsic_rms_after: np.ndarray
+    lever_arm_error_m: tuple[float, float]
+    rotation_error_deg: tuple[float, float]
+    cloud_before: DistanceStats
+    cloud_after: DistanceStats
+    energy_cm2: tuple[float, float]
+
+    def table(self) -> str:
+        names = ("d_range cm", "d_azimuth deg", "d_elevation deg", "Hz cm")
+        lines = [f"{'':18}{'before':>12}{'after':>12}"]
+        lines += [f"{n:18}{b:12.3g}{a:12.3g}" for n, b, a in zip(names, self.intrinsic_rms_before,
+                                                                 self.intrinsic_rms_after)]
+        lines.append(f"{'lever arm m':18}{self.lever_arm_error_m[0]:12.3g}{self.lever_arm_error_m[1]:12.3g}")
+        lines.append(f"{'rotation deg':18}{self.rotation_error_deg[0]:12.3g}{self.rotation_error_deg[1]:12.3g}")
+        lines.append(f"{'c2c mean cm':18}{self.cloud_before.mean * 100:12.3g}{self.cloud_after.mean * 100:12.3g}")
+        lines.append(f"{'c2c median cm':18}{self.cloud_before.median * 100:12.3g}{self.cloud_after.median * 100:12.3g}")
+        lines.append(f"{'c2c p95 cm':18}{self.cloud_before.p95 * 100:12.3g}{self.cloud_after.p95 * 100:12.3g}")
+        lines.append(f"{'J cm2':18}{self.energy_cm2[0]:12.3g}{self.energy_cm2[1]:12.3g}")
+        return "\n".join(lines)
+
+
+def intrinsic_rms(offsets: np.ndarray, truth: np.ndarray, reference_fibre: int) -> np.ndarray:
+    """Eq. 4.6: RMS over the fibres but the reference of offset - truth, in (cm, deg, deg, cm)."""
+    error = np.delete(np.asarray(offsets) - truth, reference_fibre, axis=0)
+    return np.sqrt(np.mean(error ** 2, axis=0)) * _RMS_UNITS
+
+
+def evaluate(result: CalibrationResult, recording: Recording, max_points: int = 500_000,
+             seed: int = 0) -> Evaluation:
+    """Compare with truth/ (simulated recordings only). Cloud distances on a random subset of
+    max_points returns (seeded) against the whole true cloud."""
+    truth = recording.truth
+    if truth is None:
+        raise GraphcalError(f"{recording.path or recording.name}: no truth/ folder, nothing to evaluate against")
+    cal = result.calibration
+    sensor = recording.sensor
+    reference_cloud = truth.world_points()
+    rows = np.random.default_rng(seed).choice(len(reference_cloud), min(max_points, len(reference_cloud)), replace=False)
+    nominal_cloud = apply_calibration(nominal_calibration(recording), recording)
+    after_cloud = apply_calibration(cal, recording)
+    true_R, true_t = truth.extrinsic.R_body_lidar, np.asarray(truth.extrinsic.lever_arm_m)
+    ext = cal.estimate.extrinsic
+    nominal = recording.extrinsic
+
+    def rotation_error(R):
+        return float(np.degrees(Rotation.from_matrix(R.T @ true_R).magnitude()))
+
+    return Evaluation(
+        intrinsic_rms(np.zeros_like(truth.intrinsics), truth.intrinsics, sensor.reference_fibre),
+        intrinsic_rms(cal.estimate.offsets, truth.intrinsics, sensor.reference_fibre),
+        (float(np.linalg.norm(np.asarray(nominal.lever_arm_m) - true_t)), float(np.linalg.norm(ext.translation() - true_t))),
+        (rotation_error(nominal.R_body_lidar), rotation_error(ext.rotation().matrix())),
+        DistanceStats.of(cloud_to_cloud(nominal_cloud[rows], reference_cloud)),
+        DistanceStats.of(cloud_to_cloud(after_cloud[rows], reference_cloud)),
+        result.energy_cm2)

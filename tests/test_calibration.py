@@ -1,0 +1,93 @@
+"""End-to-end calibration on reduced-size simulations, checked against the simulator's truth/.
+
+Full-size acceptance figures (seed Table 4.1 thresholds) are in benchmarks/bench_calibrate.py;
+these tests use ~100 k returns and a bounded number of outer iterations, so their thresholds
+are looser and say what this size reaches.
+"""
+
+import numpy as np
+import pytest
+import yaml
+
+import graphcal
+from graphcal.calibration.calibrate import calibrate
+from graphcal.calibration.config import CalibrationConfig
+from graphcal.calibration.evaluate import apply_calibration, evaluate, intrinsic_rms, nominal_calibration
+from graphcal.calibration.result import Calibration
+from graphcal.sim.scenario import ExtrinsicSpec, IntrinsicErrors
+from graphcal.sim.scene import ParkedCar
+from graphcal.sim.script import load_scenario_builder
+
+SIM2 = load_scenario_builder("sim2_street")
+
+
+@pytest.fixture(scope="module")
+def street_with_traffic(tmp_path_factory):
+    """sim2_street (Table 4.1 start) with two cars driving past: moving clutter."""
+    scenario = SIM2(size=0.03, seed=1)
+    traffic = [ParkedCar(xy=(-5.0, 2.0), velocity_m_s=(8.0, 0.0, 0.0)),
+               ParkedCar(xy=(40.0, -2.5), yaw_deg=180.0, velocity_m_s=(-7.0, 0.0, 0.0))]
+    scenario = scenario.model_copy(update={"scene": scenario.scene + traffic})
+    return graphcal.Recording.load(graphcal.simulate(scenario, quiet=True).save(tmp_path_factory.mktemp("sim") / "rec"))
+
+
+@pytest.fixture(scope="module")
+def street_result(street_with_traffic):
+    return calibrate(street_with_traffic, CalibrationConfig(mode="intrinsic", max_outer_iterations=25,
+                                                            tolerance_m=1e-4), quiet=True)
+
+
+def test_intrinsics_from_table_4_1_start_despite_moving_clutter(street_with_traffic, street_result):
+    truth = street_with_traffic.truth.intrinsics
+    before = intrinsic_rms(np.zeros_like(truth), truth, 15)
+    after = intrinsic_rms(street_result.calibration.estimate.offsets, truth, 15)
+    np.testing.assert_allclose(before, [10.0, 2.5, 3.0, 10.0], rtol=1e-6)  # the seed's start
+    assert after[0] < 0.2 and after[1] < 0.01 and after[2] < 0.02 and after[3] < 0.5, after  # cm, deg, deg, cm
+    j_before, j_after = street_result.energy_cm2
+    assert j_before > 20 and j_after < 0.05
+    assert street_result.unobservable == ()
+    sigma = np.delete(street_result.uncertainty.intrinsics, 15, axis=0)
+    assert np.all(np.isfinite(sigma)) and np.all(sigma > 0)
+    assert np.isnan(street_result.uncertainty.intrinsics[15]).all()  # the gauge fibre is not estimated
+
+
+def test_result_saved_loaded_and_applied(street_with_traffic, street_result, tmp_path):
+    path = street_result.save(tmp_path / "run")
+    assert {p.name for p in (tmp_path / "run").iterdir()} >= {"calibration.yaml", "config.yaml", "history.csv",
+                                                              "residuals.parquet"}
+    loaded = Calibration.load(path, street_with_traffic.sensor)
+    np.testing.assert_allclose(loaded.estimate.offsets, street_result.calibration.estimate.offsets, atol=1e-9)
+    evaluation = evaluate(street_result, street_with_traffic)
+    assert evaluation.cloud_after.median < 0.2 * evaluation.cloud_before.median
+    applied = apply_calibration(loaded, street_with_traffic)
+    assert applied.shape == (len(street_with_traffic.points), 3)
+
+
+def test_true_calibration_applied_gives_the_true_cloud(street_with_traffic):
+    """apply_calibration against the simulator's per-return true positions (independent path)."""
+    truth = street_with_traffic.truth
+    nominal = nominal_calibration(street_with_traffic)
+    true = Calibration(nominal.sensor_model, nominal.reference_fibre,
+                       type(nominal.estimate)(truth.intrinsics, nominal.estimate.extrinsic, ()), np.zeros(0))
+    np.testing.assert_allclose(apply_calibration(true, street_with_traffic), truth.world_points(), atol=1e-4)
+
+
+def test_level_head_leaves_range_and_height_of_road_only_fibres_unobservable(tmp_path):
+    """Level, each of the lowest fibres sees nothing but the flat road, at one range: its d_range
+    and Hz trade off (d_range sin(phi) + Hz is all the road measures). They must be named, held at
+    nominal, and absent from calibration.yaml; fibres that also see facades stay estimated."""
+    scenario = SIM2(size=0.02, seed=2).model_copy(update={
+        "extrinsic": ExtrinsicSpec(boresight_deg=(0.0, 0.0, 90.0)), "intrinsic_errors": IntrinsicErrors()})
+    recording = graphcal.simulate(scenario, quiet=True)
+    result = calibrate(recording, CalibrationConfig(max_outer_iterations=3), quiet=True)
+    by_elevation = recording.sensor.fibres_by_elevation()
+    lowest = by_elevation[:2]
+    for fibre in lowest:
+        assert {f"fibre_{fibre}.d_range_m", f"fibre_{fibre}.h_z_m"} <= set(result.unobservable)
+        assert result.calibration.estimate.offsets[fibre, 0] == 0.0 and result.calibration.estimate.offsets[fibre, 3] == 0.0
+    assert all(name.endswith(("d_range_m", "h_z_m")) for name in result.unobservable)
+    assert not any(name.startswith(f"fibre_{by_elevation[-1]}.") for name in result.unobservable)
+    saved = yaml.safe_load(result.save(tmp_path).read_text())
+    row = saved["intrinsics"][int(lowest[0])]
+    assert row["d_range_m"] is None and row["h_z_m"] is None and row["d_elevation_deg"] is not None
+    assert f"fibre_{lowest[0]}.h_z_m" in saved["unobservable"]
