@@ -67,6 +67,43 @@ def info(recording: Annotated[Path, typer.Argument(help="recording directory")])
 
 @app.command()
 @_clear_errors
+def calibrate(recording: Annotated[Path, typer.Argument(help="recording directory")],
+              mode: Annotated[str, typer.Option(help="intrinsic, extrinsic, trajectory, joint, joint_trajectory, "
+                                                     "extrinsic_then_intrinsic, intrinsic_then_extrinsic")] = "intrinsic",
+              config: Annotated[Path | None, typer.Option(help="YAML file of CalibrationConfig settings")] = None,
+              out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-<UTC time>)")] = None,
+              quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+    """Self-calibrate a recording; writes calibration.yaml, config, history and residuals."""
+    import datetime
+
+    import pydantic
+
+    from graphcal.calibration.calibrate import calibrate as run
+    from graphcal.calibration.config import CalibrationConfig
+    from graphcal.errors import ConfigError
+    from graphcal.recording import Recording
+    from graphcal.yamlfile import read_yaml
+
+    settings = (read_yaml(config) or {}) if config is not None else {}
+    try:
+        chosen = CalibrationConfig(**{"mode": mode, **settings})
+    except pydantic.ValidationError as error:
+        first = error.errors()[0]
+        raise ConfigError(f"{config or '--mode'}: {'.'.join(map(str, first['loc']))}: {first['msg']}") from None
+    rec = Recording.load(recording)
+    result = run(rec, chosen, quiet=quiet)
+    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    folder = out or Path("runs") / f"{rec.name}-{stamp}"
+    path = result.save(folder, command=" ".join(["graphcal"] + sys.argv[1:]))
+    if not quiet:
+        before, after = result.energy_cm2
+        typer.echo(f"J {before:.3g} -> {after:.3g} cm^2 in {result.seconds:.1f} s; wrote {path}")
+        if result.unobservable:
+            typer.echo(f"unobservable (held at nominal): {', '.join(result.unobservable)}")
+
+
+@app.command()
+@_clear_errors
 def demo(out: Annotated[Path, typer.Option(help="where to write the demo recording")] = Path("out/demo"),
          size: Annotated[float, typer.Option(help="fraction of the sensor's firings kept")] = 1.0,
          quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:

@@ -61,3 +61,17 @@ def test_demo_measures_the_blur_of_the_nominal_cloud(tmp_path):
     # a 13 cm piecewise-linear trajectory error: centimetres of blur, not millimetres or metres
     assert 0.02 < figures["per_point_error"].mean < 0.3
     assert figures["cloud_to_cloud"].mean <= figures["per_point_error"].mean
+
+
+def test_cli_calibrate_writes_a_run_folder_and_rejects_a_bad_config(tmp_path):
+    runner = CliRunner()
+    recording = tmp_path / "rec"
+    assert runner.invoke(app, ["simulate", "sim2_street", "--out", str(recording), "--size", "0.01", "-q"]).exit_code == 0
+    settings = tmp_path / "settings.yaml"
+    settings.write_text("max_outer_iterations: 2\n")
+    result = runner.invoke(app, ["calibrate", str(recording), "--config", str(settings), "--out", str(tmp_path / "run")])
+    assert result.exit_code == 0, result.output
+    assert "J " in result.output and (tmp_path / "run" / "calibration.yaml").is_file()
+    settings.write_text("max_outer_iterations: 0\n")
+    result = runner.invoke(app, ["calibrate", str(recording), "--config", str(settings)])
+    assert result.exit_code == 2 and "max_outer_iterations" in result.output and "Traceback" not in result.output

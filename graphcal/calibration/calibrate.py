@@ -14,6 +14,7 @@ from graphcal.calibration.observability import (
     CONTROL_NAMES,
     EXTRINSIC_NAMES,
     INTRINSIC_NAMES,
+    TRAJECTORY_GAUGE,
     Uncertainty,
     intrinsic_sigmas,
     pose_sigmas,
@@ -60,6 +61,8 @@ def calibrate(recording: Recording, config: CalibrationConfig | None = None, qui
                                                "unobservable held", estimated, nominal, priors, history, quiet),
                                    priors, nominal)
         final = final_fit(data, estimate, config, estimated, nominal, priors)
+    if estimated[2]:
+        unobservable += list(TRAJECTORY_GAUGE[:2 if config.pose_corrections else 1])
     calibration = Calibration(data.sensor.model, data.sensor.reference_fibre, estimate, data.control_times_s,
                               tuple(unobservable))
     return CalibrationResult(calibration, final.uncertainty, estimated, history.rows, data.rows[final.pairs.index_p],
@@ -83,7 +86,7 @@ def final_fit(data: ReturnData, estimate: Estimate, config: CalibrationConfig, e
     residual = np.einsum("ni,ni->n", pairs.normal, points[pairs.index_p] - points[pairs.index_m])
     graph, values = build_graph(data, estimate, pairs, config, estimated, nominal, priors, damped=False)
     return FinalFit(pairs, residual, uncertainty(gtsam.Marginals(graph, values), data, estimate, config, estimated,
-                                                 nominal, priors, control_prior_sigma(config, pairs)))
+                                                 nominal, priors, control_prior_sigma(config)))
 
 
 def uncertainty(marginals: gtsam.Marginals, data: ReturnData, estimate: Estimate, config: CalibrationConfig,

@@ -48,7 +48,7 @@ class CalibrationConfig(BaseModel):
     sigma0_m: float = Field(0.01, gt=0, description="nominal point noise: residuals are whitened by it")
     control_interval_s: float = Field(1.0, gt=0)
     pose_corrections: bool = Field(False, description="Pose3 trajectory corrections (else Point3)")
-    lambda_rigid: float = Field(1.0, gt=0, description="weight of E_def (eq. 5.1), per m^2 of correction")
+    lambda_rigid: float = Field(100.0, gt=0, description="weight of E_def against sum w d^2 [m^2] (eq. 5.5; the seed: 1e2)")
     deformation: Literal["prior", "monnier"] = "prior"
     intrinsic_sigma_range_m: float = Field(0.3, gt=0, description="prior on d_range and Hz about the nominal 0")
     intrinsic_sigma_angle_deg: float = Field(10.0, gt=0, description="prior on d_azimuth and d_elevation")

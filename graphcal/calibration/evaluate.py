@@ -44,7 +44,10 @@ def nominal_calibration(recording: Recording) -> Calibration:
 class Evaluation:
     """A calibration against truth/: eq. 4.6 RMS of the intrinsic offsets (cm, deg, deg, cm) over
     the fibres but the reference, before (nominal) and after; extrinsic errors (lever arm m,
-    rotation deg) before/after; cloud-to-cloud distance to the true cloud before/after; J [cm^2]."""
+    rotation deg) before/after; cloud-to-cloud distance to the true cloud before/after; J [cm^2].
+    common_offset_m: mean of (calibrated - true) position over the returns [m, world]: a
+    translation of the whole cloud, which no self-consistency energy observes (the trajectory's
+    common translation); cloud_after_gauge_free is the distance once it is removed."""
 
     intrinsic_rms_before: np.ndarray
     intrinsic_rms_after: np.ndarray
@@ -53,6 +56,8 @@ class Evaluation:
     cloud_before: DistanceStats
     cloud_after: DistanceStats
     energy_cm2: tuple[float, float]
+    common_offset_m: np.ndarray
+    cloud_after_gauge_free: DistanceStats
 
     def table(self) -> str:
         names = ("d_range cm", "d_azimuth deg", "d_elevation deg", "Hz cm")
@@ -64,6 +69,7 @@ class Evaluation:
         lines.append(f"{'c2c mean cm':18}{self.cloud_before.mean * 100:12.3g}{self.cloud_after.mean * 100:12.3g}")
         lines.append(f"{'c2c median cm':18}{self.cloud_before.median * 100:12.3g}{self.cloud_after.median * 100:12.3g}")
         lines.append(f"{'c2c p95 cm':18}{self.cloud_before.p95 * 100:12.3g}{self.cloud_after.p95 * 100:12.3g}")
+        lines.append(f"{'c2c mean* cm':18}{'':>12}{self.cloud_after_gauge_free.mean * 100:12.3g}")
         lines.append(f"{'J cm2':18}{self.energy_cm2[0]:12.3g}{self.energy_cm2[1]:12.3g}")
         return "\n".join(lines)
 
@@ -94,6 +100,7 @@ def evaluate(result: CalibrationResult, recording: Recording, max_points: int = 
     def rotation_error(R):
         return float(np.degrees(Rotation.from_matrix(R.T @ true_R).magnitude()))
 
+    offset = np.mean(after_cloud[rows] - reference_cloud[rows], axis=0)
     return Evaluation(
         intrinsic_rms(np.zeros_like(truth.intrinsics), truth.intrinsics, sensor.reference_fibre),
         intrinsic_rms(cal.estimate.offsets, truth.intrinsics, sensor.reference_fibre),
@@ -101,4 +108,5 @@ def evaluate(result: CalibrationResult, recording: Recording, max_points: int = 
         (rotation_error(nominal.R_body_lidar), rotation_error(ext.rotation().matrix())),
         DistanceStats.of(cloud_to_cloud(nominal_cloud[rows], reference_cloud)),
         DistanceStats.of(cloud_to_cloud(after_cloud[rows], reference_cloud)),
-        result.energy_cm2)
+        result.energy_cm2, offset,
+        DistanceStats.of(cloud_to_cloud(after_cloud[rows] - offset, reference_cloud)))

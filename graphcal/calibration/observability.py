@@ -19,6 +19,7 @@ UNOBSERVABLE_RATIO = 0.5 * np.sqrt(3.0)
 
 INTRINSIC_NAMES = ("d_range_m", "d_azimuth_deg", "d_elevation_deg", "h_z_m")
 EXTRINSIC_NAMES = ("roll_deg", "pitch_deg", "yaw_deg", "lever_arm_x_m", "lever_arm_y_m", "lever_arm_z_m")
+TRAJECTORY_GAUGE = ("trajectory.common_translation", "trajectory.common_rotation")
 CONTROL_NAMES = ("rotation_x_deg", "rotation_y_deg", "rotation_z_deg", "x_m", "y_m", "z_m")
 
 
@@ -37,16 +38,16 @@ class Uncertainty:
     controls_prior: np.ndarray | None
 
     def unobservable(self) -> list[str]:
-        """Names of the parameters whose posterior sigma stays near the prior's."""
+        """Names of the intrinsic and extrinsic parameters whose posterior sigma stays near the
+        prior's. Control corrections are not judged one by one: each carries the trajectory's
+        common translation (and rotation), which no self-consistency energy sees; calibrate
+        names those gauge directions instead (held by E_def, eq. 5.3)."""
         names = []
         flag = self.intrinsics > UNOBSERVABLE_RATIO * self.intrinsics_prior
         names += [f"fibre_{i}.{INTRINSIC_NAMES[k]}" for i, k in zip(*np.nonzero(flag))]
         if self.extrinsic is not None:
             names += [f"extrinsic.{EXTRINSIC_NAMES[k]}"
                       for k in np.flatnonzero(self.extrinsic > UNOBSERVABLE_RATIO * self.extrinsic_prior)]
-        if self.controls is not None:
-            flag = self.controls > UNOBSERVABLE_RATIO * self.controls_prior
-            names += [f"control_{c}.{CONTROL_NAMES[k]}" for c, k in zip(*np.nonzero(flag))]
         return names
 
 

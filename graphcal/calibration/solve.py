@@ -1,8 +1,8 @@
 """The outer loop: associate -> build one GTSAM graph -> Levenberg-Marquardt -> update (ICP-like).
 
 Energy of eq. 4.4/5.2: J = sum w d^2 / sum w, reported in cm^2, with d the point-to-plane
-distance; the graph's cost is (W / sigma0^2) J + priors, so lambda_rigid's prior (eq. 5.3) has
-sigma = sigma0 / sqrt(lambda_rigid W) on each control correction.
+distance; the graph's cost is (W / sigma0^2) J + priors = (sum w d^2 + lambda_rigid |dX|^2) / sigma0^2
+as in eq. 5.5, so E_def's prior has sigma = sigma0 / sqrt(lambda_rigid) on each control.
 """
 
 from __future__ import annotations
@@ -128,13 +128,15 @@ def build_graph(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
             graph.add(gtsam.PriorFactorPose3(E(0), estimate.extrinsic, gtsam.noiseModel.Diagonal.Sigmas(
                 np.r_[np.full(3, step_rad), np.full(3, step_m)])))
     if est_traj:
-        _add_trajectory(graph, values, estimate, config, control_prior_sigma(config, pairs), priors, damped)
+        _add_trajectory(graph, values, estimate, config, control_prior_sigma(config), priors, damped)
     return graph, values
 
 
-def control_prior_sigma(config: CalibrationConfig, pairs: Correspondences) -> float:
-    """sigma [m, or rad x 1 m] of E_def's prior on each control correction (eq. 5.3)."""
-    return config.sigma0_m / np.sqrt(config.lambda_rigid * float(pairs.weight.sum()))
+def control_prior_sigma(config: CalibrationConfig) -> float:
+    """sigma [m, or rad x 1 m] of E_def's prior on each control correction: eq. 5.5 adds
+    lambda_rigid |dX|^2 to the weighted sum of squared distances [m^2], and the graph's cost is
+    that sum over sigma0^2."""
+    return config.sigma0_m / np.sqrt(config.lambda_rigid)
 
 
 def _add_trajectory(graph, values, estimate: Estimate, config: CalibrationConfig, sigma: float, priors: Priors,
