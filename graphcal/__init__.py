@@ -11,6 +11,21 @@ from graphcal.sim.scenario import Scenario
 from graphcal.sim.simulator import simulate
 
 __version__ = "0.1.0"
-__all__ = ["Calibration", "CalibrationConfig", "CalibrationResult", "Evaluation", "apply_calibration", "calibrate",
-           "evaluate", "ConfigError", "GraphcalError", "Recording", "RecordingError", "Scenario", "SensorModel",
-           "sensor_from_catalog", "simulate", "__version__"]
+__all__ = [
+           "Calibration",
+           "CalibrationConfig",
+           "CalibrationResult",
+           "ConfigError",
+           "Evaluation",
+           "GraphcalError",
+           "Recording",
+           "RecordingError",
+           "Scenario",
+           "SensorModel",
+           "__version__",
+           "apply_calibration",
+           "calibrate",
+           "evaluate",
+           "sensor_from_catalog",
+           "simulate",
+]

@@ -92,7 +92,7 @@ def calibrate(recording: Annotated[Path, typer.Argument(help="recording director
         raise ConfigError(f"{config or '--mode'}: {'.'.join(map(str, first['loc']))}: {first['msg']}") from None
     rec = Recording.load(recording)
     result = run(rec, chosen, quiet=quiet)
-    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%dT%H%M%SZ")
     folder = out or Path("runs") / f"{rec.name}-{stamp}"
     path = result.save(folder, command=" ".join(["graphcal"] + sys.argv[1:]))
     if not quiet:

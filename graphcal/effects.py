@@ -24,10 +24,10 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 
 from graphcal.errors import ConfigError
 
-REGISTRY: dict[str, type["Effect"]] = {}
+REGISTRY: dict[str, type[Effect]] = {}
 
 
-def register(cls: type["Effect"]) -> type["Effect"]:
+def register(cls: type[Effect]) -> type[Effect]:
     REGISTRY[cls.name] = cls
     return cls
 

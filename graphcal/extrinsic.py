@@ -37,7 +37,7 @@ class Extrinsic:
                 "boresight_deg": [float(v) for v in self.boresight_deg]}
 
     @classmethod
-    def from_dict(cls, data, path: str | Path = "extrinsic.yaml") -> "Extrinsic":
+    def from_dict(cls, data, path: str | Path = "extrinsic.yaml") -> Extrinsic:
         if not isinstance(data, dict):
             raise RecordingError(path, "not a mapping", expected="lever_arm_m and boresight_deg")
         values = {}

@@ -18,7 +18,7 @@ class DistanceStats:
     max: float
 
     @classmethod
-    def of(cls, distance_m: np.ndarray) -> "DistanceStats":
+    def of(cls, distance_m: np.ndarray) -> DistanceStats:
         return cls(float(np.mean(distance_m)), float(np.median(distance_m)),
                    float(np.percentile(distance_m, 95)), float(np.max(distance_m)))
 

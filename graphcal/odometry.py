@@ -36,7 +36,7 @@ class Odometry:
         write_csv_columns(path, header, np.column_stack(columns), formats="%.9f")
 
     @classmethod
-    def load_csv(cls, path: Path, params, manifest: str | Path = "recording.yaml") -> "Odometry":
+    def load_csv(cls, path: Path, params, manifest: str | Path = "recording.yaml") -> Odometry:
         if not isinstance(params, dict):
             raise RecordingError(manifest, "odometry.csv exists but recording.yaml has no odometry section",
                                  field="odometry", expected="{wheel_radius_m, track_m}")

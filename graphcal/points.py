@@ -61,13 +61,13 @@ class PointTable:
         self._file = pq.ParquetFile(path) if path is not None else None
 
     @classmethod
-    def from_arrays(cls, **arrays) -> "PointTable":
+    def from_arrays(cls, **arrays) -> PointTable:
         typed = {name: np.ascontiguousarray(values, dtype=SCHEMA[name][0].to_pandas_dtype())
                  for name, values in arrays.items() if values is not None}
         return cls(arrays=typed)
 
     @classmethod
-    def open(cls, path: Path) -> "PointTable":
+    def open(cls, path: Path) -> PointTable:
         path = Path(path)
         if not path.is_file():
             raise RecordingError(path, "file not found")

@@ -22,7 +22,7 @@ class PoseTrack:
     rotation: Rotation
 
     @classmethod
-    def from_rpy(cls, time, position_m, rpy_deg) -> "PoseTrack":
+    def from_rpy(cls, time, position_m, rpy_deg) -> PoseTrack:
         return cls(np.asarray(time, dtype=np.float64), np.asarray(position_m, dtype=np.float64),
                    rotation_from_rpy_deg(rpy_deg))
 
@@ -53,6 +53,6 @@ class PoseTrack:
         position, rotation = self.interpolate(t)
         return rotation.apply(p_body) + position
 
-    def resample(self, t) -> "PoseTrack":
+    def resample(self, t) -> PoseTrack:
         position, rotation = self.interpolate(t)
         return PoseTrack(np.asarray(t, dtype=np.float64), position, rotation)

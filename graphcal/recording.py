@@ -54,7 +54,7 @@ class Recording:
 
     # --- load ------------------------------------------------------------------------------
     @classmethod
-    def load(cls, path: str | Path, validate: bool = True) -> "Recording":
+    def load(cls, path: str | Path, validate: bool = True) -> Recording:
         """Open a recording directory. With validate, every file is checked (points in batches)
         and the trajectory must cover the points' time span; errors name file, field and row."""
         path = Path(path)

@@ -92,7 +92,7 @@ class SensorModel:
                 "reference_fibre": int(self.reference_fibre), "fibres": rows}
 
     @classmethod
-    def from_dict(cls, data: dict, path: str | Path = "sensor.yaml") -> "SensorModel":
+    def from_dict(cls, data: dict, path: str | Path = "sensor.yaml") -> SensorModel:
         """Parse sensor.yaml content, raising RecordingError naming the faulty field."""
         if not isinstance(data, dict):
             raise RecordingError(path, "not a mapping", expected="model, rotation_hz, reference_fibre, fibres")

@@ -39,7 +39,7 @@ class Trajectory:
                           + ["%.6f"] + ["%.8f"] * 3)
 
     @classmethod
-    def load_csv(cls, path: Path) -> "Trajectory":
+    def load_csv(cls, path: Path) -> Trajectory:
         """Read and validate: one of the two headers, finite numbers, strictly increasing time."""
         header, values = read_csv_columns(path, (GEODETIC_COLUMNS, PROJECTED_COLUMNS))
         if len(values) < 2:

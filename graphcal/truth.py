@@ -52,7 +52,7 @@ class Truth:
                            compression="zstd", row_group_size=1 << 20)
 
     @classmethod
-    def load(cls, directory: Path, n_fibres: int) -> "Truth":
+    def load(cls, directory: Path, n_fibres: int) -> Truth:
         return cls(intrinsics=load_offsets_csv(directory / "intrinsics.csv", n_fibres),
                    extrinsic=Extrinsic.from_dict(read_yaml(directory / "extrinsic.yaml"), directory / "extrinsic.yaml"),
                    trajectory=Trajectory.load_csv(directory / "trajectory.csv"),

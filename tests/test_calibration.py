@@ -12,7 +12,12 @@ import yaml
 import graphcal
 from graphcal.calibration.calibrate import calibrate
 from graphcal.calibration.config import CalibrationConfig
-from graphcal.calibration.evaluate import apply_calibration, evaluate, intrinsic_rms, nominal_calibration
+from graphcal.calibration.evaluate import (
+    apply_calibration,
+    evaluate,
+    intrinsic_rms,
+    nominal_calibration,
+)
 from graphcal.calibration.result import Calibration
 from graphcal.sim.scenario import ExtrinsicSpec, IntrinsicErrors
 from graphcal.sim.scene import ParkedCar

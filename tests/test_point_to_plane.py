@@ -10,7 +10,7 @@ from factors.world_point import Returns
 from graphcal.sensor import sensor_from_catalog
 
 X = gtsam.symbol_shorthand.X
-I = gtsam.symbol_shorthand.I  # noqa: E741
+I = gtsam.symbol_shorthand.I
 E = gtsam.symbol_shorthand.E
 N = 400
 

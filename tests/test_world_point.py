@@ -33,7 +33,7 @@ def problem():
 
 def _corrections(controls, pose, n=N):
     lo, hi = controls
-    tile = lambda a: np.broadcast_to(a, (n,) + np.shape(a)).copy()  # noqa: E731
+    tile = lambda a: np.broadcast_to(a, (n,) + np.shape(a)).copy()
     return Corrections(tile(lo.translation()), tile(hi.translation()),
                        tile(lo.rotation().matrix()) if pose else None,
                        tile(hi.rotation().matrix()) if pose else None)

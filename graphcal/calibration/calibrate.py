@@ -19,16 +19,22 @@ from graphcal.calibration.observability import (
     intrinsic_sigmas,
     pose_sigmas,
 )
-from graphcal.calibration.problem import Estimate, ReturnData, initial_estimate, prepare, world_at
+from graphcal.calibration.problem import (
+    Estimate,
+    ReturnData,
+    initial_estimate,
+    prepare,
+    world_at,
+)
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.calibration.solve import (
-    E,
     HELD_SIGMA,
-    I,
-    X,
     Association,
+    E,
     History,
+    I,
     Priors,
+    X,
     build_graph,
     control_prior_sigma,
     hold_at_nominal,

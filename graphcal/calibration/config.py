@@ -63,7 +63,7 @@ class CalibrationConfig(BaseModel):
     robust_k: float = Field(2.0, gt=0, description="in units of sigma0")
     seed: int = 0
 
-    def fine(self) -> "CalibrationConfig":
+    def fine(self) -> CalibrationConfig:
         """The settings of the fine phase."""
         return self.model_copy(update={"min_planarity": self.fine_min_planarity,
                                        "max_normal_angle_deg": self.fine_max_normal_angle_deg,

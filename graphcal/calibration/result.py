@@ -16,7 +16,12 @@ from scipy.spatial.transform import Rotation
 
 from graphcal.atomic import atomic_path
 from graphcal.calibration.config import CalibrationConfig
-from graphcal.calibration.observability import CONTROL_NAMES, EXTRINSIC_NAMES, INTRINSIC_NAMES, Uncertainty
+from graphcal.calibration.observability import (
+    CONTROL_NAMES,
+    EXTRINSIC_NAMES,
+    INTRINSIC_NAMES,
+    Uncertainty,
+)
 from graphcal.calibration.problem import Estimate
 from graphcal.errors import RecordingError
 from graphcal.extrinsic import Extrinsic
@@ -47,7 +52,7 @@ class Calibration:
         return Extrinsic(tuple(float(v) for v in pose.translation()), tuple(float(v) for v in rpy))
 
     @classmethod
-    def load(cls, path: str | Path, sensor: SensorModel) -> "Calibration":
+    def load(cls, path: str | Path, sensor: SensorModel) -> Calibration:
         """Read calibration.yaml (the file or its folder) for a recording with this sensor."""
         path = Path(path)
         path = path / "calibration.yaml" if path.is_dir() else path
@@ -158,13 +163,13 @@ class CalibrationResult:
                 row["sigma"] = {name: (None if np.isnan(s) else float(s)) for name, s in zip(CONTROL_NAMES, sigma)}
                 corrections.append(row)
         before, after = self.energy_cm2
-        from graphcal import __version__  # noqa: PLC0415 (graphcal/__init__ imports this module)
+        from graphcal import __version__
         return {"format": FORMAT, "sensor": {"model": cal.sensor_model, "reference_fibre": cal.reference_fibre},
                 "intrinsics": rows, "extrinsic": extrinsic, "trajectory_corrections": corrections,
                 "effects": [], "unobservable": sorted(unobservable),
                 "energy_cm2": {"before": float(before), "after": float(after)},
                 "provenance": {"command": command, "graphcal": __version__, "gtsam": _gtsam_version(),
-                               "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+                               "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
                                "seconds": round(self.seconds, 2)}}
 
 

@@ -13,12 +13,17 @@ import gtsam
 import numpy as np
 
 from factors.point_to_plane import Block, BlockKeys, FixedValues, make_factor
-from graphcal.association import Correspondences, associate, local_features, neighbour_fibres
+from graphcal.association import (
+    Correspondences,
+    associate,
+    local_features,
+    neighbour_fibres,
+)
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.problem import Estimate, ReturnData, world_at
 from graphcal.progress import progress
 
-I = gtsam.symbol_shorthand.I  # noqa: E741  per-fibre intrinsic offsets, Vector4
+I = gtsam.symbol_shorthand.I
 E = gtsam.symbol_shorthand.E  # extrinsic T_body_lidar, Pose3
 X = gtsam.symbol_shorthand.X  # trajectory correction at a control time, Point3 or Pose3
 
@@ -47,7 +52,7 @@ class Priors:
     control_held: np.ndarray
 
     @classmethod
-    def of(cls, config: CalibrationConfig, n_fibres: int, n_controls: int) -> "Priors":
+    def of(cls, config: CalibrationConfig, n_fibres: int, n_controls: int) -> Priors:
         one = np.r_[config.intrinsic_sigma_range_m, np.radians(config.intrinsic_sigma_angle_deg),
                     np.radians(config.intrinsic_sigma_angle_deg), config.intrinsic_sigma_range_m]
         extrinsic = np.r_[np.full(3, np.radians(config.extrinsic_sigma_boresight_deg)),
@@ -196,7 +201,7 @@ class Association:
     seed: int
 
     @classmethod
-    def of(cls, data: ReturnData, config: CalibrationConfig) -> "Association":
+    def of(cls, data: ReturnData, config: CalibrationConfig) -> Association:
         candidates = _candidates(data, np.random.default_rng(config.seed))
         return cls(neighbour_fibres(data.sensor.elevation_deg, config.neighbours), candidates, config.seed)
 

@@ -6,7 +6,7 @@ x forward, y left, z up; the vehicle drives on flat ground (roll = pitch = 0).
 
 from __future__ import annotations
 
-from typing import Annotated, Literal, Union
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -33,7 +33,7 @@ class Arc(BaseModel):
         return self.radius_m * abs(np.radians(self.angle_deg))
 
 
-Segment = Annotated[Union[Straight, Arc], Field(discriminator="kind")]
+Segment = Annotated[Straight | Arc, Field(discriminator="kind")]
 
 
 def straight(length_m: float) -> list:
@@ -64,7 +64,7 @@ class Drive(BaseModel):
     height_m: float = Field(0.4, description="body origin above the ground [m]")
 
     @model_validator(mode="after")
-    def _check(self) -> "Drive":
+    def _check(self) -> Drive:
         times = [t for t, _ in self.speed_knots]
         if not self.segments or not self.speed_knots:
             raise ValueError("a drive needs segments and at least one speed knot")

@@ -31,7 +31,7 @@ class IntrinsicErrors(BaseModel):
         None, description="exact RMS (m, deg, deg, m) of the drawn offsets, each <= its bound")
 
     @model_validator(mode="after")
-    def _rms_within_bounds(self) -> "IntrinsicErrors":
+    def _rms_within_bounds(self) -> IntrinsicErrors:
         if self.rms is not None and any(r > b + 1e-12 for r, b in zip(self.rms, self.bounds)):
             raise ValueError("intrinsic_errors.rms must not exceed the bounds")
         return self

@@ -7,7 +7,7 @@ move at a constant velocity (moving clutter).
 
 from __future__ import annotations
 
-from typing import Annotated, Literal, Union
+from typing import Annotated, Literal
 
 import numpy as np
 import open3d as o3d
@@ -127,7 +127,7 @@ class ParkedCar(_Object):
         return body + _box((2.5, 1.6, 0.5), (*cabin_xy, 1.55), self.yaw_deg)
 
 
-SceneObject = Annotated[Union[Ground, Facade, Pole, Box, ParkedCar], Field(discriminator="kind")]
+SceneObject = Annotated[Ground | Facade | Pole | Box | ParkedCar, Field(discriminator="kind")]
 
 
 def street(length_m: float, width_m: float, height_m: float = 12.0, relief_spacing_m: float = 6.0,
