@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 
@@ -24,6 +25,13 @@ class RecordingError(GraphcalError):
         if expected:
             message += f" (expected {expected})"
         super().__init__(message)
+
+
+def finite_number(value, path: str | Path, field: str) -> float:
+    """value as a float, or RecordingError naming the file and field when it is not a finite number."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise RecordingError(path, f"value {value!r}", field=field, expected="a finite number")
+    return float(value)
 
 
 class ConfigError(GraphcalError, ValueError):

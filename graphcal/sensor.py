@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from factors.spherical import FactoryTerms, from_xyz, to_xyz, to_xyz_with_jacobian
-from graphcal.errors import RecordingError
+from graphcal.errors import RecordingError, finite_number
 
 OPTIONAL_FIBRE_FIELDS = ("azimuth_offset_deg", "range_offset_m", "vertical_offset_m",
                          "horizontal_offset_m")
@@ -103,7 +103,7 @@ class SensorModel:
                 raise RecordingError(path, "missing field", field=key, expected=what)
         if not isinstance(data["model"], str) or not data["model"]:
             raise RecordingError(path, f"model is {data['model']!r}", field="model", expected="the sensor model name")
-        rotation_hz = _number(data["rotation_hz"], path, "rotation_hz")
+        rotation_hz = finite_number(data["rotation_hz"], path, "rotation_hz")
         if not rotation_hz > 0:
             raise RecordingError(path, f"rotation_hz is {rotation_hz}", field="rotation_hz",
                                  expected="a positive rate in Hz")
@@ -120,7 +120,7 @@ class SensorModel:
                                      expected="the fibre's elevation in degrees")
             for name in columns:
                 if name in row:
-                    columns[name][row_index] = _number(row[name], path, f"fibres[{row_index}].{name}")
+                    columns[name][row_index] = finite_number(row[name], path, f"fibres[{row_index}].{name}")
         reference = data["reference_fibre"]
         if isinstance(reference, bool) or not isinstance(reference, int) or not 0 <= reference < len(fibres):
             raise RecordingError(path, f"reference_fibre is {reference!r}", field="reference_fibre",
@@ -128,12 +128,6 @@ class SensorModel:
         timing = CATALOG[data["model"]].timing if data["model"] in CATALOG else None
         return cls(model=str(data["model"]), rotation_hz=rotation_hz, reference_fibre=reference,
                    timing=timing, **columns)
-
-
-def _number(value, path, name) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-        raise RecordingError(path, f"value {value!r}", field=name, expected="a finite number")
-    return float(value)
 
 
 def _make(model, elevation_deg, reference, timing, rotation_hz=10.0, **optional) -> SensorModel:

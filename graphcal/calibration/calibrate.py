@@ -14,6 +14,7 @@ from graphcal.calibration.observability import (
     CONTROL_NAMES,
     EXTRINSIC_NAMES,
     INTRINSIC_NAMES,
+    POSE_TO_FILE_UNITS,
     TRAJECTORY_GAUGE,
     Uncertainty,
     intrinsic_sigmas,
@@ -105,15 +106,14 @@ def uncertainty(marginals: gtsam.Marginals, data: ReturnData, estimate: Estimate
     if est_int:
         for fibre in range(n):
             if fibre != data.sensor.reference_fibre:
-                intrinsics[fibre] = intrinsic_sigmas(marginals, I(fibre), offsets_to_file_units(np.ones((1, 4)))[0])
+                intrinsics[fibre] = intrinsic_sigmas(marginals, I(fibre))
     extrinsic = extrinsic_prior = None
     if est_ext:
         R = estimate.extrinsic.rotation().matrix()
         extrinsic = pose_sigmas(marginals.marginalCovariance(E(0)), R)
-        extrinsic_prior = priors.extrinsic * np.r_[np.full(3, np.degrees(1.0)), np.ones(3)]
+        extrinsic_prior = priors.extrinsic * POSE_TO_FILE_UNITS
     controls = controls_prior = None
     if est_traj:
-        to_units = np.r_[np.full(3, np.degrees(1.0)), np.ones(3)]
         rows, prior_rows = [], []
         for c, correction in enumerate(estimate.corrections):
             cov = marginals.marginalCovariance(X(c))
@@ -122,7 +122,7 @@ def uncertainty(marginals: gtsam.Marginals, data: ReturnData, estimate: Estimate
             else:
                 rows.append(np.r_[np.full(3, np.nan), np.sqrt(np.diag(cov))])
             held = np.r_[np.zeros(6 - priors.control_held.shape[1], bool), priors.control_held[c]]
-            prior_rows.append(np.where(held, HELD_SIGMA, control_sigma) * to_units)
+            prior_rows.append(np.where(held, HELD_SIGMA, control_sigma) * POSE_TO_FILE_UNITS)
         controls, controls_prior = np.array(rows), np.array(prior_rows)
     return Uncertainty(intrinsics, prior_int, extrinsic, extrinsic_prior, controls, controls_prior)
 

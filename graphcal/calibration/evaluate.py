@@ -8,36 +8,44 @@ import gtsam
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from graphcal.calibration.problem import Estimate, prepare, world_at
+from graphcal.calibration.problem import Estimate, ReturnData, pose_of, prepare, world_at
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.errors import GraphcalError
+from graphcal.intrinsics import offsets_to_file_units
 from graphcal.metrics import DistanceStats, cloud_to_cloud
 from graphcal.recording import Recording
-
-_RMS_UNITS = np.array([100.0, np.degrees(1.0), np.degrees(1.0), 100.0])  # (m, rad, rad, m) -> (cm, deg, deg, cm)
 
 
 def apply_calibration(calibration: Calibration, recording: Recording) -> np.ndarray:
     """World coordinates [m, the recording's projected CRS] of every return with the
     calibration's offsets, extrinsic and trajectory corrections (interpolated at each return's
     time; held at the first/last control outside their span). Shape (N, 3), recording order."""
+    return _world(calibration, _returns_for(calibration, recording))
+
+
+def _returns_for(calibration: Calibration, recording: Recording) -> ReturnData:
+    """Every return of the recording, placed between the calibration's control times."""
     if calibration.sensor_model != recording.sensor.model:
         raise GraphcalError(f"calibration is for a {calibration.sensor_model}, the recording has a "
                             f"{recording.sensor.model}")
     corrected = len(calibration.control_times_s) >= 2
-    data = prepare(recording, np.inf, control_times_s=calibration.control_times_s if corrected else None)
+    return prepare(recording, np.inf, control_times_s=calibration.control_times_s if corrected else None)
+
+
+def _world(calibration: Calibration, data: ReturnData, rows: np.ndarray | None = None) -> np.ndarray:
+    """World coordinates [m] of the given rows (all if None) with the calibration; identity
+    corrections at data's control times when it has none."""
     estimate = calibration.estimate
-    if not corrected:
+    if len(estimate.corrections) != len(data.control_times_s):
         estimate = replace(estimate, corrections=tuple(gtsam.Pose3() for _ in data.control_times_s))
-    return world_at(data, estimate, pose=True) + data.origin_m
+    return world_at(data, estimate, pose=True, rows=rows) + data.origin_m
 
 
 def nominal_calibration(recording: Recording) -> Calibration:
     """Zero offsets, the extrinsic of extrinsic.yaml, no trajectory correction."""
-    sensor, extrinsic = recording.sensor, recording.extrinsic
-    pose = gtsam.Pose3(gtsam.Rot3(extrinsic.R_body_lidar), np.asarray(extrinsic.lever_arm_m))
-    return Calibration(sensor.model, sensor.reference_fibre, Estimate(np.zeros((sensor.n_fibres, 4)), pose, ()),
-                       np.zeros(0))
+    sensor = recording.sensor
+    return Calibration(sensor.model, sensor.reference_fibre,
+                       Estimate(np.zeros((sensor.n_fibres, 4)), pose_of(recording.extrinsic), ()), np.zeros(0))
 
 
 @dataclass(frozen=True)
@@ -77,7 +85,7 @@ class Evaluation:
 def intrinsic_rms(offsets: np.ndarray, truth: np.ndarray, reference_fibre: int) -> np.ndarray:
     """Eq. 4.6: RMS over the fibres but the reference of offset - truth, in (cm, deg, deg, cm)."""
     error = np.delete(np.asarray(offsets) - truth, reference_fibre, axis=0)
-    return np.sqrt(np.mean(error ** 2, axis=0)) * _RMS_UNITS
+    return offsets_to_file_units(np.sqrt(np.mean(error ** 2, axis=0))) * [100.0, 1.0, 1.0, 100.0]  # m -> cm
 
 
 def evaluate(result: CalibrationResult, recording: Recording, max_points: int = 500_000,
@@ -91,8 +99,9 @@ def evaluate(result: CalibrationResult, recording: Recording, max_points: int = 
     sensor = recording.sensor
     reference_cloud = truth.world_points()
     rows = np.random.default_rng(seed).choice(len(reference_cloud), min(max_points, len(reference_cloud)), replace=False)
-    nominal_cloud = apply_calibration(nominal_calibration(recording), recording)
-    after_cloud = apply_calibration(cal, recording)
+    data = _returns_for(cal, recording)  # read once, georeferenced only at the sampled rows
+    nominal_cloud = _world(nominal_calibration(recording), data, rows)
+    after_cloud = _world(cal, data, rows)
     true_R, true_t = truth.extrinsic.R_body_lidar, np.asarray(truth.extrinsic.lever_arm_m)
     ext = cal.estimate.extrinsic
     nominal = recording.extrinsic
@@ -100,13 +109,13 @@ def evaluate(result: CalibrationResult, recording: Recording, max_points: int = 
     def rotation_error(R):
         return float(np.degrees(Rotation.from_matrix(R.T @ true_R).magnitude()))
 
-    offset = np.mean(after_cloud[rows] - reference_cloud[rows], axis=0)
+    offset = np.mean(after_cloud - reference_cloud[rows], axis=0)
     return Evaluation(
         intrinsic_rms(np.zeros_like(truth.intrinsics), truth.intrinsics, sensor.reference_fibre),
         intrinsic_rms(cal.estimate.offsets, truth.intrinsics, sensor.reference_fibre),
         (float(np.linalg.norm(np.asarray(nominal.lever_arm_m) - true_t)), float(np.linalg.norm(ext.translation() - true_t))),
         (rotation_error(nominal.R_body_lidar), rotation_error(ext.rotation().matrix())),
-        DistanceStats.of(cloud_to_cloud(nominal_cloud[rows], reference_cloud)),
-        DistanceStats.of(cloud_to_cloud(after_cloud[rows], reference_cloud)),
+        DistanceStats.of(cloud_to_cloud(nominal_cloud, reference_cloud)),
+        DistanceStats.of(cloud_to_cloud(after_cloud, reference_cloud)),
         result.energy_cm2, offset,
-        DistanceStats.of(cloud_to_cloud(after_cloud[rows] - offset, reference_cloud)))
+        DistanceStats.of(cloud_to_cloud(after_cloud - offset, reference_cloud)))

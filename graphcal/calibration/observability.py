@@ -14,9 +14,12 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
+from graphcal.intrinsics import offsets_to_file_units
+
 # posterior / prior sigma above which a parameter counts as unobservable (information ratio < 1/3)
 UNOBSERVABLE_RATIO = 0.5 * np.sqrt(3.0)
 
+POSE_TO_FILE_UNITS = np.r_[np.full(3, np.degrees(1.0)), np.ones(3)]  # [rad x3, m x3] -> [deg x3, m x3]
 INTRINSIC_NAMES = ("d_range_m", "d_azimuth_deg", "d_elevation_deg", "h_z_m")
 EXTRINSIC_NAMES = ("roll_deg", "pitch_deg", "yaw_deg", "lever_arm_x_m", "lever_arm_y_m", "lever_arm_z_m")
 TRAJECTORY_GAUGE = ("trajectory.common_translation", "trajectory.common_rotation")
@@ -51,16 +54,21 @@ class Uncertainty:
         return names
 
 
-def intrinsic_sigmas(marginals: gtsam.Marginals, key, to_file_units: np.ndarray) -> np.ndarray:
-    """(4,) sigmas of a Vector4 intrinsic key in file units."""
-    return np.sqrt(np.diag(marginals.marginalCovariance(key))) * to_file_units
+def intrinsic_sigmas(marginals: gtsam.Marginals, key) -> np.ndarray:
+    """(4,) sigmas of a Vector4 intrinsic key in file units (m, deg, deg, m)."""
+    return offsets_to_file_units(np.sqrt(np.diag(marginals.marginalCovariance(key))))
 
 
-def pose_sigmas(covariance_tangent: np.ndarray, R_out_tangent: np.ndarray) -> np.ndarray:
-    """(6,) sigmas [deg x3, m x3] of a Pose3 whose tangent [w, v] covariance is given, with both
-    the rotation and translation perturbations rotated into the reporting axes by R_out_tangent
-    (GTSAM's retract perturbs R Exp(w), t + R v)."""
+def tangent_to_axes(R: np.ndarray) -> np.ndarray:
+    """(6, 6) map of a Pose3 tangent [w, v] into the axes of R's output frame: GTSAM's retract
+    perturbs R Exp(w), t + R v, so both parts turn by R (e.g. lidar -> body for T_body_lidar)."""
     rotate = np.zeros((6, 6))
-    rotate[:3, :3] = rotate[3:, 3:] = R_out_tangent
-    covariance = rotate @ covariance_tangent @ rotate.T
-    return np.sqrt(np.diag(covariance)) * np.r_[np.full(3, np.degrees(1.0)), np.ones(3)]
+    rotate[:3, :3] = rotate[3:, 3:] = R
+    return rotate
+
+
+def pose_sigmas(covariance_tangent: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """(6,) sigmas [deg x3, m x3] of a Pose3 whose tangent covariance is given, in the axes of
+    R's output frame (see tangent_to_axes)."""
+    rotate = tangent_to_axes(R)
+    return np.sqrt(np.diag(rotate @ covariance_tangent @ rotate.T)) * POSE_TO_FILE_UNITS

@@ -13,6 +13,7 @@ import gtsam
 import numpy as np
 
 from factors.world_point import Corrections, Returns, world_points
+from graphcal.extrinsic import Extrinsic
 from graphcal.recording import Recording
 from graphcal.sensor import SensorModel
 
@@ -74,10 +75,15 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
                       time, rotation.as_matrix(), position - origin, control, alpha, control_times, origin)
 
 
+def pose_of(extrinsic: Extrinsic) -> gtsam.Pose3:
+    """T_body_lidar of an extrinsic.yaml / calibration.yaml extrinsic as a GTSAM Pose3."""
+    return gtsam.Pose3(gtsam.Rot3(extrinsic.R_body_lidar), np.asarray(extrinsic.lever_arm_m, dtype=np.float64))
+
+
 def initial_estimate(recording: Recording, data: ReturnData) -> Estimate:
     """Zero offsets, the nominal extrinsic of extrinsic.yaml, no trajectory correction."""
-    E = gtsam.Pose3(gtsam.Rot3(recording.extrinsic.R_body_lidar), np.asarray(recording.extrinsic.lever_arm_m))
-    return Estimate(np.zeros((recording.sensor.n_fibres, 4)), E, tuple(gtsam.Pose3() for _ in data.control_times_s))
+    return Estimate(np.zeros((recording.sensor.n_fibres, 4)), pose_of(recording.extrinsic),
+                    tuple(gtsam.Pose3() for _ in data.control_times_s))
 
 
 def corrections_at(estimate: Estimate, control: np.ndarray, pose: bool) -> Corrections:

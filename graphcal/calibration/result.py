@@ -22,8 +22,8 @@ from graphcal.calibration.observability import (
     INTRINSIC_NAMES,
     Uncertainty,
 )
-from graphcal.calibration.problem import Estimate
-from graphcal.errors import RecordingError
+from graphcal.calibration.problem import Estimate, pose_of
+from graphcal.errors import RecordingError, finite_number
 from graphcal.extrinsic import Extrinsic
 from graphcal.intrinsics import offsets_from_file_units, offsets_to_file_units
 from graphcal.rotations import rpy_deg_from_rotation
@@ -73,23 +73,23 @@ class Calibration:
             if not isinstance(row, dict) or row.get("fibre") != index:
                 raise RecordingError(path, f"row {index} is {row!r}", field=f"intrinsics[{index}].fibre",
                                      expected=f"fibre: {index}")
-            offsets[index] = [_number(row.get(name), path, f"intrinsics[{index}].{name}", null_ok=True)
+            offsets[index] = [0.0 if row.get(name) is None  # unobservable: held at its nominal value
+                              else finite_number(row[name], path, f"intrinsics[{index}].{name}")
                               for name in INTRINSIC_NAMES]
         extrinsic = Extrinsic.from_dict({k: data.get("extrinsic", {}).get(k) for k in ("lever_arm_m", "boresight_deg")},
                                         path)
         corrections, times = [], []
         for index, row in enumerate(data.get("trajectory_corrections") or []):
             where = f"trajectory_corrections[{index}]"
-            times.append(_number(row.get("time"), path, f"{where}.time"))
-            d_position = [_number(v, path, f"{where}.d_position_m") for v in row.get("d_position_m", [0, 0, 0])]
-            d_rotation = [_number(v, path, f"{where}.d_rotation_deg") for v in row.get("d_rotation_deg", [0, 0, 0])]
+            times.append(finite_number(row.get("time"), path, f"{where}.time"))
+            d_position = [finite_number(v, path, f"{where}.d_position_m") for v in row.get("d_position_m", [0, 0, 0])]
+            d_rotation = [finite_number(v, path, f"{where}.d_rotation_deg") for v in row.get("d_rotation_deg", [0, 0, 0])]
             corrections.append(gtsam.Pose3(gtsam.Rot3.Expmap(np.radians(d_rotation)), np.asarray(d_position)))
         if len(times) == 1 or np.any(np.diff(times) <= 0):
             raise RecordingError(path, "control times not increasing", field="trajectory_corrections.time",
                                  expected="none, or at least two strictly increasing times")
-        pose = gtsam.Pose3(gtsam.Rot3(extrinsic.R_body_lidar), np.asarray(extrinsic.lever_arm_m))
         return cls(model, int(data["sensor"].get("reference_fibre", sensor.reference_fibre)),
-                   Estimate(offsets_from_file_units(offsets), pose, tuple(corrections)), np.asarray(times),
+                   Estimate(offsets_from_file_units(offsets), pose_of(extrinsic), tuple(corrections)), np.asarray(times),
                    tuple(data.get("unobservable") or ()))
 
 
@@ -176,11 +176,3 @@ class CalibrationResult:
 def _gtsam_version() -> str:
     from importlib.metadata import version
     return version("gtsam")
-
-
-def _number(value, path: Path, field: str, null_ok: bool = False) -> float:
-    if value is None and null_ok:
-        return 0.0  # an unobservable parameter: held at its nominal value
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-        raise RecordingError(path, f"{field} is {value!r}", field=field, expected="a finite number")
-    return float(value)

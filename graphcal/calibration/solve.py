@@ -20,6 +20,7 @@ from graphcal.association import (
     neighbour_fibres,
 )
 from graphcal.calibration.config import CalibrationConfig
+from graphcal.calibration.observability import tangent_to_axes
 from graphcal.calibration.problem import Estimate, ReturnData, world_at
 from graphcal.progress import progress
 
@@ -62,9 +63,8 @@ class Priors:
 
     def extrinsic_noise(self, R_body_lidar: np.ndarray):
         """Gaussian noise on the Pose3 tangent [w, v] (lidar axes) for body-axes sigmas."""
-        rotate = np.zeros((6, 6))
-        rotate[:3, :3] = rotate[3:, 3:] = R_body_lidar.T
-        return gtsam.noiseModel.Gaussian.Covariance(rotate @ np.diag(self.extrinsic ** 2) @ rotate.T)
+        to_tangent = tangent_to_axes(R_body_lidar).T
+        return gtsam.noiseModel.Gaussian.Covariance(to_tangent @ np.diag(self.extrinsic ** 2) @ to_tangent.T)
 
 
 def energy_cm2(p_m: np.ndarray, m_m: np.ndarray, pairs: Correspondences) -> tuple[float, float]:
@@ -259,11 +259,10 @@ def hold_at_nominal(estimate: Estimate, priors: Priors, nominal_extrinsic: gtsam
     held_ext = priors.extrinsic <= HELD_SIGMA
     extrinsic = estimate.extrinsic
     if held_ext.any():
-        R = nominal_extrinsic.rotation().matrix()
-        tangent = nominal_extrinsic.localCoordinates(estimate.extrinsic)
-        body = np.r_[R @ tangent[:3], R @ tangent[3:]]
+        to_body = tangent_to_axes(nominal_extrinsic.rotation().matrix())
+        body = to_body @ nominal_extrinsic.localCoordinates(estimate.extrinsic)
         body[held_ext] = 0.0
-        extrinsic = nominal_extrinsic.retract(np.r_[R.T @ body[:3], R.T @ body[3:]])
+        extrinsic = nominal_extrinsic.retract(to_body.T @ body)
     corrections = tuple(_zero_components(c, held) for c, held in zip(estimate.corrections, priors.control_held))
     return replace(estimate, offsets=offsets, extrinsic=extrinsic, corrections=corrections)
 
