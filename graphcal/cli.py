@@ -85,6 +85,8 @@ def calibrate(recording: Annotated[Path, typer.Argument(help="recording director
     from graphcal.yamlfile import read_yaml
 
     settings = (read_yaml(config) or {}) if config is not None else {}
+    if not isinstance(settings, dict):
+        raise ConfigError(f"{config}: not a mapping of CalibrationConfig settings (name: value per line)")
     try:
         chosen = CalibrationConfig(**{"mode": mode, **settings})
     except pydantic.ValidationError as error:

@@ -5,6 +5,8 @@ these tests use ~100 k returns and a bounded number of outer iterations, so thei
 are looser and say what this size reaches.
 """
 
+import re
+
 import numpy as np
 import pytest
 import yaml
@@ -66,6 +68,25 @@ def test_result_saved_loaded_and_applied(street_with_traffic, street_result, tmp
     assert evaluation.cloud_after.median < 0.2 * evaluation.cloud_before.median
     applied = apply_calibration(loaded, street_with_traffic)
     assert applied.shape == (len(street_with_traffic.points), 3)
+
+
+@pytest.mark.parametrize("edit, field", [
+    (lambda d: d.update(extrinsic=[0.8, 0.0, 1.9]), "extrinsic"),
+    (lambda d: d["sensor"].update(reference_fibre=3), "sensor.reference_fibre"),
+    (lambda d: d["intrinsics"][4].update(d_range_m="1 cm"), "intrinsics[4].d_range_m"),
+    (lambda d: d["intrinsics"].pop(), "intrinsics"),
+    (lambda d: d.update(trajectory_corrections=[{"time": 1.0, "d_position_m": [0.0, 0.1]},
+                                                {"time": 2.0}]), "trajectory_corrections[0].d_position_m"),
+    (lambda d: d.update(trajectory_corrections=[{"time": 2.0}, {"time": 1.0}]), "trajectory_corrections.time"),
+])
+def test_bad_calibration_yaml_names_the_field(street_with_traffic, street_result, tmp_path, edit, field):
+    path = street_result.save(tmp_path / "run")
+    content = yaml.safe_load(path.read_text())
+    edit(content)
+    path.write_text(yaml.safe_dump(content))
+    with pytest.raises(graphcal.RecordingError, match=re.escape(f"field '{field}'")) as error:
+        Calibration.load(path, street_with_traffic.sensor)
+    assert "calibration.yaml" in str(error.value)
 
 
 def test_true_calibration_applied_gives_the_true_cloud(street_with_traffic):

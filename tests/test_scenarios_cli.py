@@ -75,3 +75,6 @@ def test_cli_calibrate_writes_a_run_folder_and_rejects_a_bad_config(tmp_path):
     settings.write_text("max_outer_iterations: 0\n")
     result = runner.invoke(app, ["calibrate", str(recording), "--config", str(settings)])
     assert result.exit_code == 2 and "max_outer_iterations" in result.output and "Traceback" not in result.output
+    settings.write_text("- mode: joint\n")
+    result = runner.invoke(app, ["calibrate", str(recording), "--config", str(settings)])
+    assert result.exit_code == 2 and "settings.yaml: not a mapping" in result.output

@@ -8,7 +8,13 @@ import gtsam
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from graphcal.calibration.problem import Estimate, ReturnData, pose_of, prepare, world_at
+from graphcal.calibration.problem import (
+    Estimate,
+    ReturnData,
+    pose_of,
+    prepare,
+    world_at,
+)
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.errors import GraphcalError
 from graphcal.intrinsics import offsets_to_file_units

@@ -60,12 +60,16 @@ class Calibration:
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise RecordingError(path, f"format is {data.get('format') if isinstance(data, dict) else data!r}",
                                  field="format", expected=FORMAT)
-        model = (data.get("sensor") or {}).get("model")
+        header = _mapping(data.get("sensor"), path, "sensor", "model and reference_fibre")
+        model = header.get("model")
         if model != sensor.model:
             raise RecordingError(path, f"sensor model {model!r}", field="sensor.model",
                                  expected=f"{sensor.model!r}, the recording's sensor")
+        if header.get("reference_fibre") != sensor.reference_fibre:
+            raise RecordingError(path, f"reference fibre {header.get('reference_fibre')!r}", field="sensor.reference_fibre",
+                                 expected=f"{sensor.reference_fibre}, the recording's (offsets are relative to it)")
         rows = data.get("intrinsics") or []
-        if len(rows) != sensor.n_fibres:
+        if not isinstance(rows, list) or len(rows) != sensor.n_fibres:
             raise RecordingError(path, f"{len(rows)} intrinsic rows", field="intrinsics",
                                  expected=f"one row per fibre ({sensor.n_fibres})")
         offsets = np.zeros((sensor.n_fibres, 4))
@@ -76,19 +80,20 @@ class Calibration:
             offsets[index] = [0.0 if row.get(name) is None  # unobservable: held at its nominal value
                               else finite_number(row[name], path, f"intrinsics[{index}].{name}")
                               for name in INTRINSIC_NAMES]
-        extrinsic = Extrinsic.from_dict({k: data.get("extrinsic", {}).get(k) for k in ("lever_arm_m", "boresight_deg")},
-                                        path)
+        extrinsic = _mapping(data.get("extrinsic"), path, "extrinsic", "lever_arm_m and boresight_deg")
+        extrinsic = Extrinsic.from_dict({k: extrinsic.get(k) for k in ("lever_arm_m", "boresight_deg")}, path)
         corrections, times = [], []
         for index, row in enumerate(data.get("trajectory_corrections") or []):
             where = f"trajectory_corrections[{index}]"
+            row = _mapping(row, path, where, "time, d_position_m, d_rotation_deg")
             times.append(finite_number(row.get("time"), path, f"{where}.time"))
-            d_position = [finite_number(v, path, f"{where}.d_position_m") for v in row.get("d_position_m", [0, 0, 0])]
-            d_rotation = [finite_number(v, path, f"{where}.d_rotation_deg") for v in row.get("d_rotation_deg", [0, 0, 0])]
+            d_position, d_rotation = (_vector3(row.get(name, [0, 0, 0]), path, f"{where}.{name}")
+                                      for name in ("d_position_m", "d_rotation_deg"))
             corrections.append(gtsam.Pose3(gtsam.Rot3.Expmap(np.radians(d_rotation)), np.asarray(d_position)))
         if len(times) == 1 or np.any(np.diff(times) <= 0):
             raise RecordingError(path, "control times not increasing", field="trajectory_corrections.time",
                                  expected="none, or at least two strictly increasing times")
-        return cls(model, int(data["sensor"].get("reference_fibre", sensor.reference_fibre)),
+        return cls(model, sensor.reference_fibre,
                    Estimate(offsets_from_file_units(offsets), pose_of(extrinsic), tuple(corrections)), np.asarray(times),
                    tuple(data.get("unobservable") or ()))
 
@@ -176,3 +181,15 @@ class CalibrationResult:
 def _gtsam_version() -> str:
     from importlib.metadata import version
     return version("gtsam")
+
+
+def _mapping(value, path: Path, field: str, expected: str) -> dict:
+    if not isinstance(value, dict):
+        raise RecordingError(path, f"{field} is {value!r}", field=field, expected=f"a mapping with {expected}")
+    return value
+
+
+def _vector3(value, path: Path, field: str) -> np.ndarray:
+    if not isinstance(value, list) or len(value) != 3:
+        raise RecordingError(path, f"{field} is {value!r}", field=field, expected="a list of 3 numbers")
+    return np.array([finite_number(v, path, field) for v in value])
