@@ -4,8 +4,11 @@ Residual of correspondence k between return p (fibre i) and return m (fibre j), 
 
     r_k = sqrt(w_k) / sigma0 * n_k . (p_w - m_w)
 
-with n_k the unit normal at p and w_k its planarity weight, both held fixed between
-association refreshes, and sigma0 [m] the nominal point noise (so r is whitened: the cost is
+with n_k the unit normal at p and w_k its planarity weight, both from the last association
+refresh; n_k is held in p's lidar frame and turns with p's extrinsic and trajectory rotation
+(world_normals), so that a rigid turn of the cloud leaves r unchanged: with world-fixed normals
+it would not, and the pairs' along-surface offsets would pretend to observe a rotation the data
+cannot see (the roll about the driving direction on a straight drive). sigma0 [m] is the nominal point noise (so r is whitened: the cost is
 (W / sigma0^2) J with J the normalised energy of eq. 4.4/5.2 and W the weight sum). Both points
 move: p and m are each placed at their own time between their own control times (eq. 5.4).
 
@@ -27,7 +30,7 @@ from functools import partial
 import gtsam
 import numpy as np
 
-from factors.world_point import Corrections, Returns, world_points
+from factors.world_point import Corrections, Returns, world_normals, world_points
 
 SLOTS = ("intrinsic_p", "intrinsic_m", "extrinsic", "p_lo", "p_hi", "m_lo", "m_hi")
 
@@ -69,7 +72,8 @@ class FixedValues:
 
 @dataclass(frozen=True)
 class Block:
-    """Correspondences of one block: returns p and m (N each), normal at p (N,3), weight (N,)."""
+    """Correspondences of one block: returns p and m (N each), unit normal at p in p's lidar
+    frame (N,3), weight (N,)."""
 
     p: Returns
     m: Returns
@@ -103,26 +107,30 @@ def residuals(block: Block, values: gtsam.Values, jacobians: bool = True):
     E = values.atPose3(keys.extrinsic) if keys.extrinsic is not None else block.fixed.extrinsic
     R_E, t_E = E.rotation().matrix(), E.translation()
 
-    def side(returns: Returns, offsets, lo, hi):
+    def controls(lo, hi):
         (t_lo, r_lo), (t_hi, r_hi) = _control(values, lo, n, pose), _control(values, hi, n, pose)
-        return world_points(returns, np.broadcast_to(offsets, (n, 4)), R_E, t_E,
-                            Corrections(t_lo, t_hi, r_lo, r_hi), jacobians)
+        return Corrections(t_lo, t_hi, r_lo, r_hi)
 
-    p_w, J_p = side(block.p, offsets_p, keys.p_lo, keys.p_hi)
-    m_w, J_m = side(block.m, offsets_m, keys.m_lo, keys.m_hi)
+    at_p, at_m = controls(keys.p_lo, keys.p_hi), controls(keys.m_lo, keys.m_hi)
+    p_w, J_p = world_points(block.p, np.broadcast_to(offsets_p, (n, 4)), R_E, t_E, at_p, jacobians)
+    m_w, J_m = world_points(block.m, np.broadcast_to(offsets_m, (n, 4)), R_E, t_E, at_m, jacobians)
+    n_w, J_n = world_normals(block.p, R_E, at_p, block.normal, jacobians)
     scale = np.sqrt(block.weight) / block.sigma0_m
-    r = scale * np.einsum("ni,ni->n", block.normal, p_w - m_w)
+    r = scale * np.einsum("ni,ni->n", n_w, p_w - m_w)
     if not jacobians:
         return r, None
-    sn = scale[:, None] * block.normal
-    terms = [(keys.intrinsic_p, J_p.intrinsic, 1.0), (keys.intrinsic_m, J_m.intrinsic, -1.0),
-             (keys.extrinsic, J_p.extrinsic, 1.0), (keys.extrinsic, J_m.extrinsic, -1.0),
-             (keys.p_lo, J_p.control_lo, 1.0), (keys.p_hi, J_p.control_hi, 1.0),
-             (keys.m_lo, J_m.control_lo, -1.0), (keys.m_hi, J_m.control_hi, -1.0)]
+    sn, sd = scale[:, None] * n_w, scale[:, None] * (p_w - m_w)
+    # d r = s n . (d p - d m) + s (p - m) . d n; the normal turns with p's extrinsic and controls
+    terms = [(keys.intrinsic_p, sn, J_p.intrinsic, 1.0), (keys.intrinsic_m, sn, J_m.intrinsic, -1.0),
+             (keys.extrinsic, sn, J_p.extrinsic, 1.0), (keys.extrinsic, sn, J_m.extrinsic, -1.0),
+             (keys.extrinsic, sd, J_n.extrinsic, 1.0),
+             (keys.p_lo, sn, J_p.control_lo, 1.0), (keys.p_hi, sn, J_p.control_hi, 1.0),
+             (keys.p_lo, sd, J_n.control_lo, 1.0), (keys.p_hi, sd, J_n.control_hi, 1.0),
+             (keys.m_lo, sn, J_m.control_lo, -1.0), (keys.m_hi, sn, J_m.control_hi, -1.0)]
     H: dict[int, np.ndarray] = {}
-    for key, J, sign in terms:
+    for key, along, J, sign in terms:
         if key is not None:
-            row = sign * np.einsum("ni,nij->nj", sn, J)
+            row = sign * np.einsum("ni,nij->nj", along, J)
             H[key] = H[key] + row if key in H else row
     return r, H
 

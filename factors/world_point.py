@@ -62,6 +62,38 @@ class WorldJacobians:
     control_hi: np.ndarray
 
 
+@dataclass(frozen=True)
+class _Turn:
+    """The interpolated rotation correction R_w = Exp(w), w = (1 - alpha) w_lo + alpha w_hi, of
+    each return (None for translation-only corrections), and G_lo/hi = J_r(w) J_r(w_lo/hi)^-1 (1 - alpha)/alpha,
+    so that d(R_w u)/d(rotation of the lo/hi control) = -R_w [u]x G_lo/hi."""
+
+    R_w: np.ndarray | None
+    G_lo: np.ndarray | None = None
+    G_hi: np.ndarray | None = None
+
+    @classmethod
+    def of(cls, corrections: Corrections, alpha: np.ndarray, jacobians: bool) -> _Turn:
+        if corrections.rotation_lo is None:
+            return cls(None)
+        a = alpha[:, None]
+        w_lo, w_hi = so3.log(corrections.rotation_lo), so3.log(corrections.rotation_hi)
+        w = (1 - a) * w_lo + a * w_hi
+        if not jacobians:
+            return cls(so3.exp(w))
+        Jr = so3.right_jacobian(w)
+        return cls(so3.exp(w), (1 - a[:, :, None]) * Jr @ so3.right_jacobian_inverse(w_lo),
+                   a[:, :, None] * Jr @ so3.right_jacobian_inverse(w_hi))
+
+    def apply(self, u: np.ndarray) -> np.ndarray:
+        return u if self.R_w is None else np.einsum("nij,nj->ni", self.R_w, u)
+
+    def d_rotation(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """d(R_w u)/d(rotation of the lo, hi control), (N, 3, 3) each."""
+        turned = -self.R_w @ so3.skew(u)
+        return turned @ self.G_lo, turned @ self.G_hi
+
+
 def world_points(returns: Returns, offsets: np.ndarray, R_E: np.ndarray, t_E: np.ndarray,
                  corrections: Corrections, jacobians: bool = True) -> tuple[np.ndarray, WorldJacobians | None]:
     """(N,3) world points [m] and, if asked, their Jacobians. offsets: (N,4) per return."""
@@ -69,27 +101,49 @@ def world_points(returns: Returns, offsets: np.ndarray, R_E: np.ndarray, t_E: np
     p_b = p_l @ R_E.T + t_E
     q = np.einsum("nij,nj->ni", returns.R_nav, p_b)
     a = returns.alpha[:, None]
-    v = (1 - a) * corrections.translation_lo + a * corrections.translation_hi
-    pose = corrections.rotation_lo is not None
-    if pose:
-        w_lo, w_hi = so3.log(corrections.rotation_lo), so3.log(corrections.rotation_hi)
-        w = (1 - a) * w_lo + a * w_hi
-        R_w = so3.exp(w)
-        p_w = returns.X_nav + v + np.einsum("nij,nj->ni", R_w, q)
-    else:
-        p_w = returns.X_nav + v + q
+    turn = _Turn.of(corrections, returns.alpha, jacobians)
+    p_w = returns.X_nav + (1 - a) * corrections.translation_lo + a * corrections.translation_hi + turn.apply(q)
     if not jacobians:
         return p_w, None
 
-    M = R_w @ returns.R_nav if pose else returns.R_nav  # d p_w / d p_b
+    M = returns.R_nav if turn.R_w is None else turn.R_w @ returns.R_nav  # d p_w / d p_b
     MR_E = M @ R_E
     intrinsic = MR_E @ J_intrinsic
     extrinsic = np.concatenate([-MR_E @ so3.skew(p_l), np.broadcast_to(MR_E, MR_E.shape)], axis=2)
-    if pose:
-        d_rotated_dw = -R_w @ so3.skew(q) @ so3.right_jacobian(w)
-        lo = np.concatenate([d_rotated_dw @ so3.right_jacobian_inverse(w_lo), corrections.rotation_lo], axis=2)
-        hi = np.concatenate([d_rotated_dw @ so3.right_jacobian_inverse(w_hi), corrections.rotation_hi], axis=2)
-    else:
-        lo = hi = np.broadcast_to(np.eye(3), (len(p_w), 3, 3))
     aa = a[:, :, None]
-    return p_w, WorldJacobians(intrinsic, extrinsic, (1 - aa) * lo, aa * hi)
+    if turn.R_w is None:
+        eye = np.broadcast_to(np.eye(3), (len(p_w), 3, 3))
+        return p_w, WorldJacobians(intrinsic, extrinsic, (1 - aa) * eye, aa * eye)
+    d_lo, d_hi = turn.d_rotation(q)
+    return p_w, WorldJacobians(intrinsic, extrinsic,
+                               np.concatenate([d_lo, (1 - aa) * corrections.rotation_lo], axis=2),
+                               np.concatenate([d_hi, aa * corrections.rotation_hi], axis=2))
+
+
+def world_normals(returns: Returns, R_E: np.ndarray, corrections: Corrections, normal_lidar: np.ndarray,
+                  jacobians: bool = True) -> tuple[np.ndarray, WorldJacobians | None]:
+    """(N,3) unit normals in world axes of normals held in each return's lidar frame, turned by
+    the extrinsic rotation, the INS attitude and the rotation correction at its time, so that a
+    rigid turn of the cloud turns its normals too (point-to-plane distances stay invariant and
+    an unobservable rotation stays unobservable). Jacobians as world_points' (intrinsic zero;
+    translation columns zero)."""
+    u = np.einsum("nij,nj->ni", returns.R_nav, normal_lidar @ R_E.T)
+    turn = _Turn.of(corrections, returns.alpha, jacobians)
+    n_w = turn.apply(u)
+    if not jacobians:
+        return n_w, None
+    M = returns.R_nav if turn.R_w is None else turn.R_w @ returns.R_nav
+    zeros = np.zeros((len(n_w), 3, 3))
+    extrinsic = np.concatenate([-(M @ R_E) @ so3.skew(normal_lidar), zeros], axis=2)
+    if turn.R_w is None:
+        return n_w, WorldJacobians(np.zeros((len(n_w), 3, 4)), extrinsic, zeros, zeros)
+    d_lo, d_hi = turn.d_rotation(u)
+    return n_w, WorldJacobians(np.zeros((len(n_w), 3, 4)), extrinsic, np.concatenate([d_lo, zeros], axis=2),
+                               np.concatenate([d_hi, zeros], axis=2))
+
+
+def normals_to_lidar(returns: Returns, R_E: np.ndarray, corrections: Corrections, normal_world: np.ndarray) -> np.ndarray:
+    """Inverse of world_normals at the given values: world-axes normals (N,3) -> each return's lidar frame."""
+    turn = _Turn.of(corrections, returns.alpha, jacobians=False)
+    u = normal_world if turn.R_w is None else np.einsum("nji,nj->ni", turn.R_w, normal_world)
+    return np.einsum("nji,nj->ni", returns.R_nav, u) @ R_E

@@ -10,6 +10,7 @@ import re
 import numpy as np
 import pytest
 import yaml
+from scipy.spatial.transform import Rotation
 
 import graphcal
 from graphcal.calibration.calibrate import calibrate
@@ -117,3 +118,31 @@ def test_level_head_leaves_range_and_height_of_road_only_fibres_unobservable(tmp
     row = saved["intrinsics"][int(lowest[0])]
     assert row["d_range_m"] is None and row["h_z_m"] is None and row["d_elevation_deg"] is not None
     assert f"fibre_{lowest[0]}.h_z_m" in saved["unobservable"]
+
+
+def test_straight_drive_leaves_the_lever_arm_and_roll_unobservable(tmp_path):
+    """On a straight drive the body never turns: a lever-arm error shifts every scan by the same
+    world vector, and a roll about the driving direction turns the whole cloud rigidly about the
+    driving line; no self-consistency energy sees either. Those four must be named unobservable,
+    held at nominal (sigma null in the yaml); pitch and yaw (which move a surface differently
+    when seen ahead and behind) stay estimated and come back to the truth."""
+    scenario = SIM2(size=0.02, seed=3)
+    scenario = scenario.model_copy(update={
+        "intrinsic_errors": IntrinsicErrors(),
+        "extrinsic": scenario.extrinsic.model_copy(update={"error_lever_arm_m": (0.1, -0.1, 0.2),
+                                                          "error_boresight_deg": (0.5, -0.4, 0.6)})})
+    recording = graphcal.Recording.load(graphcal.simulate(scenario, quiet=True).save(tmp_path / "rec"))
+    result = calibrate(recording, CalibrationConfig(mode="extrinsic", max_outer_iterations=15), quiet=True)
+    unseen = {"extrinsic.roll_deg", "extrinsic.lever_arm_x_m", "extrinsic.lever_arm_y_m", "extrinsic.lever_arm_z_m"}
+    assert set(result.unobservable) == unseen
+    estimate = result.calibration.estimate.extrinsic
+    np.testing.assert_allclose(estimate.translation(), recording.extrinsic.lever_arm_m, atol=1e-6)  # held at nominal
+    error_deg = Rotation.from_matrix(recording.truth.extrinsic.R_body_lidar @ estimate.rotation().matrix().T
+                                     ).as_rotvec(degrees=True)  # body axes: roll, pitch, yaw
+    nominal_error_deg = Rotation.from_matrix(recording.truth.extrinsic.R_body_lidar @ recording.extrinsic.R_body_lidar.T
+                                             ).as_rotvec(degrees=True)
+    assert np.all(np.abs(nominal_error_deg[1:]) > 0.3) and np.all(np.abs(error_deg[1:]) < 0.005), error_deg
+    saved = yaml.safe_load(result.save(tmp_path / "run").read_text())
+    assert saved["extrinsic"]["sigma"]["lever_arm_m"] == [None, None, None]  # the nominal value, not an estimate
+    assert saved["extrinsic"]["sigma"]["boresight_deg"][0] is None and None not in saved["extrinsic"]["sigma"]["boresight_deg"][1:]
+    assert unseen <= set(saved["unobservable"])

@@ -29,7 +29,13 @@ def test_scenarios_match_their_specification():
     assert sim2.sensor_model == "HDL-32E" and sim2.intrinsic_errors.rms == (0.10, 2.5, 3.0, 0.10)
     assert sim2.intrinsic_errors.bounds == (0.10, 3.0, 3.0, 0.10) and sim2.size == 0.5
     sim6 = load_scenario_builder("sim6_turn")()
-    assert sim6.ins.piecewise_error_m == 0.13 and 5.0 <= sim6.duration_s <= 6.0
+    assert sim6.ins.piecewise_error_m == 0.35 and 5.0 <= sim6.duration_s <= 6.0 and sim6.effects == {}
+    turned = load_scenario_builder("sim6_turn")(heading_error_deg=0.5, piecewise_error_m=0.0)
+    assert turned.effects == {"heading_bias": {"bias_deg": 0.5}} and turned.ins.piecewise_error_m == 0.0
+    joint_start = load_scenario_builder("sim2_street")(start="section_4_5_2")
+    assert joint_start.extrinsic.error_lever_arm_m == (0.5, 0.5, 0.8)
+    assert joint_start.extrinsic.error_boresight_deg == (2.5, 3.0, -2.0)
+    assert joint_start.intrinsic_errors.rms == (0.03, 0.3, 0.3, 0.03)
     assert sum(obj.kind == "facade" for obj in sim6.scene) == 4
     for name, speed in (("deskew_linear", 10.0), ("deskew_rotation", 5.0)):
         scenario = load_scenario_builder(name)()

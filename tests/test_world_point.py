@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from factors import so3
-from factors.world_point import Corrections, Returns, world_points
+from factors.world_point import Corrections, Returns, normals_to_lidar, world_normals, world_points
 from graphcal.sensor import sensor_from_catalog
 
 N = 300
@@ -74,6 +74,54 @@ def test_jacobians_match_finite_differences(problem, pose):
             return _evaluate(returns, offsets, E, changed, pose)[0]
         numeric = _numeric(moved, 6 if pose else 3, 1e-6)
         np.testing.assert_allclose(analytic, numeric, atol=1e-6)
+
+
+@pytest.mark.parametrize("pose", [False, True], ids=["translation", "pose"])
+def test_normal_jacobians_match_finite_differences_and_invert(problem, pose):
+    returns, _, E, controls = problem
+    normal = np.random.default_rng(3).normal(size=(N, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+
+    def turned(E, controls):
+        return world_normals(returns, E.rotation().matrix(), _corrections(controls, pose), normal)
+
+    n_w, J = turned(E, controls)
+    np.testing.assert_allclose(np.linalg.norm(n_w, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(normals_to_lidar(returns, E.rotation().matrix(), _corrections(controls, pose), n_w),
+                               normal, atol=1e-12)
+    numeric = _numeric(lambda d: turned(E.retract(d), controls)[0], 6, 1e-6)
+    np.testing.assert_allclose(J.extrinsic, numeric, atol=1e-6)
+    for index, analytic in ((0, J.control_lo), (1, J.control_hi)):
+        def moved(d, index=index):
+            changed = list(controls)
+            changed[index] = (controls[index].retract(d) if pose else
+                              gtsam.Pose3(controls[index].rotation(), controls[index].translation() + d))
+            return turned(E, changed)[0]
+        np.testing.assert_allclose(analytic, _numeric(moved, 6 if pose else 3, 1e-6), atol=1e-6)
+
+
+def test_a_rigid_turn_of_the_cloud_turns_its_normals():
+    """Straight drive along x, body x forward: turning the extrinsic about body x turns every
+    point and normal rigidly about the driving line (up to a constant shift), so n . (p - m)
+    is unchanged: the roll the data cannot see stays unseen."""
+    rng = np.random.default_rng(5)
+    sensor = sensor_from_catalog("HDL-32E")
+    fibre = rng.integers(0, sensor.n_fibres, N)
+    X_nav = np.column_stack([rng.uniform(0, 50, N), np.zeros(N), np.zeros(N)])
+    returns = Returns(rng.uniform(2, 40, N), rng.uniform(0, 2 * np.pi, N), sensor.factory_terms(fibre),
+                      np.broadcast_to(np.eye(3), (N, 3, 3)), X_nav, rng.uniform(0, 1, N))
+    m_rows = rng.permutation(N)
+    zero = _corrections([gtsam.Pose3(), gtsam.Pose3()], pose=False)
+    E = gtsam.Pose3(gtsam.Rot3.Ypr(np.pi / 2, 0.0, 0.3), np.array([0.8, 0.0, 1.9]))
+    normal = rng.normal(size=(N, 3))
+
+    def distances(E):
+        p, _ = world_points(returns, np.zeros((N, 4)), E.rotation().matrix(), E.translation(), zero, jacobians=False)
+        n, _ = world_normals(returns, E.rotation().matrix(), zero, normal, jacobians=False)
+        return np.einsum("ni,ni->n", n, p - p[m_rows])
+
+    rolled = gtsam.Pose3(gtsam.Rot3.Roll(0.01) * E.rotation(), E.translation())  # about body x
+    np.testing.assert_allclose(distances(rolled), distances(E), atol=1e-9)
 
 
 def test_translation_corrections_interpolate_linearly(problem):

@@ -93,7 +93,8 @@ def final_fit(data: ReturnData, estimate: Estimate, config: CalibrationConfig, e
     residual = np.einsum("ni,ni->n", pairs.normal, points[pairs.index_p] - points[pairs.index_m])
     graph, values = build_graph(data, estimate, pairs, config, estimated, nominal, priors, damped=False)
     return FinalFit(pairs, residual, uncertainty(gtsam.Marginals(graph, values), data, estimate, config, estimated,
-                                                 nominal, priors, control_prior_sigma(config)))
+                                                 nominal, priors,
+                                                 control_prior_sigma(config, float(pairs.weight.sum()))))
 
 
 def uncertainty(marginals: gtsam.Marginals, data: ReturnData, estimate: Estimate, config: CalibrationConfig,

@@ -48,7 +48,9 @@ class CalibrationConfig(BaseModel):
     sigma0_m: float = Field(0.01, gt=0, description="nominal point noise: residuals are whitened by it")
     control_interval_s: float = Field(1.0, gt=0)
     pose_corrections: bool = Field(False, description="Pose3 trajectory corrections (else Point3)")
-    lambda_rigid: float = Field(100.0, gt=0, description="weight of E_def against sum w d^2 [m^2] (eq. 5.5; the seed: 1e2)")
+    lambda_rigid: float = Field(1e-5, gt=0, description=(
+        "weight of E_def against the normalised energy J (eq. 5.4, both m^2): the seed's 1e2 is against the "
+        "un-normalised sum of eq. 5.5 over a full cloud's pairs (weight sum ~1e7)"))
     deformation: Literal["prior", "monnier"] = "prior"
     intrinsic_sigma_range_m: float = Field(0.3, gt=0, description="prior on d_range and Hz about the nominal 0")
     intrinsic_sigma_angle_deg: float = Field(10.0, gt=0, description="prior on d_azimuth and d_elevation")

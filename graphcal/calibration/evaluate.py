@@ -15,6 +15,7 @@ from graphcal.calibration.problem import (
     prepare,
     world_at,
 )
+from graphcal.calibration.observability import TRAJECTORY_GAUGE
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.errors import GraphcalError
 from graphcal.intrinsics import offsets_to_file_units
@@ -59,9 +60,11 @@ class Evaluation:
     """A calibration against truth/: eq. 4.6 RMS of the intrinsic offsets (cm, deg, deg, cm) over
     the fibres but the reference, before (nominal) and after; extrinsic errors (lever arm m,
     rotation deg) before/after; cloud-to-cloud distance to the true cloud before/after; J [cm^2].
-    common_offset_m: mean of (calibrated - true) position over the returns [m, world]: a
-    translation of the whole cloud, which no self-consistency energy observes (the trajectory's
-    common translation); cloud_after_gauge_free is the distance once it is removed."""
+    common_offset_m: mean of (calibrated - true) position over the returns [m, world]; the
+    trajectory's common translation (and, with pose corrections, common rotation) is a gauge no
+    self-consistency energy observes (the result names it unobservable): cloud_after_gauge_free
+    is the distance once that rigid motion, fitted to truth, is removed (the plain after
+    distance when the result has no such gauge)."""
 
     intrinsic_rms_before: np.ndarray
     intrinsic_rms_after: np.ndarray
@@ -116,6 +119,7 @@ def evaluate(result: CalibrationResult, recording: Recording, max_points: int = 
         return float(np.degrees(Rotation.from_matrix(R.T @ true_R).magnitude()))
 
     offset = np.mean(after_cloud - reference_cloud[rows], axis=0)
+    gauge_free = remove_gauge(after_cloud, reference_cloud[rows], result.unobservable)
     return Evaluation(
         intrinsic_rms(np.zeros_like(truth.intrinsics), truth.intrinsics, sensor.reference_fibre),
         intrinsic_rms(cal.estimate.offsets, truth.intrinsics, sensor.reference_fibre),
@@ -124,4 +128,18 @@ def evaluate(result: CalibrationResult, recording: Recording, max_points: int = 
         DistanceStats.of(cloud_to_cloud(nominal_cloud, reference_cloud)),
         DistanceStats.of(cloud_to_cloud(after_cloud, reference_cloud)),
         result.energy_cm2, offset,
-        DistanceStats.of(cloud_to_cloud(after_cloud - offset, reference_cloud)))
+        DistanceStats.of(cloud_to_cloud(gauge_free, reference_cloud)))
+
+
+def remove_gauge(points_m: np.ndarray, truth_m: np.ndarray, unobservable) -> np.ndarray:
+    """points (N,3) [m, world] moved by the rigid motion, fitted to their true positions (N,3),
+    that the unobservable names allow: translation for trajectory.common_translation, rotation
+    about the centroid too for trajectory.common_rotation (Kabsch, scipy)."""
+    translation, rotation = TRAJECTORY_GAUGE
+    if translation not in unobservable:
+        return points_m
+    centre, true_centre = points_m.mean(axis=0), truth_m.mean(axis=0)
+    moved = points_m - centre
+    if rotation in unobservable:
+        moved = Rotation.align_vectors(truth_m - true_centre, moved)[0].apply(moved)
+    return moved + true_centre

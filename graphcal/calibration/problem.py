@@ -55,7 +55,8 @@ class Estimate:
 def prepare(recording: Recording, control_interval_s: float, max_points: int | None = None,
             rng: np.random.Generator | None = None, control_times_s: np.ndarray | None = None) -> ReturnData:
     """Read the returns (a random subset of max_points if given) and the INS pose at each one's
-    time; control times about control_interval_s apart span them, unless given."""
+    time; control times control_interval_s apart from the trajectory's first pose span them,
+    unless given."""
     columns = recording.points.read(["time", "fibre", "range", "azimuth"])
     rows = np.arange(len(columns["time"]))
     if max_points is not None and len(rows) > max_points:
@@ -64,8 +65,7 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
     position, rotation = recording.world.poses.interpolate(time)
     origin = np.round(position.mean(axis=0))
     if control_times_s is None:
-        n_controls = max(2, int(np.ceil((time[-1] - time[0]) / control_interval_s)) + 1)
-        control_times = np.linspace(time[0], time[-1], n_controls)
+        control_times = control_grid(recording.world.poses.span[0], time[0], time[-1], control_interval_s)
     else:
         control_times = np.asarray(control_times_s, dtype=np.float64)
     control = np.clip(np.searchsorted(control_times, time, side="right") - 1, 0, len(control_times) - 2)
@@ -73,6 +73,17 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
     return ReturnData(recording.sensor, rows, columns["fibre"][rows].astype(np.int64),
                       columns["range"][rows].astype(np.float64), columns["azimuth"][rows].astype(np.float64),
                       time, rotation.as_matrix(), position - origin, control, alpha, control_times, origin)
+
+
+def control_grid(anchor_s: float, first_s: float, last_s: float, interval_s: float) -> np.ndarray:
+    """Control times [s] anchor_s + k interval_s (k integer) covering [first_s, last_s]: anchored
+    at the trajectory's first pose, so they do not shift with the subset of returns used. An
+    infinite interval gives the two controls [first_s, last_s]."""
+    if not np.isfinite(interval_s):
+        return np.array([first_s, last_s])
+    k_first = np.floor((first_s - anchor_s) / interval_s + 1e-9)
+    k_last = max(np.ceil((last_s - anchor_s) / interval_s - 1e-9), k_first + 1)
+    return anchor_s + interval_s * np.arange(k_first, k_last + 1)
 
 
 def pose_of(extrinsic: Extrinsic) -> gtsam.Pose3:

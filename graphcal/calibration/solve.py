@@ -1,8 +1,9 @@
 """The outer loop: associate -> build one GTSAM graph -> Levenberg-Marquardt -> update (ICP-like).
 
 Energy of eq. 4.4/5.2: J = sum w d^2 / sum w, reported in cm^2, with d the point-to-plane
-distance; the graph's cost is (W / sigma0^2) J + priors = (sum w d^2 + lambda_rigid |dX|^2) / sigma0^2
-as in eq. 5.5, so E_def's prior has sigma = sigma0 / sqrt(lambda_rigid) on each control.
+distance; the graph's cost is (W / sigma0^2) (J + lambda_rigid E_def) + priors, eq. 5.4 with J
+normalised by the weight sum W, so E_def's prior has sigma = sigma0 / sqrt(lambda_rigid W) on each
+control: the balance of data and rigidity does not depend on how many pairs are drawn.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import gtsam
 import numpy as np
 
 from factors.point_to_plane import Block, BlockKeys, FixedValues, make_factor
+from factors.world_point import normals_to_lidar
 from graphcal.association import (
     Correspondences,
     associate,
@@ -21,7 +23,7 @@ from graphcal.association import (
 )
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.observability import tangent_to_axes
-from graphcal.calibration.problem import Estimate, ReturnData, world_at
+from graphcal.calibration.problem import Estimate, ReturnData, corrections_at, world_at
 from graphcal.progress import progress
 
 I = gtsam.symbol_shorthand.I
@@ -99,6 +101,8 @@ def build_graph(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
         create = {"huber": gtsam.noiseModel.mEstimator.Huber, "cauchy": gtsam.noiseModel.mEstimator.Cauchy}
         robust = create[config.robust].Create(config.robust_k, scheme)
 
+    normal_lidar = normals_to_lidar(data.returns(pairs.index_p), estimate.extrinsic.rotation().matrix(),
+                                    corrections_at(estimate, data.control[pairs.index_p], pose), pairs.normal)
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     for (i, j, c_p, c_m), start, stop in zip(unique, bounds[:-1], bounds[1:]):
         rows = order[start:stop]
@@ -110,7 +114,7 @@ def build_graph(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
         if not keys.unique():
             continue
         block = Block(p=data.returns(pairs.index_p[rows]), m=data.returns(pairs.index_m[rows]),
-                      normal=pairs.normal[rows], weight=pairs.weight[rows], keys=keys, pose_corrections=pose,
+                      normal=normal_lidar[rows], weight=pairs.weight[rows], keys=keys, pose_corrections=pose,
                       fixed=FixedValues(estimate.offsets[i], estimate.offsets[j], estimate.extrinsic),
                       sigma0_m=config.sigma0_m)
         graph.add(make_factor(block, compressed=robust is None, robust=robust))
@@ -133,15 +137,16 @@ def build_graph(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
             graph.add(gtsam.PriorFactorPose3(E(0), estimate.extrinsic, gtsam.noiseModel.Diagonal.Sigmas(
                 np.r_[np.full(3, step_rad), np.full(3, step_m)])))
     if est_traj:
-        _add_trajectory(graph, values, estimate, config, control_prior_sigma(config), priors, damped)
+        _add_trajectory(graph, values, estimate, config, control_prior_sigma(config, float(pairs.weight.sum())),
+                        priors, damped)
     return graph, values
 
 
-def control_prior_sigma(config: CalibrationConfig) -> float:
-    """sigma [m, or rad x 1 m] of E_def's prior on each control correction: eq. 5.5 adds
-    lambda_rigid |dX|^2 to the weighted sum of squared distances [m^2], and the graph's cost is
-    that sum over sigma0^2."""
-    return config.sigma0_m / np.sqrt(config.lambda_rigid)
+def control_prior_sigma(config: CalibrationConfig, weight_sum: float) -> float:
+    """sigma [m, or rad x 1 m] of E_def's prior on each control correction: eq. 5.4 adds
+    lambda_rigid |dX|^2 to the normalised energy J [m^2], and the graph's cost is W J / sigma0^2
+    (W the weight sum of the pairs)."""
+    return config.sigma0_m / np.sqrt(config.lambda_rigid * max(weight_sum, 1.0))
 
 
 def _add_trajectory(graph, values, estimate: Estimate, config: CalibrationConfig, sigma: float, priors: Priors,
