@@ -5,7 +5,13 @@ import numpy as np
 import pytest
 
 from factors import so3
-from factors.world_point import Corrections, Returns, normals_to_lidar, world_normals, world_points
+from factors.world_point import (
+    Corrections,
+    Returns,
+    normals_to_lidar,
+    world_normals,
+    world_points,
+)
 from graphcal.sensor import sensor_from_catalog
 
 N = 300

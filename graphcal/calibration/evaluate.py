@@ -8,6 +8,7 @@ import gtsam
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from graphcal.calibration.observability import TRAJECTORY_GAUGE
 from graphcal.calibration.problem import (
     Estimate,
     ReturnData,
@@ -15,7 +16,6 @@ from graphcal.calibration.problem import (
     prepare,
     world_at,
 )
-from graphcal.calibration.observability import TRAJECTORY_GAUGE
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.errors import GraphcalError
 from graphcal.intrinsics import offsets_to_file_units
