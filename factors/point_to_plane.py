@@ -63,7 +63,8 @@ class BlockKeys:
 
 @dataclass(frozen=True)
 class FixedValues:
-    """Values used for slots that are not estimated (current estimates held fixed)."""
+    """Values used for slots that are not estimated (current estimates held fixed); offsets (4,)
+    for the block or (N,4) per correspondence."""
 
     offsets_p: np.ndarray = field(default_factory=lambda: np.zeros(4))
     offsets_m: np.ndarray = field(default_factory=lambda: np.zeros(4))
@@ -89,14 +90,15 @@ class Block:
 
 
 def _control(values: gtsam.Values | None, key: int | None, n: int, pose: bool):
-    """(translation (n,3), rotation (n,3,3) or None) of one control slot."""
+    """(translation (n,3), rotation (n,3,3) or None, rotation vector (n,3) or None) of one control slot."""
     if key is None:
-        return np.zeros((n, 3)), (np.broadcast_to(np.eye(3), (n, 3, 3)) if pose else None)
+        return (np.zeros((n, 3)), np.broadcast_to(np.eye(3), (n, 3, 3)) if pose else None,
+                np.zeros((n, 3)) if pose else None)
     if pose:
         value = values.atPose3(key)
-        return (np.broadcast_to(value.translation(), (n, 3)),
-                np.broadcast_to(value.rotation().matrix(), (n, 3, 3)))
-    return np.broadcast_to(values.atPoint3(key), (n, 3)), None
+        return (np.broadcast_to(value.translation(), (n, 3)), np.broadcast_to(value.rotation().matrix(), (n, 3, 3)),
+                np.broadcast_to(gtsam.Rot3.Logmap(value.rotation()), (n, 3)))
+    return np.broadcast_to(values.atPoint3(key), (n, 3)), None, None
 
 
 def residuals(block: Block, values: gtsam.Values, jacobians: bool = True):
@@ -108,8 +110,8 @@ def residuals(block: Block, values: gtsam.Values, jacobians: bool = True):
     R_E, t_E = E.rotation().matrix(), E.translation()
 
     def controls(lo, hi):
-        (t_lo, r_lo), (t_hi, r_hi) = _control(values, lo, n, pose), _control(values, hi, n, pose)
-        return Corrections(t_lo, t_hi, r_lo, r_hi)
+        (t_lo, r_lo, w_lo), (t_hi, r_hi, w_hi) = _control(values, lo, n, pose), _control(values, hi, n, pose)
+        return Corrections(t_lo, t_hi, r_lo, r_hi, w_lo, w_hi)
 
     at_p, at_m = controls(keys.p_lo, keys.p_hi), controls(keys.m_lo, keys.m_hi)
     p_w, J_p = world_points(block.p, np.broadcast_to(offsets_p, (n, 4)), R_E, t_E, at_p, jacobians)

@@ -44,12 +44,22 @@ class Returns:
 @dataclass(frozen=True)
 class Corrections:
     """Current trajectory corrections at the control times before (lo) and after (hi) each
-    return: translations (N,3) m and, for pose corrections, rotations (N,3,3) (None otherwise)."""
+    return: translations (N,3) m and, for pose corrections, rotations (N,3,3) and optionally their
+    rotation vectors (N,3) (None otherwise)."""
 
     translation_lo: np.ndarray
     translation_hi: np.ndarray
     rotation_lo: np.ndarray | None = None
     rotation_hi: np.ndarray | None = None
+    rotvec_lo: np.ndarray | None = None
+    rotvec_hi: np.ndarray | None = None
+
+    def rotvecs(self) -> tuple[np.ndarray, np.ndarray]:
+        """Log of the lo/hi rotations (N,3) [rad]: the given ones (callers that know them per
+        control pass them, a Log per return is the costliest step of a block), else computed."""
+        if self.rotvec_lo is not None:
+            return self.rotvec_lo, self.rotvec_hi
+        return so3.log(self.rotation_lo), so3.log(self.rotation_hi)
 
 
 @dataclass(frozen=True)
@@ -77,7 +87,7 @@ class _Turn:
         if corrections.rotation_lo is None:
             return cls(None)
         a = alpha[:, None]
-        w_lo, w_hi = so3.log(corrections.rotation_lo), so3.log(corrections.rotation_hi)
+        w_lo, w_hi = corrections.rotvecs()
         w = (1 - a) * w_lo + a * w_hi
         if not jacobians:
             return cls(so3.exp(w))

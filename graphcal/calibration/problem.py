@@ -103,7 +103,9 @@ def corrections_at(estimate: Estimate, control: np.ndarray, pose: bool) -> Corre
     if not pose:
         return Corrections(translation[control], translation[control + 1])
     rotation = np.array([c.rotation().matrix() for c in estimate.corrections])
-    return Corrections(translation[control], translation[control + 1], rotation[control], rotation[control + 1])
+    rotvec = np.array([gtsam.Rot3.Logmap(c.rotation()) for c in estimate.corrections])
+    return Corrections(translation[control], translation[control + 1], rotation[control], rotation[control + 1],
+                       rotvec[control], rotvec[control + 1])
 
 
 def world_at(data: ReturnData, estimate: Estimate, pose: bool, rows: np.ndarray | None = None) -> np.ndarray:

@@ -80,7 +80,8 @@ def energy_cm2(p_m: np.ndarray, m_m: np.ndarray, pairs: Correspondences) -> tupl
 def build_graph(data: ReturnData, estimate: Estimate, pairs: Correspondences, config: CalibrationConfig,
                 estimates: tuple[bool, bool, bool], nominal_extrinsic: gtsam.Pose3, priors: Priors,
                 damped: bool = True):
-    """One graph: a block factor per (fibre i, fibre j, control of p, control of m), plus priors.
+    """One graph: a block factor per (fibre i, fibre j, control of p, control of m), plus priors
+    (per (control of p, control of m) when the intrinsics are not estimated).
 
     damped adds a prior at the current estimate on every key (sigmas step_sigma_m/deg): one outer
     iteration cannot run far along directions the current pairs barely see. It leaves the fixed
@@ -90,6 +91,8 @@ def build_graph(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
     pose = config.pose_corrections
     ref = data.sensor.reference_fibre
     fi, fj = data.fibre[pairs.index_p], data.fibre[pairs.index_m]
+    if not est_int:  # no per-fibre key: one block per pair of control intervals holds every fibre pair
+        fi, fj = np.full_like(fi, ref), np.full_like(fj, ref)
     cp = data.control[pairs.index_p] if est_traj else np.zeros(len(pairs), int)
     cm = data.control[pairs.index_m] if est_traj else np.zeros(len(pairs), int)
     unique, inverse = np.unique(np.stack([fi, fj, cp, cm], axis=1), axis=0, return_inverse=True)
@@ -115,7 +118,8 @@ def build_graph(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
             continue
         block = Block(p=data.returns(pairs.index_p[rows]), m=data.returns(pairs.index_m[rows]),
                       normal=normal_lidar[rows], weight=pairs.weight[rows], keys=keys, pose_corrections=pose,
-                      fixed=FixedValues(estimate.offsets[i], estimate.offsets[j], estimate.extrinsic),
+                      fixed=FixedValues(estimate.offsets[data.fibre[pairs.index_p[rows]]],
+                                          estimate.offsets[data.fibre[pairs.index_m[rows]]], estimate.extrinsic),
                       sigma0_m=config.sigma0_m)
         graph.add(make_factor(block, compressed=robust is None, robust=robust))
 
