@@ -1,8 +1,16 @@
 """Benchmark: calibrate simulated scenarios and compare with truth (issue 3 acceptance figures).
 
-Cases: sim2_street intrinsic from the Table 4.1 start (noise-free), sim6_turn trajectory
-(translation corrections). Each case runs in its own process (its own peak memory). Prints the
-figures and writes benchmarks/results/calibrate.json.
+Cases (each in its own process, so each has its own peak memory):
+- sim2_intrinsic: sim2_street, intrinsics from the Table 4.1 start, noise-free;
+- sim2_noise: the same with 1 cm range noise; the RMS errors next to the Cramér-Rao bound
+  (the RMS of the Marginals' sigmas, sigma0 = the true 1 cm);
+- sim2_extrinsic_then_intrinsic, sim2_intrinsic_then_extrinsic, sim2_joint: the section 4.5.2
+  start (extrinsic 50/50/80 cm, 2.5/3/-2 deg; intrinsics 3 cm, 0.3 deg);
+- sim6_trajectory, sim6_trajectory_pose: the piecewise INS error, translation or pose corrections;
+- sim6_heading_translation, sim6_heading_pose: a 0.5 deg INS heading error;
+- sim6_joint_trajectory: intrinsics, extrinsic and trajectory at once.
+Prints the figures, writes benchmarks/results/calibrate.json and, when the three sim2 4.5.2
+cases ran, benchmarks/results/joint_vs_successive.png (J per outer iteration).
 """
 
 from __future__ import annotations
@@ -15,30 +23,74 @@ import resource
 import time
 from pathlib import Path
 
+import numpy as np
+
 RESULTS = Path(__file__).resolve().parent / "results"
-CASES = {"sim2_intrinsic": ("sim2_street", {"mode": "intrinsic"}),
-         "sim6_trajectory": ("sim6_turn", {"mode": "trajectory"}),
-         "sim6_joint_trajectory": ("sim6_turn", {"mode": "joint_trajectory"})}
+SECTION_4_5_2 = {"start": "section_4_5_2"}
+HEADING = {"heading_error_deg": 0.5, "piecewise_error_m": 0.0}
+CASES = {"sim2_intrinsic": ("sim2_street", {}, {"mode": "intrinsic"}),
+         "sim2_noise": ("sim2_street", {"range_noise_m": 0.01}, {"mode": "intrinsic", "sigma0_m": 0.01}),
+         "sim2_extrinsic_then_intrinsic": ("sim2_street", SECTION_4_5_2, {"mode": "extrinsic_then_intrinsic"}),
+         "sim2_intrinsic_then_extrinsic": ("sim2_street", SECTION_4_5_2, {"mode": "intrinsic_then_extrinsic"}),
+         "sim2_joint": ("sim2_street", SECTION_4_5_2, {"mode": "joint"}),
+         "sim6_trajectory": ("sim6_turn", {}, {"mode": "trajectory"}),
+         "sim6_trajectory_pose": ("sim6_turn", {}, {"mode": "trajectory", "pose_corrections": True}),
+         "sim6_heading_translation": ("sim6_turn", HEADING, {"mode": "trajectory"}),
+         "sim6_heading_pose": ("sim6_turn", HEADING, {"mode": "trajectory", "pose_corrections": True}),
+         "sim6_joint_trajectory": ("sim6_turn", {}, {"mode": "joint_trajectory"})}
+JOINT_VS_SUCCESSIVE = ("sim2_extrinsic_then_intrinsic", "sim2_intrinsic_then_extrinsic", "sim2_joint")
 
 
 def _case(name: str, size: float, max_points: int | None, queue) -> None:
     import graphcal
+    from graphcal.calibration.evaluate import intrinsic_rms
+    from graphcal.intrinsics import offsets_from_file_units
     from graphcal.sim.script import load_scenario_builder
 
-    scenario_name, settings = CASES[name]
-    recording = graphcal.simulate(load_scenario_builder(scenario_name)(size=size, seed=0), quiet=True)
+    scenario_name, scenario_settings, settings = CASES[name]
+    recording = graphcal.simulate(load_scenario_builder(scenario_name)(size=size, seed=0, **scenario_settings),
+                                  quiet=True)
     started = time.perf_counter()
     result = graphcal.calibrate(recording, graphcal.CalibrationConfig(**settings, max_points=max_points), quiet=True)
     seconds = time.perf_counter() - started
     evaluation = graphcal.evaluate(result, recording)
-    queue.put({"case": name, "returns": len(recording.points), "max_points": max_points, "calibrate_s": seconds,
-               "peak_gib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
-               "outer_iterations": len(result.history), "unobservable": list(result.unobservable),
-               "intrinsic_rms_after_cm_deg_deg_cm": evaluation.intrinsic_rms_after.tolist(),
-               "energy_cm2": list(evaluation.energy_cm2),
-               "c2c_mean_cm": [evaluation.cloud_before.mean * 100, evaluation.cloud_after.mean * 100],
-               "c2c_mean_no_common_offset_cm": evaluation.cloud_after_gauge_free.mean * 100,
-               "table": evaluation.table()})
+    row = {"case": name, "returns": len(recording.points), "max_points": max_points, "calibrate_s": seconds,
+           "peak_gib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
+           "outer_iterations": len(result.history), "unobservable": list(result.unobservable),
+           "intrinsic_rms_after_cm_deg_deg_cm": evaluation.intrinsic_rms_after.tolist(),
+           "lever_arm_error_m": list(evaluation.lever_arm_error_m),
+           "rotation_error_deg": list(evaluation.rotation_error_deg),
+           "energy_cm2": list(evaluation.energy_cm2),
+           "energy_curve_cm2": [h["energy_cm2"] for h in result.history],
+           "c2c_mean_cm": [evaluation.cloud_before.mean * 100, evaluation.cloud_after.mean * 100],
+           "c2c_mean_gauge_free_cm": evaluation.cloud_after_gauge_free.mean * 100,
+           "table": evaluation.table()}
+    if result.estimated[0]:
+        # eq. 4.6 applied to the sigmas: the RMS 1-sigma per type, the Cramér-Rao bound when sigma0 is the true noise
+        sigma = np.nan_to_num(result.uncertainty.intrinsics)
+        row["intrinsic_rms_sigma_cm_deg_deg_cm"] = intrinsic_rms(offsets_from_file_units(sigma), np.zeros_like(sigma),
+                                                                 recording.sensor.reference_fibre).tolist()
+    queue.put(row)
+
+
+def plot_energy_curves(figures: list[dict], out: Path) -> None:
+    """J [cm^2] per outer iteration of the joint and successive approaches (seed Fig. 4.4 style)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for row in figures:
+        if row["case"] in JOINT_VS_SUCCESSIVE:
+            ax.semilogy(row["energy_curve_cm2"], marker=".", label=row["case"].removeprefix("sim2_"))
+    ax.set_xlabel("outer iteration (all stages)")
+    ax.set_ylabel("J [cm²]")
+    ax.set_title("sim2_street from the section 4.5.2 start")
+    ax.legend()
+    fig.tight_layout()
+    tmp = out.with_suffix(".tmp.png")
+    fig.savefig(tmp, dpi=120)
+    tmp.replace(out)
 
 
 def main() -> None:
@@ -46,6 +98,7 @@ def main() -> None:
     parser.add_argument("--size", type=float, default=1.0, help="fraction of firings (1 = full size)")
     parser.add_argument("--max-points", type=int, default=None, help="returns used by the calibration")
     parser.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES))
+    parser.add_argument("--out", type=Path, default=RESULTS / "calibrate.json")
     args = parser.parse_args()
     figures = []
     for name in args.cases:
@@ -56,13 +109,20 @@ def main() -> None:
         process.join()
         row = figures[-1]
         print(f"{name}: {row['returns']:,} returns, calibrate {row['calibrate_s']:.1f} s, peak {row['peak_gib']:.2f} GiB, "
-              f"{row['outer_iterations']} outer iterations\n{row['table']}\nunobservable: {row['unobservable']}\n")
-    RESULTS.mkdir(exist_ok=True)
-    out = RESULTS / "calibrate.json"
-    tmp = out.with_suffix(".json.tmp")
+              f"{row['outer_iterations']} outer iterations\n{row['table']}\nunobservable: {row['unobservable']}",
+              flush=True)
+        if "intrinsic_rms_sigma_cm_deg_deg_cm" in row:
+            print(f"RMS 1-sigma (Cramér-Rao when sigma0 is the noise): {row['intrinsic_rms_sigma_cm_deg_deg_cm']}",
+                  flush=True)
+        print(flush=True)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = args.out.with_suffix(".json.tmp")
     tmp.write_text(json.dumps({"machine": platform.platform(), "size": args.size, "cases": figures}, indent=2))
-    tmp.replace(out)
-    print(f"wrote {out}")
+    tmp.replace(args.out)
+    print(f"wrote {args.out}")
+    if all(any(row["case"] == case for row in figures) for case in JOINT_VS_SUCCESSIVE):
+        plot_energy_curves(figures, args.out.parent / "joint_vs_successive.png")
+        print(f"wrote {args.out.parent / 'joint_vs_successive.png'}")
 
 
 if __name__ == "__main__":
