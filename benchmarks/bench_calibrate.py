@@ -22,6 +22,7 @@ import platform
 import resource
 import time
 from pathlib import Path
+from queue import Empty
 
 import numpy as np
 
@@ -105,7 +106,13 @@ def main() -> None:
         queue = mp.get_context("spawn").Queue()
         process = mp.get_context("spawn").Process(target=_case, args=(name, args.size, args.max_points, queue))
         process.start()
-        figures.append(queue.get())
+        while True:
+            try:
+                figures.append(queue.get(timeout=5))
+                break
+            except Empty:
+                if not process.is_alive():
+                    raise SystemExit(f"{name} failed (exit code {process.exitcode}); see its traceback above") from None
         process.join()
         row = figures[-1]
         print(f"{name}: {row['returns']:,} returns, calibrate {row['calibrate_s']:.1f} s, peak {row['peak_gib']:.2f} GiB, "

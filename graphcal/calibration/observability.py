@@ -54,6 +54,38 @@ class Uncertainty:
         return names
 
 
+class DenseMarginals:
+    """Marginal covariances from the dense information matrix of the graph linearised at values,
+    inverted by eigen-decomposition: the fallback when gtsam.Marginals' Cholesky calls a graph
+    "indeterminate" because its information spans many orders of magnitude (millimetre-sharp
+    intrinsics next to a lever arm held only by its 1 m prior). Same interface as gtsam.Marginals
+    (marginalCovariance(key)); the problem has a few hundred variables, so dense is cheap."""
+
+    def __init__(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values):
+        keys = list(values.keys())
+        dims = [len(v) for v in (values.zeroVectors().at(k) for k in keys)]
+        information, _ = graph.linearize(values).hessian(gtsam.Ordering(keys))
+        eigenvalues, vectors = np.linalg.eigh(information)
+        floor = eigenvalues.max() * np.finfo(float).eps
+        self._covariance = (vectors / np.maximum(eigenvalues, floor)) @ vectors.T
+        starts = np.r_[0, np.cumsum(dims)]
+        self._span = {k: slice(a, b) for k, a, b in zip(keys, starts[:-1], starts[1:])}
+
+    def marginalCovariance(self, key) -> np.ndarray:  # noqa: N802 (gtsam.Marginals' name)
+        span = self._span[key]
+        return self._covariance[span, span]
+
+
+def marginals_of(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values):
+    """gtsam.Marginals, or DenseMarginals when GTSAM finds the system nearly indeterminate."""
+    try:
+        return gtsam.Marginals(graph, values)
+    except RuntimeError as error:
+        if "Indeterminate" not in str(error):
+            raise
+        return DenseMarginals(graph, values)
+
+
 def intrinsic_sigmas(marginals: gtsam.Marginals, key) -> np.ndarray:
     """(4,) sigmas of a Vector4 intrinsic key in file units (m, deg, deg, m)."""
     return offsets_to_file_units(np.sqrt(np.diag(marginals.marginalCovariance(key))))
