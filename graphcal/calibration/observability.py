@@ -71,7 +71,7 @@ class DenseMarginals:
         starts = np.r_[0, np.cumsum(dims)]
         self._span = {k: slice(a, b) for k, a, b in zip(keys, starts[:-1], starts[1:])}
 
-    def marginalCovariance(self, key) -> np.ndarray:  # noqa: N802 (gtsam.Marginals' name)
+    def marginalCovariance(self, key) -> np.ndarray:
         span = self._span[key]
         return self._covariance[span, span]
 
