@@ -16,9 +16,9 @@ from graphcal.calibration.observability import (
     INTRINSIC_NAMES,
     POSE_TO_FILE_UNITS,
     TRAJECTORY_GAUGE,
+    Marginals,
     Uncertainty,
     intrinsic_sigmas,
-    marginals_of,
     pose_sigmas,
 )
 from graphcal.calibration.problem import (
@@ -93,7 +93,7 @@ def final_fit(data: ReturnData, estimate: Estimate, config: CalibrationConfig, e
     pairs = Association.of(data, fine).pairs(points, data.fibre, features, fine.fine_gate_m, fine)
     residual = np.einsum("ni,ni->n", pairs.normal, points[pairs.index_p] - points[pairs.index_m])
     graph, values = build_graph(data, estimate, pairs, config, estimated, nominal, priors, damped=False)
-    return FinalFit(pairs, residual, uncertainty(marginals_of(graph, values), data, estimate, config, estimated,
+    return FinalFit(pairs, residual, uncertainty(Marginals(graph, values), data, estimate, config, estimated,
                                                  nominal, priors,
                                                  control_prior_sigma(config, float(pairs.weight.sum()))))
 

@@ -76,14 +76,22 @@ class DenseMarginals:
         return self._covariance[span, span]
 
 
-def marginals_of(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values):
-    """gtsam.Marginals, or DenseMarginals when GTSAM finds the system nearly indeterminate."""
-    try:
-        return gtsam.Marginals(graph, values)
-    except RuntimeError as error:
-        if "Indeterminate" not in str(error):
-            raise
-        return DenseMarginals(graph, values)
+class Marginals:
+    """gtsam.Marginals, switching to DenseMarginals for every key once GTSAM finds the system
+    nearly indeterminate (it says so lazily, when a covariance is asked for)."""
+
+    def __init__(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values):
+        self._graph, self._values = graph, values
+        self._marginals = gtsam.Marginals(graph, values)
+
+    def marginalCovariance(self, key) -> np.ndarray:  # gtsam.Marginals' name
+        try:
+            return self._marginals.marginalCovariance(key)
+        except RuntimeError as error:
+            if "Indeterminate" not in str(error) or isinstance(self._marginals, DenseMarginals):
+                raise
+            self._marginals = DenseMarginals(self._graph, self._values)
+            return self._marginals.marginalCovariance(key)
 
 
 def intrinsic_sigmas(marginals: gtsam.Marginals, key) -> np.ndarray:
