@@ -82,16 +82,20 @@ class Marginals:
 
     def __init__(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values):
         self._graph, self._values = graph, values
-        self._marginals = gtsam.Marginals(graph, values)
+        self._marginals = self._guarded(lambda: gtsam.Marginals(graph, values))
 
     def marginalCovariance(self, key) -> np.ndarray:  # gtsam.Marginals' name
+        return self._guarded(lambda: self._marginals.marginalCovariance(key), key)
+
+    def _guarded(self, call, key=None):
+        """call(), or the dense result once GTSAM (in its constructor or later) says indeterminate."""
         try:
-            return self._marginals.marginalCovariance(key)
+            return call()
         except RuntimeError as error:
-            if "Indeterminate" not in str(error) or isinstance(self._marginals, DenseMarginals):
+            if "Indeterminate" not in str(error) or isinstance(getattr(self, "_marginals", None), DenseMarginals):
                 raise
             self._marginals = DenseMarginals(self._graph, self._values)
-            return self._marginals.marginalCovariance(key)
+            return self._marginals if key is None else self._marginals.marginalCovariance(key)
 
 
 def intrinsic_sigmas(marginals: gtsam.Marginals, key) -> np.ndarray:
