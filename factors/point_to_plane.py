@@ -30,7 +30,7 @@ from functools import partial
 import gtsam
 import numpy as np
 
-from factors.world_point import Corrections, Returns, world_normals, world_points
+from factors.world_point import Corrections, Returns, Turn, world_normals, world_points
 
 SLOTS = ("intrinsic_p", "intrinsic_m", "extrinsic", "p_lo", "p_hi", "m_lo", "m_hi")
 
@@ -114,9 +114,10 @@ def residuals(block: Block, values: gtsam.Values, jacobians: bool = True):
         return Corrections(t_lo, t_hi, r_lo, r_hi, w_lo, w_hi)
 
     at_p, at_m = controls(keys.p_lo, keys.p_hi), controls(keys.m_lo, keys.m_hi)
-    p_w, J_p = world_points(block.p, np.broadcast_to(offsets_p, (n, 4)), R_E, t_E, at_p, jacobians)
+    turn_p = Turn.of(at_p, block.p.alpha, jacobians)  # p's point and normal turn alike
+    p_w, J_p = world_points(block.p, np.broadcast_to(offsets_p, (n, 4)), R_E, t_E, at_p, jacobians, turn_p)
     m_w, J_m = world_points(block.m, np.broadcast_to(offsets_m, (n, 4)), R_E, t_E, at_m, jacobians)
-    n_w, J_n = world_normals(block.p, R_E, at_p, block.normal, jacobians)
+    n_w, J_n = world_normals(block.p, R_E, at_p, block.normal, jacobians, turn_p)
     scale = np.sqrt(block.weight) / block.sigma0_m
     r = scale * np.einsum("ni,ni->n", n_w, p_w - m_w)
     if not jacobians:

@@ -73,17 +73,18 @@ class WorldJacobians:
 
 
 @dataclass(frozen=True)
-class _Turn:
+class Turn:
     """The interpolated rotation correction R_w = Exp(w), w = (1 - alpha) w_lo + alpha w_hi, of
     each return (None for translation-only corrections), and G_lo/hi = J_r(w) J_r(w_lo/hi)^-1 (1 - alpha)/alpha,
-    so that d(R_w u)/d(rotation of the lo/hi control) = -R_w [u]x G_lo/hi."""
+    so that d(R_w u)/d(rotation of the lo/hi control) = -R_w [u]x G_lo/hi. Computed once for a set
+    of returns, it serves both their points and their normals."""
 
     R_w: np.ndarray | None
     G_lo: np.ndarray | None = None
     G_hi: np.ndarray | None = None
 
     @classmethod
-    def of(cls, corrections: Corrections, alpha: np.ndarray, jacobians: bool) -> _Turn:
+    def of(cls, corrections: Corrections, alpha: np.ndarray, jacobians: bool) -> Turn:
         if corrections.rotation_lo is None:
             return cls(None)
         a = alpha[:, None]
@@ -98,6 +99,10 @@ class _Turn:
     def apply(self, u: np.ndarray) -> np.ndarray:
         return u if self.R_w is None else np.einsum("nij,nj->ni", self.R_w, u)
 
+    def after(self, R_nav: np.ndarray) -> np.ndarray:
+        """R_w R_nav (N,3,3): body axes -> world axes once corrected."""
+        return R_nav if self.R_w is None else self.R_w @ R_nav
+
     def d_rotation(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """d(R_w u)/d(rotation of the lo, hi control), (N, 3, 3) each."""
         turned = -self.R_w @ so3.skew(u)
@@ -105,19 +110,20 @@ class _Turn:
 
 
 def world_points(returns: Returns, offsets: np.ndarray, R_E: np.ndarray, t_E: np.ndarray,
-                 corrections: Corrections, jacobians: bool = True) -> tuple[np.ndarray, WorldJacobians | None]:
-    """(N,3) world points [m] and, if asked, their Jacobians. offsets: (N,4) per return."""
+                 corrections: Corrections, jacobians: bool = True,
+                 turn: Turn | None = None) -> tuple[np.ndarray, WorldJacobians | None]:
+    """(N,3) world points [m] and, if asked, their Jacobians. offsets: (N,4) per return; turn:
+    Turn.of(corrections, returns.alpha, jacobians) when the caller already has it."""
     p_l, J_intrinsic = to_xyz_with_jacobian(returns.range_m, returns.azimuth_rad, returns.factory, offsets, jacobians)
     p_b = p_l @ R_E.T + t_E
     q = np.einsum("nij,nj->ni", returns.R_nav, p_b)
     a = returns.alpha[:, None]
-    turn = _Turn.of(corrections, returns.alpha, jacobians)
+    turn = turn or Turn.of(corrections, returns.alpha, jacobians)
     p_w = returns.X_nav + (1 - a) * corrections.translation_lo + a * corrections.translation_hi + turn.apply(q)
     if not jacobians:
         return p_w, None
 
-    M = returns.R_nav if turn.R_w is None else turn.R_w @ returns.R_nav  # d p_w / d p_b
-    MR_E = M @ R_E
+    MR_E = turn.after(returns.R_nav) @ R_E  # d p_w / d p_l
     intrinsic = MR_E @ J_intrinsic
     extrinsic = np.concatenate([-MR_E @ so3.skew(p_l), np.broadcast_to(MR_E, MR_E.shape)], axis=2)
     aa = a[:, :, None]
@@ -131,20 +137,19 @@ def world_points(returns: Returns, offsets: np.ndarray, R_E: np.ndarray, t_E: np
 
 
 def world_normals(returns: Returns, R_E: np.ndarray, corrections: Corrections, normal_lidar: np.ndarray,
-                  jacobians: bool = True) -> tuple[np.ndarray, WorldJacobians | None]:
+                  jacobians: bool = True, turn: Turn | None = None) -> tuple[np.ndarray, WorldJacobians | None]:
     """(N,3) unit normals in world axes of normals held in each return's lidar frame, turned by
     the extrinsic rotation, the INS attitude and the rotation correction at its time, so that a
     rigid turn of the cloud turns its normals too (point-to-plane distances stay invariant and
     an unobservable rotation stays unobservable). Jacobians as world_points' (intrinsic zero;
-    translation columns zero)."""
+    translation columns zero); turn as in world_points."""
     u = np.einsum("nij,nj->ni", returns.R_nav, normal_lidar @ R_E.T)
-    turn = _Turn.of(corrections, returns.alpha, jacobians)
+    turn = turn or Turn.of(corrections, returns.alpha, jacobians)
     n_w = turn.apply(u)
     if not jacobians:
         return n_w, None
-    M = returns.R_nav if turn.R_w is None else turn.R_w @ returns.R_nav
     zeros = np.zeros((len(n_w), 3, 3))
-    extrinsic = np.concatenate([-(M @ R_E) @ so3.skew(normal_lidar), zeros], axis=2)
+    extrinsic = np.concatenate([-(turn.after(returns.R_nav) @ R_E) @ so3.skew(normal_lidar), zeros], axis=2)
     if turn.R_w is None:
         return n_w, WorldJacobians(np.zeros((len(n_w), 3, 4)), extrinsic, zeros, zeros)
     d_lo, d_hi = turn.d_rotation(u)
@@ -154,6 +159,6 @@ def world_normals(returns: Returns, R_E: np.ndarray, corrections: Corrections, n
 
 def normals_to_lidar(returns: Returns, R_E: np.ndarray, corrections: Corrections, normal_world: np.ndarray) -> np.ndarray:
     """Inverse of world_normals at the given values: world-axes normals (N,3) -> each return's lidar frame."""
-    turn = _Turn.of(corrections, returns.alpha, jacobians=False)
+    turn = Turn.of(corrections, returns.alpha, jacobians=False)
     u = normal_world if turn.R_w is None else np.einsum("nji,nj->ni", turn.R_w, normal_world)
     return np.einsum("nji,nj->ni", returns.R_nav, u) @ R_E
