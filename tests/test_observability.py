@@ -20,3 +20,17 @@ def test_dense_marginals_match_gtsam():
     reference, dense = gtsam.Marginals(graph, values), DenseMarginals(graph, values)
     for key in (1, 2, 3, 4):
         np.testing.assert_allclose(dense.marginalCovariance(key), reference.marginalCovariance(key), rtol=1e-9, atol=1e-12)
+
+
+def test_dense_marginals_keep_an_ill_scaled_direction():
+    """Information from 1e14 (a 0.1 um constraint) down to 1e-6 (a 1 km prior), as a sharp
+    intrinsic next to a lever arm held by its prior: the weak variance must survive."""
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    values.insert(1, np.zeros(3))
+    values.insert(2, np.zeros(3))
+    graph.add(gtsam.PriorFactorPoint3(1, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1e-7)))
+    graph.add(gtsam.PriorFactorPoint3(2, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1e3)))
+    graph.add(gtsam.BetweenFactorPoint3(1, 2, np.zeros(3), gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-7, 1e-7, 1e9]))))
+    reference, dense = gtsam.Marginals(graph, values), DenseMarginals(graph, values)
+    for key in (1, 2):
+        np.testing.assert_allclose(dense.marginalCovariance(key), reference.marginalCovariance(key), rtol=1e-6, atol=1e-20)

@@ -65,9 +65,12 @@ class DenseMarginals:
         keys = list(values.keys())
         dims = [len(v) for v in (values.zeroVectors().at(k) for k in keys)]
         information, _ = graph.linearize(values).hessian(gtsam.Ordering(keys))
-        eigenvalues, vectors = np.linalg.eigh(information)
+        # scaled to a unit diagonal first: the information spans far more than 1/eps between
+        # parameters, but mostly through their units and priors, which the scaling takes out
+        scale = 1.0 / np.sqrt(np.diag(information))
+        eigenvalues, vectors = np.linalg.eigh(information * np.outer(scale, scale))
         floor = eigenvalues.max() * np.finfo(float).eps
-        self._covariance = (vectors / np.maximum(eigenvalues, floor)) @ vectors.T
+        self._covariance = np.outer(scale, scale) * ((vectors / np.maximum(eigenvalues, floor)) @ vectors.T)
         starts = np.r_[0, np.cumsum(dims)]
         self._span = {k: slice(a, b) for k, a, b in zip(keys, starts[:-1], starts[1:])}
 
@@ -78,24 +81,26 @@ class DenseMarginals:
 
 class Marginals:
     """gtsam.Marginals, switching to DenseMarginals for every key once GTSAM finds the system
-    nearly indeterminate (it says so lazily, when a covariance is asked for)."""
+    nearly indeterminate (in its constructor, or lazily when a covariance is asked for)."""
 
     def __init__(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values):
         self._graph, self._values = graph, values
-        self._marginals = self._guarded(lambda: gtsam.Marginals(graph, values))
+        try:
+            self._marginals = gtsam.Marginals(graph, values)
+        except RuntimeError as error:
+            self._marginals = self._dense_after(error)
 
     def marginalCovariance(self, key) -> np.ndarray:  # gtsam.Marginals' name
-        return self._guarded(lambda: self._marginals.marginalCovariance(key), key)
-
-    def _guarded(self, call, key=None):
-        """call(), or the dense result once GTSAM (in its constructor or later) says indeterminate."""
         try:
-            return call()
-        except RuntimeError as error:
-            if "Indeterminate" not in str(error) or isinstance(getattr(self, "_marginals", None), DenseMarginals):
-                raise
-            self._marginals = DenseMarginals(self._graph, self._values)
-            return self._marginals if key is None else self._marginals.marginalCovariance(key)
+            return self._marginals.marginalCovariance(key)
+        except RuntimeError as error:  # DenseMarginals never raises it: this switches once
+            self._marginals = self._dense_after(error)
+            return self._marginals.marginalCovariance(key)
+
+    def _dense_after(self, error: RuntimeError) -> DenseMarginals:
+        if "Indeterminate" not in str(error):
+            raise error
+        return DenseMarginals(self._graph, self._values)
 
 
 def intrinsic_sigmas(marginals: gtsam.Marginals, key) -> np.ndarray:
