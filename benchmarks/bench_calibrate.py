@@ -17,14 +17,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import multiprocessing as mp
 import platform
-import resource
 import time
 from pathlib import Path
-from queue import Empty
 
 import numpy as np
+from common import peak_gib, run_in_process
+
+from graphcal.atomic import atomic_path
 
 RESULTS = Path(__file__).resolve().parent / "results"
 SECTION_4_5_2 = {"start": "section_4_5_2"}
@@ -56,7 +56,7 @@ def _case(name: str, size: float, max_points: int | None, queue) -> None:
     seconds = time.perf_counter() - started
     evaluation = graphcal.evaluate(result, recording)
     row = {"case": name, "returns": len(recording.points), "max_points": max_points, "calibrate_s": seconds,
-           "peak_gib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
+           "peak_gib": peak_gib(),
            "outer_iterations": len(result.history), "unobservable": list(result.unobservable),
            "intrinsic_rms_after_cm_deg_deg_cm": evaluation.intrinsic_rms_after.tolist(),
            "lever_arm_error_m": list(evaluation.lever_arm_error_m),
@@ -89,9 +89,8 @@ def plot_energy_curves(figures: list[dict], out: Path) -> None:
     ax.set_title("sim2_street from the section 4.5.2 start")
     ax.legend()
     fig.tight_layout()
-    tmp = out.with_suffix(".tmp.png")
-    fig.savefig(tmp, dpi=120)
-    tmp.replace(out)
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, dpi=120, format="png")
 
 
 def main() -> None:
@@ -103,18 +102,8 @@ def main() -> None:
     args = parser.parse_args()
     figures = []
     for name in args.cases:
-        queue = mp.get_context("spawn").Queue()
-        process = mp.get_context("spawn").Process(target=_case, args=(name, args.size, args.max_points, queue))
-        process.start()
-        while True:
-            try:
-                figures.append(queue.get(timeout=5))
-                break
-            except Empty:
-                if not process.is_alive():
-                    raise SystemExit(f"{name} failed (exit code {process.exitcode}); see its traceback above") from None
-        process.join()
-        row = figures[-1]
+        row = run_in_process(_case, name, args.size, args.max_points)
+        figures.append(row)
         print(f"{name}: {row['returns']:,} returns, calibrate {row['calibrate_s']:.1f} s, peak {row['peak_gib']:.2f} GiB, "
               f"{row['outer_iterations']} outer iterations\n{row['table']}\nunobservable: {row['unobservable']}",
               flush=True)
@@ -122,10 +111,8 @@ def main() -> None:
             print(f"RMS 1-sigma (Cramér-Rao when sigma0 is the noise): {row['intrinsic_rms_sigma_cm_deg_deg_cm']}",
                   flush=True)
         print(flush=True)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps({"machine": platform.platform(), "size": args.size, "cases": figures}, indent=2))
-    tmp.replace(args.out)
+    with atomic_path(args.out) as tmp:
+        tmp.write_text(json.dumps({"machine": platform.platform(), "size": args.size, "cases": figures}, indent=2))
     print(f"wrote {args.out}")
     if all(any(row["case"] == case for row in figures) for case in JOINT_VS_SUCCESSIVE):
         plot_energy_curves(figures, args.out.parent / "joint_vs_successive.png")

@@ -11,16 +11,13 @@ import argparse
 import json
 import multiprocessing as mp
 import platform
-import resource
 import tempfile
 import time
 from pathlib import Path
 
+from common import peak_gib, run_in_process
+
 RESULTS = Path(__file__).resolve().parent / "results"
-
-
-def _peak_gib() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # kB -> GiB (Linux)
 
 
 def _simulate(out: str, size: float, queue) -> None:
@@ -32,7 +29,7 @@ def _simulate(out: str, size: float, queue) -> None:
     simulated = time.perf_counter()
     recording.save(out)
     queue.put({"returns": len(recording.points), "simulate_s": simulated - started,
-               "save_s": time.perf_counter() - simulated, "simulate_peak_gib": _peak_gib()})
+               "save_s": time.perf_counter() - simulated, "simulate_peak_gib": peak_gib()})
 
 
 def _load(out: str, queue) -> None:
@@ -41,17 +38,8 @@ def _load(out: str, queue) -> None:
     started = time.perf_counter()
     recording = Recording.load(out)
     columns = recording.points.read()
-    queue.put({"load_s": time.perf_counter() - started, "load_peak_gib": _peak_gib(),
+    queue.put({"load_s": time.perf_counter() - started, "load_peak_gib": peak_gib(),
                "loaded_returns": len(columns["time"])})
-
-
-def _run(target, *args) -> dict:
-    queue = mp.get_context("spawn").Queue()
-    process = mp.get_context("spawn").Process(target=target, args=(*args, queue))
-    process.start()
-    result = queue.get()
-    process.join()
-    return result
 
 
 def main() -> None:
@@ -62,8 +50,8 @@ def main() -> None:
         out = str(Path(tmp) / "sim6_turn")
         figures = {"benchmark": "simulate_sim6_turn", "size": args.size, "cpus": mp.cpu_count(),
                    "python": platform.python_version()}
-        figures.update(_run(_simulate, out, args.size))
-        figures.update(_run(_load, out))
+        figures.update(run_in_process(_simulate, out, args.size))
+        figures.update(run_in_process(_load, out))
     figures["targets"] = {"simulate_s": 30.0, "simulate_peak_gib": 3.0, "load_s": 3.0}
     figures["met"] = all(figures[k] <= v for k, v in figures["targets"].items())
     for key, value in figures.items():

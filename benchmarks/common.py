@@ -1,0 +1,31 @@
+"""What the benchmark scripts share: a stage run in its own process, and its peak memory."""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import resource
+from queue import Empty
+
+
+def peak_gib() -> float:
+    """Peak resident memory of this process [GiB] (ru_maxrss is in kB on Linux)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+
+
+def run_in_process(target, *args) -> dict:
+    """target(*args, queue) in a fresh spawned process (its own peak memory); what it put on the
+    queue. Stops with the target's name if the process dies without answering (its traceback is
+    printed above), instead of waiting for ever."""
+    context = mp.get_context("spawn")
+    queue = context.Queue()
+    process = context.Process(target=target, args=(*args, queue))
+    process.start()
+    while True:
+        try:
+            result = queue.get(timeout=5)
+            break
+        except Empty:
+            if not process.is_alive():
+                raise SystemExit(f"{target.__name__}{args} failed (exit code {process.exitcode})") from None
+    process.join()
+    return result
