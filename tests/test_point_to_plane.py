@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from factors import so3
-from factors.point_to_plane import Block, BlockKeys, compress, make_factor, residuals
+from factors.point_to_plane import Block, BlockKeys, compress, jacobian_by_key, make_factor, residuals
 from factors.world_point import Returns
 from graphcal.sensor import sensor_from_catalog
 
@@ -22,19 +22,33 @@ def _returns(rng, sensor, fibre):
                    X_nav=rng.normal(0, 20, (N, 3)), alpha=rng.uniform(0, 1, N))
 
 
-def _problem(pose: bool, shared_control: bool = True):
+def _keys(layout: str, rng) -> BlockKeys:
+    if layout == "shared-control":  # p in interval (0, 1), m in (1, 2): key X(1) is both p_hi and m_lo
+        return BlockKeys.of(N, intrinsic_p=I(3), intrinsic_m=I(5), extrinsic=E(0), p_lo=X(0), p_hi=X(1),
+                            m_lo=X(1), m_hi=X(2))
+    if layout == "distinct-controls":
+        return BlockKeys.of(N, intrinsic_p=I(3), intrinsic_m=I(5), extrinsic=E(0), p_lo=X(0), p_hi=X(1),
+                            m_lo=X(2), m_hi=X(3))
+    # rows of several fibre pairs (the reference fibre 15 among them: no key) and control intervals
+    fibre_p, fibre_m = rng.choice([3, 5, 15], N), rng.choice([3, 5, 7, 15], N)
+    c_p, c_m = rng.integers(0, 3, N), rng.integers(0, 3, N)
+    key_of = np.vectorize(lambda f: -1 if f == 15 else I(int(f)), otypes=[np.int64])
+    control = np.vectorize(lambda c: X(int(c)), otypes=[np.int64])
+    return BlockKeys.of(N, intrinsic_p=key_of(fibre_p), intrinsic_m=key_of(fibre_m), extrinsic=E(0),
+                        p_lo=control(c_p), p_hi=control(c_p + 1), m_lo=control(c_m), m_hi=control(c_m + 1))
+
+
+def _problem(pose: bool, layout: str = "shared-control"):
     rng = np.random.default_rng(11)
     sensor = sensor_from_catalog("HDL-32E")
     normal = rng.normal(0, 1, (N, 3))
-    # p in interval (0, 1), m in (1, 2): key X(1) is both p_hi and m_lo
-    keys = BlockKeys(intrinsic_p=I(3), intrinsic_m=I(5), extrinsic=E(0), p_lo=X(0), p_hi=X(1),
-                     m_lo=X(1) if shared_control else X(2), m_hi=X(2) if shared_control else X(3))
+    keys = _keys(layout, rng)
     block = Block(p=_returns(rng, sensor, 3), m=_returns(rng, sensor, 5),
                   normal=normal / np.linalg.norm(normal, axis=1, keepdims=True),
                   weight=rng.uniform(0.2, 1.0, N), keys=keys, pose_corrections=pose)
     values = gtsam.Values()
-    values.insert(I(3), rng.normal(0, 0.02, 4))
-    values.insert(I(5), rng.normal(0, 0.02, 4))
+    for fibre in (3, 5, 7):
+        values.insert(I(fibre), rng.normal(0, 0.02, 4))
     values.insert(E(0), gtsam.Pose3(gtsam.Rot3(so3.exp(rng.normal(0, 1, (1, 3)))[0]), rng.normal(0, 1, 3)))
     for c in range(4):
         if pose:
@@ -52,11 +66,12 @@ def _perturbed(values, key, delta):
 
 
 @pytest.mark.parametrize("pose", [False, True], ids=["translation", "pose"])
-@pytest.mark.parametrize("shared", [True, False], ids=["shared-control", "distinct-controls"])
-def test_block_jacobians_match_finite_differences(pose, shared):
-    block, values = _problem(pose, shared)
-    _, J = residuals(block, values)
-    assert set(J) == set(block.keys.unique())
+@pytest.mark.parametrize("layout", ["shared-control", "distinct-controls", "rows-vary"])
+def test_block_jacobians_match_finite_differences(pose, layout):
+    block, values = _problem(pose, layout)
+    _, A = residuals(block, values)
+    J = jacobian_by_key(block, A)
+    assert set(J) == set(block.keys.unique)
     for key, analytic in J.items():
         dim = analytic.shape[1]
         numeric = np.zeros_like(analytic)
@@ -70,21 +85,24 @@ def test_block_jacobians_match_finite_differences(pose, shared):
 
 
 @pytest.mark.parametrize("pose", [False, True], ids=["translation", "pose"])
-def test_stacked_factor_linearises_to_the_analytic_jacobians(pose):
-    block, values = _problem(pose)
+@pytest.mark.parametrize("layout", ["shared-control", "rows-vary"])
+def test_stacked_factor_linearises_to_the_analytic_jacobians(pose, layout):
+    block, values = _problem(pose, layout)
     factor = make_factor(block, compressed=False)
     r, J = residuals(block, values)
     assert factor.error(values) == pytest.approx(0.5 * r @ r, rel=1e-12)
+    assert list(factor.keys()) == list(block.keys.unique)
     A, b = factor.linearize(values).jacobian()
-    np.testing.assert_allclose(A, np.hstack([J[k] for k in block.keys.unique()]), atol=1e-12)
+    np.testing.assert_allclose(A, J, atol=1e-12)
     np.testing.assert_allclose(b, -r, atol=1e-12)
 
 
 @pytest.mark.parametrize("pose", [False, True], ids=["translation", "pose"])
-def test_compressed_factor_keeps_cost_gradient_and_hessian(pose):
-    block, values = _problem(pose)
+@pytest.mark.parametrize("layout", ["shared-control", "rows-vary"])
+def test_compressed_factor_keeps_cost_gradient_and_hessian(pose, layout):
+    block, values = _problem(pose, layout)
     stacked, small = make_factor(block, compressed=False), make_factor(block, compressed=True)
-    assert small.dim() == sum(J.shape[1] for J in residuals(block, values)[1].values()) + 1 < stacked.dim()
+    assert small.dim() == residuals(block, values)[1].shape[1] + 1 < stacked.dim()
     assert small.error(values) == pytest.approx(stacked.error(values), rel=1e-10)
     A, b = stacked.linearize(values).jacobian()
     A_small, b_small = small.linearize(values).jacobian()
@@ -117,7 +135,7 @@ def test_robust_loss_weights_each_row():
 def test_reference_fibre_and_fixed_slots_have_no_key():
     block, values = _problem(pose=False)
     fixed = Block(p=block.p, m=block.m, normal=block.normal, weight=block.weight,
-                  keys=BlockKeys(intrinsic_m=I(5)), pose_corrections=False)
+                  keys=BlockKeys.of(N, intrinsic_m=I(5)), pose_corrections=False)
     factor = make_factor(fixed)
     assert list(factor.keys()) == [I(5)]
     A, _ = factor.linearize(values).jacobian()

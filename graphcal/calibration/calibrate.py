@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import gtsam
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from graphcal.association import local_features
 from graphcal.calibration.config import ESTIMATES, STAGES, CalibrationConfig
@@ -50,7 +51,14 @@ def calibrate(recording: Recording, config: CalibrationConfig | None = None, qui
     """Estimate what config.mode asks for (intrinsics, extrinsic, trajectory corrections, or
     successive stages) from the recording alone; every estimated parameter gets a 1-sigma, and
     the parameters the data cannot observe are held at their nominal value and named."""
-    config = config or CalibrationConfig()
+    # the block factors' matrix products are modest and run one at a time inside GTSAM's
+    # callbacks: BLAS threads there only spin against open3d's and GTSAM's (measured 20x slower
+    # on a loaded 2-core machine)
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _calibrate(recording, config or CalibrationConfig(), quiet)
+
+
+def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> CalibrationResult:
     started = time.perf_counter()
     data = prepare(recording, config.control_interval_s, config.max_points, np.random.default_rng(config.seed))
     estimate = initial_estimate(recording, data)

@@ -47,6 +47,7 @@ class CalibrationConfig(BaseModel):
     max_pairs_per_fibre_pair: int = Field(4000, ge=10)
     sigma0_m: float = Field(0.01, gt=0, description="nominal point noise: residuals are whitened by it")
     control_interval_s: float = Field(1.0, gt=0)
+    block_controls: int = Field(4, ge=1, description="control intervals of p grouped in one block factor")
     pose_corrections: bool = Field(False, description="Pose3 trajectory corrections (else Point3)")
     lambda_rigid: float = Field(1e-5, gt=0, description=(
         "weight of E_def against the normalised energy J (eq. 5.4, both m^2): the seed's 1e2 is against the "

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 import gtsam
 import numpy as np
 
-from factors.point_to_plane import Block, BlockKeys, FixedValues, make_factor
+from factors.point_to_plane import NO_KEY, Block, BlockKeys, FixedValues, make_factor
 from factors.world_point import normals_to_lidar
 from graphcal.association import (
     Correspondences,
@@ -31,6 +31,7 @@ E = gtsam.symbol_shorthand.E  # extrinsic T_body_lidar, Pose3
 X = gtsam.symbol_shorthand.X  # trajectory correction at a control time, Point3 or Pose3
 
 CANDIDATES_PER_FIBRE = 20_000
+MAX_BLOCK_ROWS = 20_000
 HELD_SIGMA = 1e-7  # prior sigma (m or rad) that holds an unobservable parameter at its nominal value
 
 
@@ -80,8 +81,8 @@ def energy_cm2(p_m: np.ndarray, m_m: np.ndarray, pairs: Correspondences) -> tupl
 def build_graph(data: ReturnData, estimate: Estimate, pairs: Correspondences, config: CalibrationConfig,
                 estimates: tuple[bool, bool, bool], nominal_extrinsic: gtsam.Pose3, priors: Priors,
                 damped: bool = True):
-    """One graph: a block factor per (fibre i, fibre j, control of p, control of m), plus priors
-    (per (control of p, control of m) when the intrinsics are not estimated).
+    """One graph: a block factor per fibre of p and window of config.block_controls control
+    intervals of p (per window only when the intrinsics are not estimated), plus priors.
 
     damped adds a prior at the current estimate on every key (sigmas step_sigma_m/deg): one outer
     iteration cannot run far along directions the current pairs barely see. It leaves the fixed
@@ -90,14 +91,6 @@ def build_graph(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
     est_int, est_ext, est_traj = estimates
     pose = config.pose_corrections
     ref = data.sensor.reference_fibre
-    fi, fj = data.fibre[pairs.index_p], data.fibre[pairs.index_m]
-    if not est_int:  # no per-fibre key: one block per pair of control intervals holds every fibre pair
-        fi, fj = np.full_like(fi, ref), np.full_like(fj, ref)
-    cp = data.control[pairs.index_p] if est_traj else np.zeros(len(pairs), int)
-    cm = data.control[pairs.index_m] if est_traj else np.zeros(len(pairs), int)
-    unique, inverse = np.unique(np.stack([fi, fj, cp, cm], axis=1), axis=0, return_inverse=True)
-    order = np.argsort(inverse.ravel(), kind="stable")
-    bounds = np.searchsorted(inverse.ravel()[order], np.arange(len(unique) + 1))
     robust = None
     if config.robust != "none":
         scheme = gtsam.noiseModel.mEstimator.Base.ReweightScheme.Scalar
@@ -106,20 +99,26 @@ def build_graph(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
 
     normal_lidar = normals_to_lidar(data.returns(pairs.index_p), estimate.extrinsic.rotation().matrix(),
                                     corrections_at(estimate, data.control[pairs.index_p], pose), pairs.normal)
+    fi, fj = data.fibre[pairs.index_p], data.fibre[pairs.index_m]
+    cp, cm = data.control[pairs.index_p], data.control[pairs.index_m]
+    intrinsic_key = np.array([NO_KEY if f == ref else I(f) for f in range(data.sensor.n_fibres)], np.int64)
+    control_key = np.array([X(c) for c in range(len(data.control_times_s))], np.int64)
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-    for (i, j, c_p, c_m), start, stop in zip(unique, bounds[:-1], bounds[1:]):
-        rows = order[start:stop]
-        keys = BlockKeys(intrinsic_p=I(i) if est_int and i != ref else None,
-                         intrinsic_m=I(j) if est_int and j != ref else None,
-                         extrinsic=E(0) if est_ext else None,
-                         p_lo=X(c_p) if est_traj else None, p_hi=X(c_p + 1) if est_traj else None,
-                         m_lo=X(c_m) if est_traj else None, m_hi=X(c_m + 1) if est_traj else None)
-        if not keys.unique():
+    for rows in block_rows(fi if est_int else np.zeros_like(fi), cp // config.block_controls if est_traj else 0 * cp):
+        p, m = pairs.index_p[rows], pairs.index_m[rows]
+        keys = BlockKeys.of(len(rows), extrinsic=E(0) if est_ext else None,
+                            intrinsic_p=intrinsic_key[fi[rows]] if est_int else None,
+                            intrinsic_m=intrinsic_key[fj[rows]] if est_int else None,
+                            p_lo=control_key[cp[rows]] if est_traj else None,
+                            p_hi=control_key[cp[rows] + 1] if est_traj else None,
+                            m_lo=control_key[cm[rows]] if est_traj else None,
+                            m_hi=control_key[cm[rows] + 1] if est_traj else None)
+        if not keys.unique:
             continue
-        block = Block(p=data.returns(pairs.index_p[rows]), m=data.returns(pairs.index_m[rows]),
-                      normal=normal_lidar[rows], weight=pairs.weight[rows], keys=keys, pose_corrections=pose,
-                      fixed=FixedValues(estimate.offsets[data.fibre[pairs.index_p[rows]]],
-                                          estimate.offsets[data.fibre[pairs.index_m[rows]]], estimate.extrinsic),
+        block = Block(p=data.returns(p), m=data.returns(m), normal=normal_lidar[rows], weight=pairs.weight[rows],
+                      keys=keys, pose_corrections=pose,
+                      fixed=FixedValues(estimate.offsets[data.fibre[p]], estimate.offsets[data.fibre[m]],
+                                        estimate.extrinsic),
                       sigma0_m=config.sigma0_m)
         graph.add(make_factor(block, compressed=robust is None, robust=robust))
 
@@ -144,6 +143,18 @@ def build_graph(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
         _add_trajectory(graph, values, estimate, config, control_prior_sigma(config, float(pairs.weight.sum())),
                         priors, damped)
     return graph, values
+
+
+def block_rows(fibre_p: np.ndarray, window: np.ndarray, max_rows: int = MAX_BLOCK_ROWS) -> list[np.ndarray]:
+    """Pair indices of each block: the pairs of one fibre of p and one window of p's control
+    intervals, in chunks of at most max_rows (few large blocks: each block is one Python callback)."""
+    if not len(fibre_p):
+        return []
+    group = fibre_p.astype(np.int64) * (int(window.max()) + 1) + window
+    order = np.argsort(group, kind="stable")
+    bounds = np.flatnonzero(np.r_[True, np.diff(group[order]) != 0, True])
+    return [chunk for start, stop in zip(bounds[:-1], bounds[1:])
+            for chunk in np.array_split(order[start:stop], -(-(stop - start) // max_rows))]
 
 
 def control_prior_sigma(config: CalibrationConfig, weight_sum: float) -> float:
