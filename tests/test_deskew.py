@@ -197,7 +197,7 @@ def test_cli_writes_scans_and_poses_that_read_back(rotation, tmp_path, cloud_for
                                       "--out", str(out), "-q"])
     assert result.exit_code == 0, result.output
     scans = graphcal.deskew(Recording.load(path), "odometry", quiet=True)
-    header, poses = read_csv_columns(out / "poses.csv", (POSE_COLUMNS,))
+    _, poses = read_csv_columns(out / "poses.csv", (POSE_COLUMNS,))
     assert len(poses) == len(scans) and poses[:, -1].sum() == len(recording.points)
     origin = np.floor(scans[0].position_world_lidar_m)
     for k in (0, len(scans) // 2):
