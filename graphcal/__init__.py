@@ -4,7 +4,7 @@ from graphcal.calibration.calibrate import calibrate
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.evaluate import Evaluation, apply_calibration, evaluate
 from graphcal.calibration.result import Calibration, CalibrationResult
-from graphcal.deskew import deskew
+from graphcal.deskewing import deskew
 from graphcal.errors import ConfigError, GraphcalError, RecordingError
 from graphcal.recording import Recording
 from graphcal.sensor import SensorModel, sensor_from_catalog

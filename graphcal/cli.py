@@ -115,7 +115,7 @@ def deskew(recording: Annotated[Path, typer.Argument(help="recording directory")
     """Deskew every revolution into its end-of-scan lidar frame (seed 002): one cloud and one 3DTK
     pose per revolution, poses.csv and deskew.yaml."""
     from graphcal.cloud_io import FORMATS
-    from graphcal.deskew import SOURCES, iter_scans
+    from graphcal.deskewing import SOURCES, iter_scans
     from graphcal.errors import ConfigError
     from graphcal.recording import Recording
     from graphcal.scan_files import save_scans

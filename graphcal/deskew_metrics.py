@@ -69,7 +69,8 @@ def _matrix(scan) -> np.ndarray:
 
 def truth_distance(scans: Sequence, recording) -> np.ndarray:
     """(N,) distance [m] of each return of the revolutions to its true world position, each
-    revolution placed with the true T_world_lidar at its end (true trajectory and extrinsic)."""
+    revolution placed with the true T_world_lidar at its end (true trajectory and extrinsic).
+    A scan has xyz_m, time_end_s, rows (its rows of points.parquet) and world_points(R, X)."""
     truth = recording.truth
     poses = to_world(truth.trajectory, recording.crs).poses
     true_points = truth.world_points()
@@ -80,7 +81,7 @@ def truth_distance(scans: Sequence, recording) -> np.ndarray:
     distances = []
     for k, scan in enumerate(scans):
         placed = scan.world_points(rotation_lidar[k], position_lidar[k])
-        distances.append(np.linalg.norm(placed - true_points[scan.first_row:scan.first_row + len(placed)], axis=1))
+        distances.append(np.linalg.norm(placed - true_points[scan.rows], axis=1))
     return np.concatenate(distances)
 
 

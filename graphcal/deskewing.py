@@ -170,6 +170,11 @@ class Scan:
     rotation_world_lidar: Rotation
     position_world_lidar_m: np.ndarray
 
+    @property
+    def rows(self) -> slice:
+        """Its returns' rows in points.parquet (and truth/points.parquet)."""
+        return slice(self.first_row, self.first_row + len(self.xyz_m))
+
     def world_points(self, rotation: Rotation | None = None, position_m: np.ndarray | None = None) -> np.ndarray:
         """The scan placed in the world with one pose of L_end (default: the INS pose)."""
         rotation = self.rotation_world_lidar if rotation is None else rotation
