@@ -32,7 +32,7 @@ def scan_name(index: int) -> str:
 
 
 def save_scans(scans: Iterable, directory: str | Path, cloud_format: str = "ply", manifest: dict | None = None) -> Path:
-    """Write deskewed revolutions (graphcal.deskew.Scan, in order) into `directory`, atomically.
+    """Write deskewed revolutions (graphcal.deskewing.Scan, in order) into `directory`, atomically.
 
     manifest: extra fields of deskew.yaml (recording, source, crs ...)."""
     if cloud_format not in FORMATS:
