@@ -13,8 +13,8 @@ import graphcal
 import graphcal.points
 from graphcal.cli import app
 from graphcal.cloud_io import pose_to_3dtk, read_3dtk_pose
-from graphcal.deskewing import iter_scans, relative_lidar_poses
 from graphcal.deskew_metrics import DeskewMetrics, icp_errors, occupied_cells, truth_distance
+from graphcal.deskewing import iter_scans, relative_lidar_poses
 from graphcal.errors import ConfigError, RecordingError
 from graphcal.points import PointTable
 from graphcal.recording import Recording
