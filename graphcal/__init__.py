@@ -4,6 +4,7 @@ from graphcal.calibration.calibrate import calibrate
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.evaluate import Evaluation, apply_calibration, evaluate
 from graphcal.calibration.result import Calibration, CalibrationResult
+from graphcal.deskewing import deskew
 from graphcal.errors import ConfigError, GraphcalError, RecordingError
 from graphcal.recording import Recording
 from graphcal.sensor import SensorModel, sensor_from_catalog
@@ -25,6 +26,7 @@ __all__ = [
            "__version__",
            "apply_calibration",
            "calibrate",
+           "deskew",
            "evaluate",
            "sensor_from_catalog",
            "simulate",

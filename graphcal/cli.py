@@ -106,6 +106,36 @@ def calibrate(recording: Annotated[Path, typer.Argument(help="recording director
 
 @app.command()
 @_clear_errors
+def deskew(recording: Annotated[Path, typer.Argument(help="recording directory")],
+           source: Annotated[str, typer.Option(help="motion during the sweep: ins, odometry, or none (raw scans)")] = "ins",
+           cloud_format: Annotated[str, typer.Option("--format", help="ply, las, laz, or uos (3DTK .3d)")] = "ply",
+           out: Annotated[Path | None, typer.Option(help="output folder (default out/<name>-deskew-<source>)")] = None,
+           gyro: Annotated[bool, typer.Option(help="odometry: yaw from the gyro column when there is one")] = True,
+           quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+    """Deskew every revolution into its end-of-scan lidar frame (seed 002): one cloud and one 3DTK
+    pose per revolution, poses.csv and deskew.yaml."""
+    from graphcal.cloud_io import FORMATS
+    from graphcal.deskewing import SOURCES, iter_scans
+    from graphcal.errors import ConfigError
+    from graphcal.recording import Recording
+    from graphcal.scan_files import save_scans
+
+    if source not in SOURCES:
+        raise ConfigError(f"--source {source!r}: expected one of {', '.join(SOURCES)}")
+    if cloud_format not in FORMATS:
+        raise ConfigError(f"--format {cloud_format!r}: expected one of {', '.join(FORMATS)}")
+    started = time.perf_counter()
+    rec = Recording.load(recording)
+    folder = out or Path("out") / f"{rec.name}-deskew-{source}"
+    manifest = {"recording": str(recording), "source": source, "gyro": gyro, "crs": rec.world.crs.to_string()}
+    save_scans(iter_scans(rec, source, use_gyro=gyro, quiet=quiet), folder, cloud_format, manifest)
+    if not quiet:
+        typer.echo(f"{len(rec.points):,} returns deskewed ({source}) into {folder} in "
+                   f"{time.perf_counter() - started:.1f} s")
+
+
+@app.command()
+@_clear_errors
 def demo(out: Annotated[Path, typer.Option(help="where to write the demo recording")] = Path("out/demo"),
          size: Annotated[float, typer.Option(help="fraction of the sensor's firings kept")] = 1.0,
          quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:

@@ -52,6 +52,28 @@ class InsErrors(BaseModel):
     piecewise_interval_s: float = Field(1.0, gt=0)
 
 
+class OdometrySpec(BaseModel):
+    """Wheel odometry (and an optional gyro) written to odometry.csv from the true motion.
+
+    The body origin is the midpoint of the odometry axle. Wheel angles are the true wheel
+    paths divided by the TRUE radius, wheel_radius_m * (1 + wheel_radius_error); recording.yaml
+    gets the nominal wheel_radius_m. Noise is drawn from the scenario's seed.
+    """
+
+    model_config = _FROZEN
+    rate_hz: float = Field(100.0, gt=0, le=1000)
+    wheel_radius_m: float = Field(0.31, gt=0, description="nominal radius, written to recording.yaml [m]")
+    track_m: float = Field(1.60, gt=0, description="distance between the left and right wheels [m]")
+    wheel_radius_error: float = Field(0.0, gt=-0.5, lt=0.5, description="true radius = nominal x (1 + error)")
+    wheel_noise_rad: float = Field(0.0, ge=0, description="white noise on each wheel's angle increment per sample")
+    gyro: bool = Field(False, description="write a yaw_rate_rad_s column")
+    gyro_noise_rad_s: float = Field(0.0, ge=0, description="white noise on each yaw-rate sample")
+
+
+# seed 002's car: distance from the ABS wheel sensors, yaw rate from the ESP gyro (noiseless here)
+SEED_002_ODOMETRY = OdometrySpec(gyro=True)
+
+
 class ExtrinsicSpec(BaseModel):
     """Nominal lidar -> body pose (written to extrinsic.yaml) and the true one's departure from it."""
 
@@ -81,6 +103,7 @@ class Scenario(BaseModel):
     min_range_m: float = Field(1.0, ge=0)
     max_range_m: float = Field(100.0, gt=0)
     ins: InsErrors = InsErrors()
+    odometry: OdometrySpec | None = Field(None, description="wheel odometry written to odometry.csv (None: none)")
     effects: dict[str, dict | bool] = Field(default_factory=dict,
                                             description="{name: params}; intra_sweep_motion is on unless False")
     crs: str = "EPSG:32631"

@@ -21,6 +21,7 @@ from graphcal.progress import progress
 from graphcal.recording import Recording
 from graphcal.sensor import SensorModel, sensor_from_catalog
 from graphcal.sim.ins import recorded_poses, to_trajectory, true_poses
+from graphcal.sim.odometry import simulate_odometry
 from graphcal.sim.scenario import Scenario, draw_offsets
 from graphcal.sim.scene import RaycastScene
 from graphcal.truth import Truth
@@ -61,12 +62,14 @@ def simulate(scenario: Scenario, quiet: bool = False) -> Recording:
     crs = CRS.from_user_input(scenario.crs)
     geodetic = scenario.trajectory_format == "geodetic"
     ins = recorded_poses(truth_poses, scenario.ins, effects, rng)
+    odometry = (None if scenario.odometry is None else
+                simulate_odometry(scenario.drive, scenario.odometry, scenario.start_time_s, scenario.duration_s, rng))
     truth = Truth(intrinsics=offsets, extrinsic=true_extrinsic,
                   trajectory=to_trajectory(truth_poses, scenario.origin_m, crs, geodetic),
                   effects=describe(effects), _world_points=world + np.asarray(scenario.origin_m))
     return Recording(name=scenario.name, crs=scenario.crs, sensor=sensor, extrinsic=nominal,
                      trajectory=to_trajectory(ins, scenario.origin_m, crs, geodetic),
-                     points=PointTable.from_arrays(**columns), _truth=truth)
+                     points=PointTable.from_arrays(**columns), odometry=odometry, _truth=truth)
 
 
 def firing_times(scenario: Scenario, sensor: SensorModel, effects: list[Effect]) -> tuple[np.ndarray, float]:
