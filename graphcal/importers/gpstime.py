@@ -25,19 +25,12 @@ def leap_seconds(utc_s) -> np.ndarray:
     return np.searchsorted(_LEAPS, np.asarray(utc_s, dtype=np.float64), side="right").astype(np.float64)
 
 
-def utc_to_gps(utc_s) -> np.ndarray:
-    """UTC (s since 1970) -> GPS time (s since 1980-01-06 00:00 GPS)."""
-    utc_s = np.asarray(utc_s, dtype=np.float64)
-    return utc_s - GPS_EPOCH_UTC + leap_seconds(utc_s)
-
-
-def gps_week(gps_s: float) -> int:
-    """The GPS week that holds GPS time gps_s."""
-    return int(np.floor(gps_s / WEEK_S))
-
-
-def utc_to_seconds_of_week(utc_s, week: int | None = None) -> tuple[np.ndarray, int]:
-    """UTC (s since 1970) -> (GPS seconds since the start of `week`, week); week defaults to the first time's."""
-    gps = utc_to_gps(utc_s)
-    week = gps_week(float(np.ravel(gps)[0])) if week is None else week
-    return gps - week * WEEK_S, week
+def seconds_of_week(utc_base_s: float, offset_s, week: int | None = None) -> tuple[np.ndarray, int]:
+    """UTC times utc_base_s + offset_s (s since 1970; a whole-second base keeps float64 precision)
+    -> (GPS seconds since the start of `week`, week); week defaults to that of the first time."""
+    offset_s = np.asarray(offset_s, dtype=np.float64)
+    leap = leap_seconds(utc_base_s + offset_s)
+    base = float(utc_base_s) - GPS_EPOCH_UTC
+    first = base + float(np.ravel(leap)[0]) + float(np.ravel(offset_s)[0])
+    week = int(np.floor(first / WEEK_S)) if week is None else week
+    return (base - week * WEEK_S) + leap + offset_s, week

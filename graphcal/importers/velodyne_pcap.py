@@ -17,7 +17,7 @@ import numpy as np
 
 from graphcal.errors import ConfigError, RecordingError
 from graphcal.extrinsic import Extrinsic
-from graphcal.importers.gpstime import utc_to_seconds_of_week
+from graphcal.importers.gpstime import seconds_of_week
 from graphcal.importers.nmea import RmcFix, find_rmc
 from graphcal.importers.pcap import read_udp_payloads
 from graphcal.importers.velodyne_calibration import VelodyneCalibration
@@ -137,7 +137,7 @@ def import_pcap(path: str | Path, *, model: str | None = None, calibration: Velo
              f"return), {len(decoded.returns['time_s'])} returns, {decoded.rotation_hz:.2f} Hz"]
     sensor = _sensor(path, decoded, calibration, notes)
     hour_utc_s = _hour(decoded, notes)
-    time, week = utc_to_seconds_of_week(hour_utc_s + decoded.returns["time_s"])
+    time, week = seconds_of_week(hour_utc_s, decoded.returns["time_s"])
     notes.append(f"times are GPS seconds of week {week} (sensor time past the hour + the hour in UTC + leap seconds)")
     if trajectory is None:
         trajectory = _static_trajectory(path, decoded, time, position, attitude_deg, notes)
