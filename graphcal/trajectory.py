@@ -33,6 +33,12 @@ class Trajectory:
     def columns(self) -> tuple[str, ...]:
         return GEODETIC_COLUMNS if self.geodetic else PROJECTED_COLUMNS
 
+    def between(self, start: float, end: float) -> Trajectory:
+        """The poses that cover [start, end] s: those inside plus the one before and the one after."""
+        first = max(int(np.searchsorted(self.time, start, side="right")) - 1, 0)
+        last = min(int(np.searchsorted(self.time, end, side="left")) + 1, len(self.time))
+        return Trajectory(self.time[first:last], self.position[first:last], self.rpy_deg[first:last], self.geodetic)
+
     def save_csv(self, path: Path) -> None:
         values = np.column_stack([self.time, self.position, self.rpy_deg])
         write_csv_columns(path, self.columns, values, formats=["%.9f"] + ["%.10f" if self.geodetic else "%.6f"] * 2

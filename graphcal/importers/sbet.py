@@ -71,16 +71,13 @@ def ned_to_enu_attitude_deg(roll_rad, pitch_rad, heading_rad) -> np.ndarray:
 def import_sbet(path: str | Path, time_range: tuple[float, float] | None = None) -> Trajectory:
     """SBET -> geodetic Trajectory (lat/lon deg, altitude as in the file, ENU attitude deg).
 
-    time_range: keep only the poses that bracket [start, end] (GPS seconds of week)."""
+    time_range: keep only the poses that cover [start, end] (GPS seconds of week)."""
     records = read_sbet(path)
-    if time_range is not None:
-        start = max(int(np.searchsorted(records["time"], time_range[0], side="right")) - 1, 0)
-        end = min(int(np.searchsorted(records["time"], time_range[1], side="left")) + 1, len(records))
-        records = records[start:end]
-    if len(records) < 2:
-        raise RecordingError(path, f"{len(records)} record(s) in the time range {time_range}",
-                             expected="at least 2 poses")
     position = np.column_stack([np.degrees(records["lat"]), np.degrees(records["lon"]), records["alt"]])
-    return Trajectory(time=records["time"].copy(), position=position,
-                      rpy_deg=ned_to_enu_attitude_deg(records["roll"], records["pitch"], records["heading"]),
-                      geodetic=True)
+    trajectory = Trajectory(time=records["time"].copy(), position=position,
+                            rpy_deg=ned_to_enu_attitude_deg(records["roll"], records["pitch"], records["heading"]),
+                            geodetic=True)
+    if time_range is not None:
+        trajectory = trajectory.between(*time_range)
+        trajectory.validate(Path(path))
+    return trajectory

@@ -125,7 +125,8 @@ def import_pcap(path: str | Path, *, model: str | None = None, calibration: Velo
     """A Velodyne capture as a recording, times in GPS seconds of week.
 
     calibration: the unit's db.xml/YAML (required for an HDL-64E), else the catalogue model.
-    trajectory: poses on the same clock (e.g. from an SBET); else a static trajectory at
+    trajectory: poses on the same clock (e.g. from an SBET), cut to the returns' span +- 1 s; else a
+    static trajectory at
     `position` (lat, lon deg, ellipsoidal height m) or at the mean GPRMC fix (height 0 m), with
     `attitude_deg` (roll, pitch, yaw vs ENU). extrinsic: nominal lidar -> body, identity if None.
     What was assumed is listed in `recording.source['notes']`.
@@ -145,6 +146,9 @@ def import_pcap(path: str | Path, *, model: str | None = None, calibration: Velo
         raise RecordingError(path, f"returns span [{time[0]:.3f}, {time[-1]:.3f}] s of GPS week {week}, the "
                                    f"trajectory [{trajectory.time[0]:.3f}, {trajectory.time[-1]:.3f}] s",
                              expected="a trajectory in GPS seconds of week covering the returns")
+    else:
+        trajectory = trajectory.between(time[0] - 1.0, time[-1] + 1.0)
+        notes.append(f"trajectory given: {len(trajectory.time)} poses kept (the returns' span +- 1 s)")
     if extrinsic is None:
         extrinsic = Extrinsic(lever_arm_m=(0.0, 0.0, 0.0), boresight_deg=(0.0, 0.0, 0.0))
         notes.append("nominal extrinsic: identity (lidar frame = body frame)")
