@@ -29,7 +29,8 @@ def seconds_of_week(utc_base_s: float, offset_s, week: int | None = None) -> tup
     """UTC times utc_base_s + offset_s (s since 1970; a whole-second base keeps float64 precision)
     -> (GPS seconds since the start of `week`, week); week defaults to that of the first time."""
     offset_s = np.asarray(offset_s, dtype=np.float64)
-    leap = leap_seconds(utc_base_s + offset_s)
+    ends = leap_seconds(utc_base_s + np.ravel(offset_s)[[0, -1]])
+    leap = ends[0] if ends[0] == ends[1] else leap_seconds(utc_base_s + offset_s)  # one value unless a leap inside
     base = float(utc_base_s) - GPS_EPOCH_UTC
     first = base + float(np.ravel(leap)[0]) + float(np.ravel(offset_s)[0])
     week = int(np.floor(first / WEEK_S)) if week is None else week

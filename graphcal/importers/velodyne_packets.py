@@ -109,8 +109,8 @@ def decode_returns(packets: np.ndarray, layout: PacketLayout, dual: bool, time_u
 
     time_us: (n,) packet timestamps, unwrapped past the hour; scan: (n, 12) revolution index.
     The rotation rate is each packet's mean: its azimuth advance from the first to the last block.
-    Returns arrays in packet/block/channel order: time_us (float64), fibre, range_m,
-    azimuth_rad (encoder, clockwise, wrapped to [0, 2 pi)), intensity, scan.
+    Returns arrays in packet/block/channel order: time_s (float64, s past the hour), fibre,
+    range [m], azimuth [rad, encoder, clockwise, wrapped to [0, 2 pi)], intensity, scan.
     """
     blocks = packets["blocks"]
     timing = layout.timing_us(dual)
@@ -121,10 +121,10 @@ def decode_returns(packets: np.ndarray, layout: PacketLayout, dual: bool, time_u
     after_block_us = (timing - timing[:, :1]) if interpolate_azimuth else layout.sequence_start_us()[None, :]
     azimuth = block_azimuth[:, :, None] + rate[:, None, None] * after_block_us[None]
     return {
-        "time_us": (time_us[:, None, None] + timing[None])[valid],
+        "time_s": (time_us[:, None, None] + timing[None])[valid] * 1e-6,
         "fibre": layout.laser_ids(blocks["flag"])[valid].astype(np.int16),
-        "range_m": (distance[valid] * distance_m).astype(np.float32),
-        "azimuth_rad": np.radians(np.mod(azimuth[valid], 36000.0) / 100.0).astype(np.float32),
+        "range": (distance[valid] * distance_m).astype(np.float32),
+        "azimuth": np.radians(np.mod(azimuth[valid], 36000.0) / 100.0).astype(np.float32),
         "intensity": blocks["returns"]["intensity"][valid].astype(np.float32),
         "scan": np.broadcast_to(scan[:, :, None], distance.shape)[valid],
     }

@@ -95,17 +95,7 @@ def decode_pcap(path: str | Path, model: str | None = None, distance_resolution_
     stamps[timed] = unwrap_hour_us(stamps[timed])
     time_us = stamps[is_data]
     layout, dual = _layout(path, packets, time_us, udp.record[is_data], model)
-    scan = revolution_counter(packets)
-    chunks = range(0, len(packets), _CHUNK_PACKETS)
-    parts = [decode_returns(packets[s:s + _CHUNK_PACKETS], layout, dual, time_us[s:s + _CHUNK_PACKETS],
-                            scan[s:s + _CHUNK_PACKETS], distance_resolution_m, interpolate_azimuth)
-             for s in progress(chunks, f"decoding {path.name}", total=len(chunks), quiet=quiet)]
-    merged = {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
-    if len(merged["time_us"]) and np.any(np.diff(merged["time_us"]) < 0):
-        order = np.argsort(merged["time_us"], kind="stable")
-        merged = {name: values[order] for name, values in merged.items()}
-    returns = {"time_s": merged.pop("time_us") * 1e-6, "fibre": merged["fibre"], "range": merged["range_m"],
-               "azimuth": merged["azimuth_rad"], "intensity": merged["intensity"], "scan": merged["scan"]}
+    returns = _decode_all(path, packets, layout, dual, time_us, distance_resolution_m, interpolate_azimuth, quiet)
     fixes = []
     for row, stamp_us in zip(positions, stamps[is_position]):
         fix = find_rmc(row.tobytes())
@@ -160,6 +150,28 @@ def import_pcap(path: str | Path, *, model: str | None = None, calibration: Velo
               "azimuth": "interpolated to each firing" if interpolate_azimuth else "block azimuth", "notes": notes}
     return Recording(name=name or path.stem, crs="auto", sensor=sensor, extrinsic=extrinsic, trajectory=trajectory,
                      points=points, source=source)
+
+
+def _decode_all(path: Path, packets: np.ndarray, layout: PacketLayout, dual: bool, time_us: np.ndarray,
+                distance_m: float, interpolate_azimuth: bool, quiet: bool) -> dict[str, np.ndarray]:
+    """Every return, decoded chunk by chunk into arrays allocated once, sorted by time."""
+    scan = revolution_counter(packets)
+    total = int(np.count_nonzero(packets["blocks"]["returns"]["distance"]))
+    returns, at = None, 0
+    chunks = range(0, len(packets), _CHUNK_PACKETS)
+    for s in progress(chunks, f"decoding {path.name}", total=len(chunks), quiet=quiet):
+        part = decode_returns(packets[s:s + _CHUNK_PACKETS], layout, dual, time_us[s:s + _CHUNK_PACKETS],
+                              scan[s:s + _CHUNK_PACKETS], distance_m, interpolate_azimuth)
+        returns = returns or {name: np.empty(total, dtype=values.dtype) for name, values in part.items()}
+        size = len(part["time_s"])
+        for name, values in part.items():
+            returns[name][at:at + size] = values
+        at += size
+    if np.any(np.diff(returns["time_s"]) < 0):  # HDL-64E blocks, dual returns: equal times, other order
+        order = np.argsort(returns["time_s"], kind="stable")
+        for name in returns:
+            returns[name] = returns[name][order]
+    return returns
 
 
 def _layout(path: Path, packets: np.ndarray, time_us: np.ndarray, records: np.ndarray,
