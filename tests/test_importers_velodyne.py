@@ -266,3 +266,42 @@ def test_monterey_import_writes_a_valid_recording(tmp_path):
     assert summary.time_min == pytest.approx(first - 1718 * 604800, abs=1e-6)
     np.testing.assert_allclose(loaded.trajectory.position[0, :2], [37.13054, -121.6547733], atol=1e-6)
     assert loaded.sensor.rotation_hz == pytest.approx(11.78, abs=0.01)
+
+
+@needs_calibrations
+@pytest.mark.parametrize("unit", ["32db", "64e_s2.1-sztaki"])
+def test_db_xml_and_its_ros_yaml_give_the_same_model(unit):
+    """The ROS YAML files are gen_calibration.py conversions of the db.xml: same nominal model."""
+    xml = read_velodyne_calibration(CALIBRATIONS / f"db_xml_and_test_yaml/{unit}.xml")
+    ros = read_velodyne_calibration(CALIBRATIONS / f"params/{unit}.yaml")
+    for name in ("elevation_deg", "azimuth_offset_deg", "range_offset_m", "vertical_offset_m", "horizontal_offset_m"):
+        np.testing.assert_allclose(getattr(xml.sensor, name), getattr(ros.sensor, name), atol=1e-6)
+    assert xml.distance_resolution_m == ros.distance_resolution_m == 0.002
+    assert xml.dropped_two_point_m == pytest.approx(ros.dropped_two_point_m, abs=1e-6)
+    if unit == "32db":
+        assert xml.sensor.n_fibres == 32 and xml.notes() == []
+        np.testing.assert_allclose(xml.sensor.elevation_deg, read_velodyne_calibration(
+            CALIBRATIONS / "params/32db.yaml", model="HDL-32E").sensor.elevation_deg)
+    else:
+        assert xml.sensor.model == "HDL-64E" and xml.sensor.n_fibres == 64
+        assert 0.1 < xml.dropped_two_point_m < 0.12 and "two-point" in xml.notes()[0]
+        laser0 = xml.sensor  # db.xml: rotCorrection -7.1559157 deg, distCorrection 151.95264 cm, vertOffset 19.548199 cm
+        assert (laser0.azimuth_offset_deg[0], laser0.range_offset_m[0]) == pytest.approx((7.1559157, 1.5195264))
+        assert laser0.vertical_offset_m[0] == pytest.approx(0.19548199)
+
+
+def test_bad_calibration_files(tmp_path):
+    broken = tmp_path / "db.xml"
+    broken.write_text("<boost_serialization><DB><points_>")
+    with pytest.raises(RecordingError, match=r"db\.xml: not valid XML"):
+        read_velodyne_calibration(broken)
+    ros = tmp_path / "calib.yaml"
+    ros.write_text("lasers:\n- {laser_id: 0, vert_correction: 0.1}\n- {laser_id: 2, vert_correction: 0.2}\n")
+    with pytest.raises(RecordingError, match=r"field 'laser_id': laser ids \[0, 2\]"):
+        read_velodyne_calibration(ros)
+    ros.write_text("lasers:\n- {laser_id: 0, vert_correction: zero}\n")
+    with pytest.raises(RecordingError, match=r"lasers\[0\]\.vert_correction"):
+        read_velodyne_calibration(ros)
+    with pytest.raises(RecordingError, match="16 lasers for a VLP-16"):
+        ros.write_text("lasers:\n- {laser_id: 0, vert_correction: 0.1}\n")
+        read_velodyne_calibration(ros, model="VLP-16")

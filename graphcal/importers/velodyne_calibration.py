@@ -27,7 +27,7 @@ from graphcal.errors import RecordingError, finite_number
 from graphcal.sensor import CATALOG, OPTIONAL_FIBRE_FIELDS, SensorModel
 from graphcal.yamlfile import read_yaml
 
-MODEL_BY_LASERS = {16: "VLP-16", 32: "HDL-32E", 64: "HDL-64E"}
+MODEL_BY_LASERS = {16: "VLP-16", 64: "HDL-64E"}  # 32 lasers: HDL-32E or VLP-32C, name it (model=...)
 # (db.xml tag, ROS YAML key, sensor.yaml column, factor to graphcal units from db.xml / from YAML)
 _TERMS = (("vertCorrection_", "vert_correction", "elevation_deg", 1.0, np.degrees(1.0)),
           ("rotCorrection_", "rot_correction", "azimuth_offset_deg", -1.0, -np.degrees(1.0)),

@@ -37,7 +37,7 @@ from graphcal.importers.velodyne_packets import (
 from graphcal.points import PointTable
 from graphcal.progress import progress
 from graphcal.recording import Recording
-from graphcal.sensor import sensor_from_catalog
+from graphcal.sensor import CATALOG, sensor_from_catalog
 from graphcal.trajectory import Trajectory
 
 DATA_PORT = 2368
@@ -241,7 +241,8 @@ def _sensor(path, decoded: VelodyneReturns, calibration: VelodyneCalibration | N
                                                                                      f"data of {path.name}")
     notes.append(f"nominal sensor model: {calibration.path.name}")
     notes.extend(calibration.notes())
-    return type(sensor)(**{**sensor.__dict__, "model": decoded.model, "rotation_hz": decoded.rotation_hz})
+    return type(sensor)(**{**sensor.__dict__, "model": decoded.model, "rotation_hz": decoded.rotation_hz,
+                            "timing": CATALOG[decoded.model].timing})
 
 
 def _hour(decoded: VelodyneReturns, notes: list[str]) -> float:
