@@ -9,7 +9,6 @@ memory). Prints the figures and writes benchmarks/results/import.json.
 from __future__ import annotations
 
 import argparse
-import json
 import multiprocessing as mp
 import platform
 import struct
@@ -17,7 +16,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from common import peak_gib, run_in_process
+from common import peak_gib, report, run_in_process
 
 RESULTS = Path(__file__).resolve().parent / "results"
 MONTEREY = Path(__file__).resolve().parents[2] / "shared/data/real/veloview_hdl32e_vlp16_pcap/monterey-first-100-packets.pcap"
@@ -91,17 +90,7 @@ def main() -> None:
             figures.update(run_in_process(_graphcal, str(path)))
             figures.update(run_in_process(_velodyne_decoder, str(path)))
             results[name] = figures
-    for name, figures in results.items():
-        if not isinstance(figures, dict):
-            print(f"{name:>32}: {figures}")
-            continue
-        print(name)
-        for key, value in figures.items():
-            print(f"{key:>32}: {value:,.3f}" if isinstance(value, float) else f"{key:>32}: {value:,}")
-    from graphcal.atomic import atomic_path
-
-    with atomic_path(RESULTS / "import.json") as tmp:
-        tmp.write_text(json.dumps(results, indent=2))
+    report(results, RESULTS / "import.json")
 
 
 if __name__ == "__main__":

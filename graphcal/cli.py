@@ -238,7 +238,10 @@ def import_csv_command(
         quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
     """A CSV trajectory with your own column names and units -> trajectory.csv of the recording format."""
     from graphcal.errors import ConfigError
-    from graphcal.importers.trajectory_csv import CsvTrajectoryFormat, import_trajectory_csv
+    from graphcal.importers.trajectory_csv import (
+        CsvTrajectoryFormat,
+        import_trajectory_csv,
+    )
 
     mapping = {}
     for pair in filter(None, columns.split(",")):

@@ -65,12 +65,12 @@ def test_hdl32e_raw_values_times_and_revolutions(tmp_path):
 
 
 SYNTHETIC = {  # model: (capture settings, velodyne-decoder model, calibration file)
-    "HDL-32E": (dict(packet_us=552.96, block_step=19.9), vd.Model.HDL32E, "params/32db.yaml"),
-    "HDL-32E dual": (dict(packet_us=276.48, block_step=19.9, pair_blocks=2, mode=0x39), vd.Model.HDL32E,
+    "HDL-32E": ({"packet_us": 552.96, "block_step": 19.9}, vd.Model.HDL32E, "params/32db.yaml"),
+    "HDL-32E dual": ({"packet_us": 276.48, "block_step": 19.9, "pair_blocks": 2, "mode": 0x39}, vd.Model.HDL32E,
                      "params/32db.yaml"),
-    "VLP-16": (dict(packet_us=1327.104, block_step=39.8, product=0x22), vd.Model.VLP16, "params/VLP16db.yaml"),
-    "HDL-64E": (dict(packet_us=288.0, block_step=17.3, pair_blocks=2, flags=[0xEEFF, 0xDDFF] * 6, product=0x00),
-                vd.Model.HDL64E_S2, "params/64e_s2.1-sztaki.yaml"),
+    "VLP-16": ({"packet_us": 1327.104, "block_step": 39.8, "product": 0x22}, vd.Model.VLP16, "params/VLP16db.yaml"),
+    "HDL-64E": ({"packet_us": 288.0, "block_step": 17.3, "pair_blocks": 2, "flags": [0xEEFF, 0xDDFF] * 6,
+                 "product": 0x00}, vd.Model.HDL64E_S2, "params/64e_s2.1-sztaki.yaml"),
 }
 
 

@@ -23,7 +23,7 @@ def pcap_file(records: list[tuple[float, bytes]], captured: int | None = None) -
     out = [PCAP_HEADER]
     for time_s, frame in records:
         kept = frame[:captured] if captured else frame
-        out.append(struct.pack("<IIII", int(time_s), int(round((time_s % 1) * 1e6)), len(kept), len(frame)) + kept)
+        out.append(struct.pack("<IIII", int(time_s), round((time_s % 1) * 1e6), len(kept), len(frame)) + kept)
     return b"".join(out)
 
 

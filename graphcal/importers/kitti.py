@@ -181,16 +181,16 @@ def import_kitti(drive: str | Path, calibration: VelodyneCalibration | None = No
     time, week = seconds_of_week(midnight, arrays.pop("time"))
     trajectory_time, _ = seconds_of_week(midnight, trajectory.time, week)
     trajectory = Trajectory(trajectory_time, trajectory.position, trajectory.rpy_deg, geodetic=True)
+    model_source = "the calibration" if calibration else "the HDL-64E catalogue"
     notes = [f"{len(scans)} KITTI scans, {len(time)} returns kept",
-             "per-return time DERIVED from the azimuth (KITTI has none): t = start + (end - start) * "
-             "((azimuth - pi) mod 2 pi) / 2 pi, with timestamps_start/end.txt",
-             "the driver's per-laser corrections are already in KITTI's points: raw values are recovered with a "
-             "fitted nominal model (no azimuth, range or horizontal offsets)",
-             f"fibre = nearest beam line (elevation, vertical offset) starting from "
-             f"{'the calibration' if calibration else 'the HDL-64E catalogue'}, refitted on the first "
-             f"{min(len(scans), _REFINE_SCANS)} scans; range and azimuth from the model's inverse; model misfit "
-             f"(distance to the fibre's beam line): median {1000 * np.median(misfit):.1f} mm, 99 % "
-             f"{1000 * np.percentile(misfit, 99):.1f} mm",
+             ("per-return time DERIVED from the azimuth (KITTI has none): t = start + (end - start) * "
+              "((azimuth - pi) mod 2 pi) / 2 pi, with timestamps_start/end.txt"),
+             ("the driver's per-laser corrections are already in KITTI's points: raw values are recovered with a "
+              "fitted nominal model (no azimuth, range or horizontal offsets)"),
+             (f"fibre = nearest beam line (elevation, vertical offset) starting from {model_source}, refitted on the "
+              f"first {min(len(scans), _REFINE_SCANS)} scans; range and azimuth from the model's inverse; model "
+              f"misfit (distance to the fibre's beam line): median {1000 * np.median(misfit):.1f} mm, 99 % "
+              f"{1000 * np.percentile(misfit, 99):.1f} mm"),
              f"{int((~inside).sum())} returns outside the OXTS time span left out",
              f"times are GPS seconds of week {week} (KITTI timestamps read as UTC)",
              "OXTS altitude used as the height, as recorded (KITTI documents it as altitude, not ellipsoidal height)"]

@@ -50,10 +50,10 @@ class VelodyneCalibration:
     def notes(self) -> list[str]:
         if self.dropped_two_point_m == 0.0:
             return []
-        return [f"{self.path.name}: the two-point range correction (distCorrectionX/Y, up to "
-                f"{100 * self.dropped_two_point_m:.1f} cm away from distCorrection) is not part of graphcal's "
-                "sensor model and was dropped; the per-fibre range offsets the calibration estimates absorb "
-                "its mean"]
+        return [(f"{self.path.name}: the two-point range correction (distCorrectionX/Y, up to "
+                 f"{100 * self.dropped_two_point_m:.1f} cm away from distCorrection) is not part of graphcal's "
+                 "sensor model and was dropped; the per-fibre range offsets the calibration estimates absorb "
+                 "its mean")]
 
 
 def read_velodyne_calibration(path: str | Path, model: str | None = None) -> VelodyneCalibration:

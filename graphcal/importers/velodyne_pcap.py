@@ -124,8 +124,9 @@ def import_pcap(path: str | Path, *, model: str | None = None, calibration: Velo
     path = Path(path)
     decoded = decode_pcap(path, model, calibration.distance_resolution_m if calibration else 0.002,
                           interpolate_azimuth, quiet)
-    notes = [f"{decoded.n_data_packets} {decoded.model} data packets ({'dual' if decoded.dual_return else 'single'} "
-             f"return), {len(decoded.returns['time_s'])} returns, {decoded.rotation_hz:.2f} Hz"]
+    mode = "dual" if decoded.dual_return else "single"
+    notes = [(f"{decoded.n_data_packets} {decoded.model} data packets ({mode} return), "
+              f"{len(decoded.returns['time_s'])} returns, {decoded.rotation_hz:.2f} Hz")]
     sensor = _sensor(path, decoded, calibration, notes)
     hour_utc_s = _hour(decoded, notes)
     time, week = seconds_of_week(hour_utc_s, decoded.returns["time_s"])
