@@ -43,7 +43,8 @@ def report(figures: dict, path: Path) -> None:
                 print(key)
                 show(value, "  ")
             else:
-                text = f"{value:,.3f}" if isinstance(value, float) else f"{value:,}" if isinstance(value, int) else value
+                numeric = isinstance(value, (int, float)) and not isinstance(value, bool)
+                text = (f"{value:,.3f}" if isinstance(value, float) else f"{value:,}") if numeric else value
                 print(f"{indent}{key:>30}: {text}")
 
     show(figures)
