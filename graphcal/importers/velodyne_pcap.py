@@ -40,7 +40,7 @@ from graphcal.recording import Recording
 from graphcal.sensor import CATALOG, sensor_from_catalog
 from graphcal.trajectory import Trajectory
 
-DATA_PORT = 2368
+DATA_PORT, POSITION_PORT = 2368, 8308
 POSITION_PACKET_BYTES = 512
 _POSITION_STAMP_AT = 198  # uint32 us past the hour in a position packet (HDL-32E / VLP-16 manuals)
 _CHUNK_PACKETS = 8192
@@ -85,22 +85,11 @@ def decode_pcap(path: str | Path, model: str | None = None, distance_resolution_
         raise RecordingError(path, f"no Velodyne data packet among {udp.n_records} records",
                              expected=f"UDP payloads of {PACKET_BYTES} bytes (port {DATA_PORT})")
     packets = udp.stack(is_data, PACKET_BYTES).view(PACKET).ravel()
-    is_position = udp.length == POSITION_PACKET_BYTES
-    positions = udp.stack(is_position, POSITION_PACKET_BYTES)
-    # one clock for data and position packets: unwrap the hour over both, in file order
-    stamps = np.zeros(len(udp.record), dtype=np.float64)
-    stamps[is_data] = packets["stamp_us"]
-    stamps[is_position] = positions[:, _POSITION_STAMP_AT:_POSITION_STAMP_AT + 4].copy().view("<u4").ravel()
-    timed = is_data | is_position
-    stamps[timed] = unwrap_hour_us(stamps[timed])
-    time_us = stamps[is_data]
+    is_position = (udp.length == POSITION_PACKET_BYTES) & (udp.port == POSITION_PORT)
+    time_us = unwrap_hour_us(packets["stamp_us"])
     layout, dual = _layout(path, packets, time_us, udp.record[is_data], model)
     returns = _decode_all(path, packets, layout, dual, time_us, distance_resolution_m, interpolate_azimuth, quiet)
-    fixes = []
-    for row, stamp_us in zip(positions, stamps[is_position]):
-        fix = find_rmc(row.tobytes())
-        if fix is not None:
-            fixes.append((stamp_us * 1e-6, fix))
+    fixes = _fixes(udp, is_data, is_position, time_us)
     host_hour = 3600.0 * np.round((udp.time_s[is_data][0] - time_us[0] * 1e-6) / 3600.0)
     return VelodyneReturns(path=path, model=layout.model, dual_return=dual,
                            rotation_hz=_rotation_hz(packets, layout, dual), returns=returns, fixes=fixes,
@@ -151,6 +140,21 @@ def import_pcap(path: str | Path, *, model: str | None = None, calibration: Velo
               "azimuth": "interpolated to each firing" if interpolate_azimuth else "block azimuth", "notes": notes}
     return Recording(name=name or path.stem, crs="auto", sensor=sensor, extrinsic=extrinsic, trajectory=trajectory,
                      points=points, source=source)
+
+
+def _fixes(udp, is_data: np.ndarray, is_position: np.ndarray, time_us: np.ndarray) -> list[tuple[float, RmcFix]]:
+    """(sensor time s past the first packet's hour, fix) of the position packets with an RMC sentence;
+    each position timestamp is put in the hour of the data packet before it."""
+    positions = udp.stack(is_position, POSITION_PACKET_BYTES)
+    stamps = positions[:, _POSITION_STAMP_AT:_POSITION_STAMP_AT + 4].copy().view("<u4").ravel().astype(np.float64)
+    before = np.clip(np.searchsorted(udp.record[is_data], udp.record[is_position]) - 1, 0, len(time_us) - 1)
+    stamps += 3600e6 * np.round((time_us[before] - stamps) / 3600e6)
+    fixes = []
+    for row, stamp_us in zip(positions, stamps):
+        fix = find_rmc(row.tobytes())
+        if fix is not None:
+            fixes.append((stamp_us * 1e-6, fix))
+    return fixes
 
 
 def _decode_all(path: Path, packets: np.ndarray, layout: PacketLayout, dual: bool, time_us: np.ndarray,
