@@ -73,6 +73,11 @@ class PacketLayout:
         channel = np.arange(32)
         return (channel // 16) * 55.296 if self.model == "VLP-16" else np.zeros(32)
 
+    def dual_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """Dual-return mode: the blocks holding one firing's first and second returns (block indices)."""
+        first = np.array([0, 1, 4, 5, 8, 9]) if self.model == "HDL-64E" else np.arange(0, 12, 2)
+        return first, first + (2 if self.model == "HDL-64E" else 1)
+
     def laser_ids(self, flags: np.ndarray) -> np.ndarray:
         """(n, 12, 32) laser id (row of sensor.yaml) of every channel, from the (n, 12) block flags."""
         channel = np.arange(32)[None, None, :]
@@ -103,9 +108,22 @@ def revolution_counter(packets: np.ndarray) -> np.ndarray:
     return np.concatenate([[0], np.cumsum(np.diff(azimuth) < 0)]).reshape(-1, 12).astype(np.int32)
 
 
+def returned(packets: np.ndarray, layout: PacketLayout, dual: bool) -> np.ndarray:
+    """(n, 12, 32) mask of the returns kept: distance 0 is "no return", and in dual-return mode a
+    second return equal to the first (same distance and intensity) is the same return twice."""
+    returns = packets["blocks"]["returns"]
+    kept = returns["distance"] > 0
+    if dual:
+        first, second = layout.dual_pairs()
+        same = ((returns["distance"][:, second] == returns["distance"][:, first])
+                & (returns["intensity"][:, second] == returns["intensity"][:, first]))
+        kept[:, second] &= ~same
+    return kept
+
+
 def decode_returns(packets: np.ndarray, layout: PacketLayout, dual: bool, time_us: np.ndarray,
                    scan: np.ndarray, distance_m: float = 0.002, interpolate_azimuth: bool = True) -> dict:
-    """Raw returns of packets (structured PACKET array), zero distances ("no return") left out.
+    """Raw returns of packets (structured PACKET array), those `returned` keeps.
 
     time_us: (n,) packet timestamps, unwrapped past the hour; scan: (n, 12) revolution index.
     The rotation rate is each packet's mean: its azimuth advance from the first to the last block.
@@ -115,7 +133,7 @@ def decode_returns(packets: np.ndarray, layout: PacketLayout, dual: bool, time_u
     blocks = packets["blocks"]
     timing = layout.timing_us(dual)
     distance = blocks["returns"]["distance"]
-    valid = distance > 0
+    valid = returned(packets, layout, dual)
     block_azimuth = blocks["azimuth"].astype(np.float64)
     rate = np.mod(block_azimuth[:, -1] - block_azimuth[:, 0], 36000.0) / (timing[-1, 0] - timing[0, 0])
     after_block_us = (timing - timing[:, :1]) if interpolate_azimuth else layout.sequence_start_us()[None, :]

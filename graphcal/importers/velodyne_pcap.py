@@ -10,7 +10,7 @@ or a static one at the GPRMC position covering the returns. docs/importers.md ha
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +31,7 @@ from graphcal.importers.velodyne_packets import (
     UPPER_BLOCK,
     PacketLayout,
     decode_returns,
+    returned,
     revolution_counter,
     unwrap_hour_us,
 )
@@ -44,8 +45,8 @@ DATA_PORT, POSITION_PORT = 2368, 8308
 POSITION_PACKET_BYTES = 512
 _POSITION_STAMP_AT = 198  # uint32 us past the hour in a position packet (HDL-32E / VLP-16 manuals)
 _CHUNK_PACKETS = 8192
-_SYNC_TOLERANCE_S = 3.0
-_MARGIN_S = 1e-3  # a static trajectory starts and ends this far beyond the returns (CSV rounding)  # an RMC sentence arrives up to about 2 s after the second it names
+_SYNC_TOLERANCE_S = 3.0  # an RMC sentence arrives up to about 2 s after the second it names
+_MARGIN_S = 1e-3  # a static trajectory starts and ends this far beyond the returns (CSV rounding)
 
 
 @dataclass(frozen=True)
@@ -64,6 +65,7 @@ class VelodyneReturns:
     dual_return: bool
     rotation_hz: float
     returns: dict[str, np.ndarray]
+    interpolated_azimuth: bool = True
     fixes: list[tuple[float, RmcFix]] = field(default_factory=list)
     host_hour_utc_s: float = 0.0
     n_data_packets: int = 0
@@ -85,16 +87,28 @@ def decode_pcap(path: str | Path, model: str | None = None, distance_resolution_
         raise RecordingError(path, f"no Velodyne data packet among {udp.n_records} records",
                              expected=f"UDP payloads of {PACKET_BYTES} bytes (port {DATA_PORT})")
     packets = udp.stack(is_data, PACKET_BYTES).view(PACKET).ravel()
+    decoded = decode_packets(path, packets, udp.time_s[is_data], udp.record[is_data], model, distance_resolution_m,
+                             interpolate_azimuth, quiet)
     is_position = (udp.length == POSITION_PACKET_BYTES) & (udp.port == POSITION_PORT)
+    return replace(decoded, fixes=_fixes(udp, is_data, is_position, unwrap_hour_us(packets["stamp_us"])),
+                   n_other_packets=int((~is_data & ~is_position).sum()) + udp.n_records - len(udp.record))
+
+
+def decode_packets(source: Path, packets: np.ndarray, host_time_s: np.ndarray, records: np.ndarray,
+                   model: str | None = None, distance_resolution_m: float = 0.002, interpolate_azimuth: bool = True,
+                   quiet: bool = False) -> VelodyneReturns:
+    """Raw returns of data packets (structured PACKET array) from any container (pcap, rosbag).
+
+    host_time_s: each packet's host clock time (s since 1970 UTC), for the hour of the timestamps;
+    records: each packet's index in `source`, for error messages."""
     time_us = unwrap_hour_us(packets["stamp_us"])
-    layout, dual = _layout(path, packets, time_us, udp.record[is_data], model)
-    returns = _decode_all(path, packets, layout, dual, time_us, distance_resolution_m, interpolate_azimuth, quiet)
-    fixes = _fixes(udp, is_data, is_position, time_us)
-    host_hour = 3600.0 * np.round((udp.time_s[is_data][0] - time_us[0] * 1e-6) / 3600.0)
-    return VelodyneReturns(path=path, model=layout.model, dual_return=dual,
-                           rotation_hz=_rotation_hz(packets, layout, dual), returns=returns, fixes=fixes,
-                           host_hour_utc_s=float(host_hour), n_data_packets=len(packets),
-                           n_other_packets=int((~is_data & ~is_position).sum()) + udp.n_records - len(udp.record))
+    layout, dual = _layout(source, packets, time_us, records, model)
+    returns = _decode_all(source, packets, layout, dual, time_us, distance_resolution_m, interpolate_azimuth, quiet)
+    host_hour = 3600.0 * np.round((host_time_s[0] - time_us[0] * 1e-6) / 3600.0)
+    return VelodyneReturns(path=source, model=layout.model, dual_return=dual,
+                           rotation_hz=_rotation_hz(packets, layout, dual), returns=returns,
+                           interpolated_azimuth=interpolate_azimuth, host_hour_utc_s=float(host_hour),
+                           n_data_packets=len(packets))
 
 
 def import_pcap(path: str | Path, *, model: str | None = None, calibration: VelodyneCalibration | None = None,
@@ -113,6 +127,16 @@ def import_pcap(path: str | Path, *, model: str | None = None, calibration: Velo
     path = Path(path)
     decoded = decode_pcap(path, model, calibration.distance_resolution_m if calibration else 0.002,
                           interpolate_azimuth, quiet)
+    return recording_from_returns(decoded, "velodyne-pcap", calibration=calibration, trajectory=trajectory,
+                                  position=position, attitude_deg=attitude_deg, extrinsic=extrinsic, name=name)
+
+
+def recording_from_returns(decoded: VelodyneReturns, importer: str, *, calibration: VelodyneCalibration | None = None,
+                           trajectory: Trajectory | None = None, position: tuple[float, float, float] | None = None,
+                           attitude_deg: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                           extrinsic: Extrinsic | None = None, name: str | None = None) -> Recording:
+    """Decoded Velodyne returns + nominal model, time base, trajectory and extrinsic -> a recording."""
+    path = decoded.path
     mode = "dual" if decoded.dual_return else "single"
     notes = [(f"{decoded.n_data_packets} {decoded.model} data packets ({mode} return), "
               f"{len(decoded.returns['time_s'])} returns, {decoded.rotation_hz:.2f} Hz")]
@@ -135,9 +159,10 @@ def import_pcap(path: str | Path, *, model: str | None = None, calibration: Velo
     returns = decoded.returns
     points = PointTable.from_arrays(time=time, fibre=returns["fibre"], range=returns["range"],
                                     azimuth=returns["azimuth"], intensity=returns["intensity"], scan=returns["scan"])
-    source = {"importer": "velodyne-pcap", "file": path.name, "model": decoded.model,
+    source = {"importer": importer, "file": path.name, "model": decoded.model,
               "time_base": "GPS seconds of week", "gps_week": week,
-              "azimuth": "interpolated to each firing" if interpolate_azimuth else "block azimuth", "notes": notes}
+              "azimuth": "interpolated to each firing" if decoded.interpolated_azimuth else "block azimuth",
+              "notes": notes}
     return Recording(name=name or path.stem, crs="auto", sensor=sensor, extrinsic=extrinsic, trajectory=trajectory,
                      points=points, source=source)
 
@@ -161,7 +186,7 @@ def _decode_all(path: Path, packets: np.ndarray, layout: PacketLayout, dual: boo
                 distance_m: float, interpolate_azimuth: bool, quiet: bool) -> dict[str, np.ndarray]:
     """Every return, decoded chunk by chunk into arrays allocated once, sorted by time."""
     scan = revolution_counter(packets)
-    total = int(np.count_nonzero(packets["blocks"]["returns"]["distance"]))
+    total = int(np.count_nonzero(returned(packets, layout, dual)))
     returns, at = None, 0
     chunks = range(0, len(packets), _CHUNK_PACKETS)
     for s in progress(chunks, f"decoding {path.name}", total=len(chunks), quiet=quiet):
