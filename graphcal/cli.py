@@ -144,7 +144,8 @@ def _print_notes(recording, out: Path, quiet: bool) -> None:
 @import_app.command("pcap")
 @_clear_errors
 def import_pcap_command(
-        pcap: Annotated[Path, typer.Argument(help="Velodyne capture (HDL-32E, VLP-16, HDL-64E; libpcap)")],
+        pcap: Annotated[Path, typer.Argument(help="Velodyne capture (HDL-32E, VLP-16, HDL-64E): libpcap file or "
+                                                   "ROS bag of velodyne_msgs/VelodyneScan")],
         out: Annotated[Path | None, typer.Option(help="recording directory (default out/<pcap name>)")] = None,
         model: Annotated[str | None, typer.Option(help="force the model: HDL-32E, VLP-16 or HDL-64E")] = None,
         calibration: Annotated[Path | None, typer.Option(help="db.xml or ROS velodyne YAML of the unit")] = None,
@@ -156,9 +157,10 @@ def import_pcap_command(
         boresight: Annotated[str | None, typer.Option(help="nominal boresight ROLL,PITCH,YAW (deg)")] = None,
         block_azimuth: Annotated[bool, typer.Option(help="one azimuth per firing sequence (VeloView 3) instead "
                                                          "of each laser's own")] = False,
+        topic: Annotated[str | None, typer.Option(help="ROS bag: the VelodyneScan topic (default: the only one)")] = None,
         quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
-    """Velodyne pcap -> recording. Without --trajectory the sensor is taken as STATIC at the GPRMC
-    fix of its position packets (or --position).
+    """Velodyne pcap (or ROS bag) -> recording. Without --trajectory the sensor is taken as STATIC
+    at the GPRMC fix of its position packets (or --position).
 
     Example: graphcal import pcap drive.pcap --trajectory sbet.out --lever-arm 0.8,0,1.9 --boresight 0,0,90
     """
@@ -170,10 +172,16 @@ def import_pcap_command(
     if lever_arm is not None or boresight is not None:
         extrinsic = Extrinsic(lever_arm_m=_numbers(lever_arm, "--lever-arm") or (0.0, 0.0, 0.0),
                               boresight_deg=_numbers(boresight, "--boresight") or (0.0, 0.0, 0.0))
-    recording = import_pcap(pcap, model=model, calibration=read_velodyne_calibration(calibration) if calibration else None,
-                            trajectory=_read_trajectory(trajectory) if trajectory else None,
-                            position=_numbers(position, "--position"), attitude_deg=_numbers(attitude, "--attitude"),
-                            extrinsic=extrinsic, interpolate_azimuth=not block_azimuth, quiet=quiet)
+    options = {"model": model, "calibration": read_velodyne_calibration(calibration) if calibration else None,
+               "trajectory": _read_trajectory(trajectory) if trajectory else None,
+               "position": _numbers(position, "--position"), "attitude_deg": _numbers(attitude, "--attitude"),
+               "extrinsic": extrinsic, "interpolate_azimuth": not block_azimuth, "quiet": quiet}
+    if pcap.is_dir() or pcap.suffix.lower() in (".bag", ".db3", ".mcap"):
+        from graphcal.importers.velodyne_rosbag import import_rosbag
+
+        recording = import_rosbag(pcap, topic=topic, **options)
+    else:
+        recording = import_pcap(pcap, **options)
     recording.crs = crs
     out = out or Path("out") / recording.name
     recording.save(out)

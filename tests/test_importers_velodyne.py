@@ -9,7 +9,13 @@ import pytest
 import velodyne_decoder as vd
 import yaml
 from scipy.spatial import cKDTree
-from velodyne_synth import pcap_file, position_packet, spinning_capture, udp_frame
+from velodyne_synth import (
+    data_packet,
+    pcap_file,
+    position_packet,
+    spinning_capture,
+    udp_frame,
+)
 
 from graphcal.errors import ConfigError, RecordingError
 from graphcal.importers.velodyne_calibration import read_velodyne_calibration
@@ -305,3 +311,60 @@ def test_bad_calibration_files(tmp_path):
     with pytest.raises(RecordingError, match="16 lasers for a VLP-16"):
         ros.write_text("lasers:\n- {laser_id: 0, vert_correction: 0.1}\n")
         read_velodyne_calibration(ros, model="VLP-16")
+
+
+NEBULA = REAL / "nebula_velodyne_rosbag2"
+
+
+@pytest.mark.skipif(not NEBULA.is_dir(), reason="shared real data absent")
+def test_rosbag_vlp16_dual_return_matches_velodyne_decoder(tmp_path):
+    """nebula's real VLP-16 bag (ROS 2, dual return): the packets read with rosbags, decoded by
+    graphcal, through graphcal's model, equal velodyne-decoder's points fed the same packets."""
+    pytest.importorskip("rosbags")
+    from graphcal.importers.velodyne_rosbag import (
+        decode_rosbag,
+        import_rosbag,
+        read_velodyne_packets,
+    )
+
+    bag, calibration = NEBULA / "vlp16/1673400471837873222", NEBULA / "calibration/VLP16.yaml"
+    decoded = decode_rosbag(bag, quiet=True)
+    assert decoded.model == "VLP-16" and decoded.dual_return and decoded.n_data_packets == 603
+    packets, stamps = read_velodyne_packets(bag)
+    config = vd.Config()
+    config.model, config.calibration = vd.Model.VLP16, vd.Calibration.read(str(calibration))
+    config.min_range, config.max_range = 0.0, 1000.0
+    decoder, clouds = vd.StreamDecoder(config), []
+    for stamp, data in zip(stamps, packets.view(np.uint8).reshape(-1, 1206)):
+        clouds.append(decoder.decode(float(stamp), data.tobytes(), False))
+    clouds.append(decoder.finish(False))
+    reference = np.concatenate([cloud[1] for cloud in clouds if cloud is not None])[:, :3]
+    returns = decoded.returns
+    assert len(reference) == len(returns["range"]) == 59414
+    sensor = read_velodyne_calibration(calibration).sensor
+    fibre, range_m = returns["fibre"].astype(int), returns["range"].astype(np.float64)
+    centi_deg, tree, error = np.degrees(returns["azimuth"].astype(np.float64)) * 100, cKDTree(reference), np.inf
+    for rounding in (np.floor, np.ceil):
+        xyz = sensor.to_xyz(fibre, range_m, np.radians(np.mod(rounding(centi_deg), 36000) / 100))
+        error = np.minimum(error, tree.query(xyz)[0])
+    assert error.max() < 1e-4
+    with pytest.raises(RecordingError, match="--position"):
+        import_rosbag(bag, quiet=True)
+    recording = import_rosbag(bag, position=(35.6, 139.7, 40.0), quiet=True)
+    assert recording.source["importer"] == "velodyne-rosbag" and any("ROS packet stamps" in n for n in
+                                                                     recording.source["notes"])
+    with pytest.raises(RecordingError, match=r"no velodyne_msgs/msg/VelodyneScan topic named /points"):
+        read_velodyne_packets(bag, topic="/points")
+
+
+def test_dual_return_duplicates_are_one_return(tmp_path):
+    """A second return equal to the first (distance and intensity) is the same return twice."""
+    capture = spinning_capture(n_packets=10, packet_us=276.48, block_step=19.9, pair_blocks=2, mode=0x39)
+    capture.distance[:, 1::2, :8] = capture.distance[:, 0::2, :8]
+    capture.intensity[:, 1::2, :8] = capture.intensity[:, 0::2, :8]
+    records = [(1.0 + 1e-3 * p, udp_frame(data_packet(capture.azimuth[p], capture.distance[p], capture.intensity[p],
+                                                      int(capture.stamp_us[p]), mode=0x39), 2368))
+               for p in range(10)]
+    decoded = decode_pcap(_write(tmp_path, pcap_file(records)), quiet=True)
+    duplicates = np.count_nonzero(capture.distance[:, 1::2, :8])
+    assert duplicates > 0 and len(decoded.returns["range"]) == np.count_nonzero(capture.distance) - duplicates

@@ -280,7 +280,7 @@ def _hour(decoded: VelodyneReturns, notes: list[str]) -> float:
     valid = [(sensor_s, fix) for sensor_s, fix in decoded.fixes if fix.valid]
     if not valid:
         notes.append("no valid $GPRMC fix: the hour of the sensor timestamps is taken from the capture host clock "
-                     "(pcap record times); times within the hour are the sensor's")
+                     "(pcap record times, ROS packet stamps); times within the hour are the sensor's")
         return decoded.host_hour_utc_s
     sensor_s, fix = valid[0]
     hour = 3600.0 * np.round((fix.utc_s - sensor_s) / 3600.0)
