@@ -8,14 +8,13 @@ Prints the figures and writes benchmarks/results/simulate.json.
 from __future__ import annotations
 
 import argparse
-import json
 import multiprocessing as mp
 import platform
 import tempfile
 import time
 from pathlib import Path
 
-from common import peak_gib, run_in_process
+from common import peak_gib, report, run_in_process
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -54,12 +53,7 @@ def main() -> None:
         figures.update(run_in_process(_load, out))
     figures["targets"] = {"simulate_s": 30.0, "simulate_peak_gib": 3.0, "load_s": 3.0}
     figures["met"] = all(figures[k] <= v for k, v in figures["targets"].items())
-    for key, value in figures.items():
-        print(f"{key:>20}: {value:.3f}" if isinstance(value, float) else f"{key:>20}: {value}")
-    from graphcal.atomic import atomic_path
-
-    with atomic_path(RESULTS / "simulate.json") as tmp:
-        tmp.write_text(json.dumps(figures, indent=2))
+    report(figures, RESULTS / "simulate.json")
 
 
 if __name__ == "__main__":

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import json
 import multiprocessing as mp
 import resource
+from pathlib import Path
 from queue import Empty
 
 
@@ -29,3 +31,22 @@ def run_in_process(target, *args) -> dict:
                 raise SystemExit(f"{target.__name__}{args} failed (exit code {process.exitcode})") from None
     process.join()
     return result
+
+
+def report(figures: dict, path: Path) -> None:
+    """Print the figures (a dict value as a titled group) and write them to `path` as JSON, atomically."""
+    from graphcal.atomic import atomic_path
+
+    def show(items, indent=""):
+        for key, value in items.items():
+            if isinstance(value, dict) and all(not isinstance(v, dict) for v in value.values()) and indent == "":
+                print(key)
+                show(value, "  ")
+            else:
+                numeric = isinstance(value, (int, float)) and not isinstance(value, bool)
+                text = (f"{value:,.3f}" if isinstance(value, float) else f"{value:,}") if numeric else value
+                print(f"{indent}{key:>30}: {text}")
+
+    show(figures)
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(figures, indent=2))

@@ -145,5 +145,155 @@ def demo(out: Annotated[Path, typer.Option(help="where to write the demo recordi
     run_demo(out, size=size, quiet=quiet)
 
 
+import_app = typer.Typer(help="Import real data into the recording format (docs/importers.md).", no_args_is_help=True)
+app.add_typer(import_app, name="import")
+
+
+def _numbers(text: str | None, option: str, count: int = 3) -> tuple[float, ...] | None:
+    """'a,b,c' -> (a, b, c), or ConfigError naming the option."""
+    from graphcal.errors import ConfigError
+
+    if text is None:
+        return None
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != count:
+        raise ConfigError(f"{option}: {text!r} is not {count} comma-separated numbers")
+    return values
+
+
+def _print_notes(recording, out: Path, quiet: bool) -> None:
+    if not quiet:
+        for note in recording.source["notes"]:
+            typer.echo(f"  {note}")
+        typer.echo(f"{len(recording.points):,} returns written to {out}")
+
+
+@import_app.command("pcap")
+@_clear_errors
+def import_pcap_command(
+        pcap: Annotated[Path, typer.Argument(help="Velodyne capture (HDL-32E, VLP-16, HDL-64E): libpcap file or "
+                                                   "ROS bag of velodyne_msgs/VelodyneScan")],
+        out: Annotated[Path | None, typer.Option(help="recording directory (default out/<pcap name>)")] = None,
+        model: Annotated[str | None, typer.Option(help="force the model: HDL-32E, VLP-16 or HDL-64E")] = None,
+        calibration: Annotated[Path | None, typer.Option(help="db.xml or ROS velodyne YAML of the unit")] = None,
+        trajectory: Annotated[Path | None, typer.Option(help="SBET (.out) or trajectory.csv, GPS seconds of week")] = None,
+        crs: Annotated[str, typer.Option(help="world CRS (needed for a projected trajectory.csv)")] = "auto",
+        position: Annotated[str | None, typer.Option(help="static position LAT,LON,ALT (deg, deg, m)")] = None,
+        attitude: Annotated[str, typer.Option(help="static attitude ROLL,PITCH,YAW (deg, ENU)")] = "0,0,0",
+        lever_arm: Annotated[str | None, typer.Option(help="nominal lever arm X,Y,Z (m, body frame)")] = None,
+        boresight: Annotated[str | None, typer.Option(help="nominal boresight ROLL,PITCH,YAW (deg)")] = None,
+        block_azimuth: Annotated[bool, typer.Option(help="one azimuth per firing sequence (VeloView 3) instead "
+                                                         "of each laser's own")] = False,
+        topic: Annotated[str | None, typer.Option(help="ROS bag: the VelodyneScan topic (default: the only one)")] = None,
+        quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+    """Velodyne pcap (or ROS bag) -> recording. Without --trajectory the sensor is taken as STATIC
+    at the GPRMC fix of its position packets (or --position).
+
+    Example: graphcal import pcap drive.pcap --trajectory sbet.out --lever-arm 0.8,0,1.9 --boresight 0,0,90
+    """
+    from graphcal.extrinsic import Extrinsic
+    from graphcal.importers.velodyne_calibration import read_velodyne_calibration
+    from graphcal.importers.velodyne_pcap import import_pcap
+
+    extrinsic = None
+    if lever_arm is not None or boresight is not None:
+        extrinsic = Extrinsic(lever_arm_m=_numbers(lever_arm, "--lever-arm") or (0.0, 0.0, 0.0),
+                              boresight_deg=_numbers(boresight, "--boresight") or (0.0, 0.0, 0.0))
+    options = {"model": model, "calibration": read_velodyne_calibration(calibration) if calibration else None,
+               "trajectory": _read_trajectory(trajectory) if trajectory else None,
+               "position": _numbers(position, "--position"), "attitude_deg": _numbers(attitude, "--attitude"),
+               "extrinsic": extrinsic, "interpolate_azimuth": not block_azimuth, "quiet": quiet}
+    if pcap.is_dir() or pcap.suffix.lower() in (".bag", ".db3", ".mcap"):
+        from graphcal.importers.velodyne_rosbag import import_rosbag
+
+        recording = import_rosbag(pcap, topic=topic, **options)
+    else:
+        recording = import_pcap(pcap, **options)
+    recording.crs = crs
+    out = out or Path("out") / recording.name
+    recording.save(out)
+    _print_notes(recording, out, quiet)
+
+
+def _read_trajectory(path: Path):
+    from graphcal.importers.sbet import import_sbet
+    from graphcal.trajectory import Trajectory
+
+    return Trajectory.load_csv(path) if path.suffix.lower() == ".csv" else import_sbet(path)
+
+
+@import_app.command("kitti")
+@_clear_errors
+def import_kitti_command(
+        drive: Annotated[Path, typer.Argument(help="KITTI raw drive folder (..._drive_NNNN_sync)")],
+        out: Annotated[Path | None, typer.Option(help="recording directory (default out/<drive name>)")] = None,
+        calibration: Annotated[Path | None, typer.Option(help="db.xml or ROS YAML to start the fibre fit from")] = None,
+        quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+    """KITTI raw drive -> recording. Per-return times are DERIVED from the azimuth (KITTI has none)."""
+    from graphcal.importers.kitti import import_kitti
+    from graphcal.importers.velodyne_calibration import read_velodyne_calibration
+
+    recording = import_kitti(drive, calibration=read_velodyne_calibration(calibration) if calibration else None,
+                             quiet=quiet)
+    out = out or Path("out") / recording.name
+    recording.save(out)
+    _print_notes(recording, out, quiet)
+
+
+@import_app.command("sbet")
+@_clear_errors
+def import_sbet_command(sbet: Annotated[Path, typer.Argument(help="Applanix SBET file (17 float64 per record)")],
+                        out: Annotated[Path, typer.Option(help="trajectory.csv to write")] = Path("trajectory.csv"),
+                        start: Annotated[float | None, typer.Option(help="first GPS second of week to keep")] = None,
+                        end: Annotated[float | None, typer.Option(help="last GPS second of week to keep")] = None,
+                        quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+    """Applanix SBET -> trajectory.csv (geodetic, ENU attitude, GPS seconds of week)."""
+    from graphcal.importers.sbet import import_sbet
+
+    span = None if start is None and end is None else (start if start is not None else -float("inf"),
+                                                       end if end is not None else float("inf"))
+    trajectory = import_sbet(sbet, span)
+    trajectory.save_csv(out)
+    if not quiet:
+        typer.echo(f"{len(trajectory.time):,} poses over [{trajectory.time[0]:.3f}, {trajectory.time[-1]:.3f}] s "
+                   f"written to {out}")
+
+
+@import_app.command("csv")
+@_clear_errors
+def import_csv_command(
+        csv: Annotated[Path, typer.Argument(help="trajectory CSV with a header line")],
+        out: Annotated[Path, typer.Option(help="trajectory.csv to write")] = Path("trajectory.csv"),
+        columns: Annotated[str, typer.Option(help="FIELD=COLUMN,... e.g. time=gps_s,lat=latitude,heading=hdg")] = "",
+        position: Annotated[str, typer.Option(help="geodetic (lat, lon, alt) or projected (x, y, z)")] = "geodetic",
+        attitude: Annotated[str, typer.Option(help="enu (roll, pitch, yaw) or ned (roll, pitch, heading)")] = "enu",
+        radians: Annotated[bool, typer.Option(help="angles in radians (default degrees)")] = False,
+        delimiter: Annotated[str, typer.Option(help="column separator")] = ",",
+        time_offset: Annotated[float, typer.Option(help="seconds added to the time column")] = 0.0,
+        quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+    """A CSV trajectory with your own column names and units -> trajectory.csv of the recording format."""
+    from graphcal.errors import ConfigError
+    from graphcal.importers.trajectory_csv import (
+        CsvTrajectoryFormat,
+        import_trajectory_csv,
+    )
+
+    mapping = {}
+    for pair in filter(None, columns.split(",")):
+        field, sep, column = pair.partition("=")
+        if not sep or not field.strip() or not column.strip():
+            raise ConfigError(f"--columns: {pair!r} is not FIELD=COLUMN")
+        mapping[field.strip()] = column.strip()
+    fmt = CsvTrajectoryFormat(columns=mapping, position=position, attitude=attitude, radians=radians,
+                              delimiter=delimiter, time_offset_s=time_offset)
+    trajectory = import_trajectory_csv(csv, fmt)
+    trajectory.save_csv(out)
+    if not quiet:
+        typer.echo(f"{len(trajectory.time):,} poses written to {out}")
+
+
 def main() -> None:  # pragma: no cover - console entry
     sys.exit(app())

@@ -35,6 +35,7 @@ class Recording:
     trajectory: Trajectory
     points: PointTable
     odometry: Odometry | None = None
+    source: dict | None = None  # where an importer got the data from and what it assumed (recording.yaml)
     path: Path | None = None
     _truth: Truth | None = field(default=None, repr=False)
 
@@ -72,9 +73,10 @@ class Recording:
         odometry = None
         if (path / "odometry.csv").exists():
             odometry = Odometry.load_csv(path / "odometry.csv", manifest.get("odometry"), path / "recording.yaml")
+        source = manifest.get("source")
         recording = cls(name=str(manifest.get("name", path.name)), crs=crs, sensor=sensor, extrinsic=extrinsic,
                         trajectory=trajectory, points=PointTable.open(path / "points.parquet"),
-                        odometry=odometry, path=path)
+                        odometry=odometry, source=source if isinstance(source, dict) else None, path=path)
         if validate:
             recording.validate()
         return recording
@@ -97,6 +99,8 @@ class Recording:
         manifest = {"format": FORMAT, "name": self.name, "crs": self.crs}
         if self.odometry is not None:
             manifest["odometry"] = self.odometry.params()
+        if self.source:
+            manifest["source"] = self.source
         truth = self.truth
         with atomic_directory(path) as tmp:
             write_yaml(tmp / "recording.yaml", manifest)

@@ -21,13 +21,7 @@ def read_csv_columns(path: Path, headers: Sequence[Sequence[str]],
     file, the column and the 1-based data row of the first bad value.
     """
     path = Path(path)
-    if not path.is_file():
-        raise RecordingError(path, "file not found")
-    try:
-        # only an empty cell is missing: 'nan', 'NULL', 'N/A' ... are values, rejected by name below
-        table = pacsv.read_csv(path, convert_options=pacsv.ConvertOptions(null_values=[""]))
-    except (pa.ArrowInvalid, OSError) as error:
-        raise RecordingError(path, f"not a readable CSV: {error}") from None
+    table = _read_table(path)
     names = tuple(table.column_names)
     header = next((tuple(h) for h in headers if tuple(n for n in names if n not in optional) == tuple(h)), None)
     if header is None:
@@ -43,6 +37,31 @@ def read_csv_columns(path: Path, headers: Sequence[Sequence[str]],
     found = header + tuple(n for n in optional if n in names)
     columns = [_float_column(path, name, table.column(name)) for name in found]
     return found, np.column_stack(columns) if columns else np.empty((0, 0))
+
+
+def read_named_columns(path: Path, names: Sequence[str], delimiter: str = ",") -> dict[str, np.ndarray]:
+    """The named columns of a CSV with any header (other columns ignored) as float64 arrays.
+
+    Raises RecordingError naming the file and the missing column, or the column and 1-based
+    data row of the first value that is not a finite number."""
+    path = Path(path)
+    table = _read_table(path, delimiter)
+    missing = [name for name in names if name not in table.column_names]
+    if missing:
+        raise RecordingError(path, f"no column '{missing[0]}' in the header {delimiter.join(table.column_names)}",
+                             field=missing[0], expected="a column of that name")
+    return {name: _float_column(path, name, table.column(name)) for name in names}
+
+
+def _read_table(path: Path, delimiter: str = ",") -> pa.Table:
+    if not path.is_file():
+        raise RecordingError(path, "file not found")
+    try:
+        # only an empty cell is missing: 'nan', 'NULL', 'N/A' ... are values, rejected by name later
+        return pacsv.read_csv(path, parse_options=pacsv.ParseOptions(delimiter=delimiter),
+                              convert_options=pacsv.ConvertOptions(null_values=[""]))
+    except (pa.ArrowInvalid, OSError) as error:
+        raise RecordingError(path, f"not a readable CSV: {error}") from None
 
 
 def _float_column(path: Path, name: str, column: pa.ChunkedArray) -> np.ndarray:

@@ -33,6 +33,12 @@ class Trajectory:
     def columns(self) -> tuple[str, ...]:
         return GEODETIC_COLUMNS if self.geodetic else PROJECTED_COLUMNS
 
+    def between(self, start: float, end: float) -> Trajectory:
+        """The poses that cover [start, end] s: those inside plus the one before and the one after."""
+        first = max(int(np.searchsorted(self.time, start, side="right")) - 1, 0)
+        last = min(int(np.searchsorted(self.time, end, side="left")) + 1, len(self.time))
+        return Trajectory(self.time[first:last], self.position[first:last], self.rpy_deg[first:last], self.geodetic)
+
     def save_csv(self, path: Path) -> None:
         values = np.column_stack([self.time, self.position, self.rpy_deg])
         write_csv_columns(path, self.columns, values, formats=["%.9f"] + ["%.10f" if self.geodetic else "%.6f"] * 2
@@ -42,21 +48,26 @@ class Trajectory:
     def load_csv(cls, path: Path) -> Trajectory:
         """Read and validate: one of the two headers, finite numbers, strictly increasing time."""
         header, values = read_csv_columns(path, (GEODETIC_COLUMNS, PROJECTED_COLUMNS))
-        if len(values) < 2:
-            raise RecordingError(path, f"{len(values)} pose(s)", expected="at least 2 poses to interpolate")
-        time = values[:, 0]
-        bad = np.flatnonzero(np.diff(time) <= 0)
+        trajectory = cls(time=values[:, 0], position=values[:, 1:4], rpy_deg=values[:, 4:7],
+                         geodetic=header == GEODETIC_COLUMNS)
+        trajectory.validate(path)
+        return trajectory
+
+    def validate(self, path: Path) -> None:
+        """At least 2 poses, strictly increasing time, latitude/longitude in range (geodetic);
+        RecordingError naming `path` and the 1-based row otherwise."""
+        if len(self.time) < 2:
+            raise RecordingError(path, f"{len(self.time)} pose(s)", expected="at least 2 poses to interpolate")
+        bad = np.flatnonzero(np.diff(self.time) <= 0)
         if bad.size:
             row = int(bad[0]) + 2
-            raise RecordingError(path, f"time {float(time[row - 1])!r} does not increase after "
-                                       f"{float(time[row - 2])!r}",
+            raise RecordingError(path, f"time {float(self.time[row - 1])!r} does not increase after "
+                                       f"{float(self.time[row - 2])!r}",
                                  field="time", row=row, expected="strictly increasing times")
-        geodetic = header == GEODETIC_COLUMNS
-        if geodetic:
-            lat, lon = values[:, 1], values[:, 2]
+        if self.geodetic:
+            lat, lon = self.position[:, 0], self.position[:, 1]
             for name, column, limit in (("lat", lat, 90.0), ("lon", lon, 180.0)):
                 out = np.flatnonzero(np.abs(column) > limit)
                 if out.size:
                     raise RecordingError(path, f"value {float(column[out[0]])!r}", field=name, row=int(out[0]) + 1,
                                          expected=f"degrees within +-{limit:g}")
-        return cls(time=time, position=values[:, 1:4], rpy_deg=values[:, 4:7], geodetic=geodetic)
