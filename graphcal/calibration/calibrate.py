@@ -67,14 +67,20 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
     stages = STAGES.get(config.mode, (config.mode,))
     estimated = tuple(any(ESTIMATES[stage][k] for stage in stages) for k in range(3))
     history = History()
-    for stage in stages:
-        estimate = solve_stage(data, estimate, config, stage, ESTIMATES[stage], nominal, priors, history, quiet)
+
+    def run_stages(estimate: Estimate, priors: Priors, label: str = "") -> Estimate:
+        for stage in stages:
+            estimate = solve_stage(data, estimate, config, stage + label, ESTIMATES[stage], nominal, priors, history,
+                                   quiet)
+        return estimate
+
+    estimate = run_stages(estimate, priors)
     final = final_fit(data, estimate, config, estimated, nominal, priors)
     unobservable = final.uncertainty.unobservable()
-    if unobservable:  # hold them at nominal and solve again: they must not drag the others
+    if unobservable:  # hold them at nominal and run the stages again: they must not drag the others
         priors = holding(priors, unobservable)
-        estimate = hold_at_nominal(solve_stage(data, hold_at_nominal(estimate, priors, nominal), config,
-                                               "unobservable held", estimated, nominal, priors, history, quiet),
+        # stage by stage still: successive modes must not turn joint here
+        estimate = hold_at_nominal(run_stages(hold_at_nominal(estimate, priors, nominal), priors, ", unobservable held"),
                                    priors, nominal)
         final = final_fit(data, estimate, config, estimated, nominal, priors)
     if estimated[2]:

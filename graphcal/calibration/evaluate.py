@@ -58,13 +58,14 @@ def nominal_calibration(recording: Recording) -> Calibration:
 @dataclass(frozen=True)
 class Evaluation:
     """A calibration against truth/: eq. 4.6 RMS of the intrinsic offsets (cm, deg, deg, cm) over
-    the fibres but the reference, before (nominal) and after; extrinsic errors (lever arm m,
-    rotation deg) before/after; cloud-to-cloud distance to the true cloud before/after; J [cm^2].
-    common_offset_m: mean of (calibrated - true) position over the returns [m, world]; the
-    trajectory's common translation (and, with pose corrections, common rotation) is a gauge no
-    self-consistency energy observes (the result names it unobservable): cloud_after_gauge_free
-    is the distance once that rigid motion, fitted to truth, is removed (the plain after
-    distance when the result has no such gauge)."""
+    the fibres but the reference, before (nominal) and after; extrinsic errors (lever arm m over
+    the axes the result does not name unobservable, rotation deg) before/after; cloud-to-cloud
+    distance to the true cloud before/after; J [cm^2]. common_offset_m: mean of (calibrated -
+    true) position over the returns [m, world]; the trajectory's common translation (and, with
+    pose corrections, common rotation) is a gauge no self-consistency energy observes, and so is
+    an unobservable extrinsic axis (the result names them): cloud_after_gauge_free is the
+    distance once that rigid motion, fitted to truth, is removed (the plain after distance when
+    the result has no such gauge)."""
 
     intrinsic_rms_before: np.ndarray
     intrinsic_rms_after: np.ndarray
@@ -81,13 +82,15 @@ class Evaluation:
         lines = [f"{'':18}{'before':>12}{'after':>12}"]
         lines += [f"{n:18}{b:12.3g}{a:12.3g}" for n, b, a in zip(names, self.intrinsic_rms_before,
                                                                  self.intrinsic_rms_after)]
-        lines.append(f"{'lever arm m':18}{self.lever_arm_error_m[0]:12.3g}{self.lever_arm_error_m[1]:12.3g}")
+        lines.append(f"{'lever arm m *':18}{self.lever_arm_error_m[0]:12.3g}{self.lever_arm_error_m[1]:12.3g}")
         lines.append(f"{'rotation deg':18}{self.rotation_error_deg[0]:12.3g}{self.rotation_error_deg[1]:12.3g}")
         lines.append(f"{'c2c mean cm':18}{self.cloud_before.mean * 100:12.3g}{self.cloud_after.mean * 100:12.3g}")
         lines.append(f"{'c2c median cm':18}{self.cloud_before.median * 100:12.3g}{self.cloud_after.median * 100:12.3g}")
         lines.append(f"{'c2c p95 cm':18}{self.cloud_before.p95 * 100:12.3g}{self.cloud_after.p95 * 100:12.3g}")
         lines.append(f"{'c2c mean* cm':18}{'':>12}{self.cloud_after_gauge_free.mean * 100:12.3g}")
         lines.append(f"{'J cm2':18}{self.energy_cm2[0]:12.3g}{self.energy_cm2[1]:12.3g}")
+        lines.append("* lever arm: over its observable axes; c2c mean*: once the rigid motion of the unobservable "
+                     "parameters is removed")
         return "\n".join(lines)
 
 
@@ -118,12 +121,16 @@ def evaluate(result: CalibrationResult, recording: Recording, max_points: int = 
     def rotation_error(R):
         return float(np.degrees(Rotation.from_matrix(R.T @ true_R).magnitude()))
 
+    def lever_arm_error(t):  # over the axes the data observe: an unobservable one keeps its start error
+        seen = [f"extrinsic.lever_arm_{axis}_m" not in result.unobservable for axis in "xyz"]
+        return float(np.linalg.norm((np.asarray(t) - true_t)[seen]))
+
     offset = np.mean(after_cloud - reference_cloud[rows], axis=0)
     gauge_free = remove_gauge(after_cloud, reference_cloud[rows], result.unobservable)
     return Evaluation(
         intrinsic_rms(np.zeros_like(truth.intrinsics), truth.intrinsics, sensor.reference_fibre),
         intrinsic_rms(cal.estimate.offsets, truth.intrinsics, sensor.reference_fibre),
-        (float(np.linalg.norm(np.asarray(nominal.lever_arm_m) - true_t)), float(np.linalg.norm(ext.translation() - true_t))),
+        (lever_arm_error(nominal.lever_arm_m), lever_arm_error(ext.translation())),
         (rotation_error(nominal.R_body_lidar), rotation_error(ext.rotation().matrix())),
         DistanceStats.of(cloud_to_cloud(nominal_cloud, reference_cloud)),
         DistanceStats.of(cloud_to_cloud(after_cloud, reference_cloud)),
@@ -133,13 +140,16 @@ def evaluate(result: CalibrationResult, recording: Recording, max_points: int = 
 
 def remove_gauge(points_m: np.ndarray, truth_m: np.ndarray, unobservable) -> np.ndarray:
     """points (N,3) [m, world] moved by the rigid motion, fitted to their true positions (N,3),
-    that the unobservable names allow: translation for trajectory.common_translation, rotation
-    about the centroid too for trajectory.common_rotation (Kabsch, scipy)."""
+    that the unobservable names allow: a translation for trajectory.common_translation or an
+    unobservable lever-arm axis (which moves the cloud rigidly: that is why no energy sees it),
+    a rotation about the centroid too for trajectory.common_rotation or an unobservable boresight
+    angle (Kabsch, scipy)."""
     translation, rotation = TRAJECTORY_GAUGE
-    if translation not in unobservable:
+    names = set(unobservable)
+    if translation not in names and not names & {f"extrinsic.lever_arm_{axis}_m" for axis in "xyz"}:
         return points_m
     centre, true_centre = points_m.mean(axis=0), truth_m.mean(axis=0)
     moved = points_m - centre
-    if rotation in unobservable:
+    if rotation in names or names & {f"extrinsic.{angle}_deg" for angle in ("roll", "pitch", "yaw")}:
         moved = Rotation.align_vectors(truth_m - true_centre, moved)[0].apply(moved)
     return moved + true_centre
