@@ -2,7 +2,8 @@
 
 Every writer takes xyz (N,3) [m] and named per-point columns (time [s], fibre, intensity ...),
 which become PLY properties or LAS extra dimensions ("time" is the LAS GPS time and
-"intensity" the LAS intensity, 0-255 as recorded).
+"intensity" the LAS intensity, 0-255 as recorded). A pyproj CRS, when given, goes into the LAS
+header (WKT VLR) and into a PLY comment line ("comment crs <EPSG or WKT>").
 """
 
 from __future__ import annotations
@@ -12,13 +13,14 @@ from pathlib import Path
 import numpy as np
 
 from graphcal.atomic import atomic_path
-from graphcal.errors import RecordingError
+from graphcal.errors import ConfigError, RecordingError
 
 FORMATS = ("ply", "las", "laz", "uos")
 # the PLY types that common readers (open3d, CloudCompare) all take; other integers become int
 _PLY_TYPES = {np.dtype(np.float64): "double", np.dtype(np.float32): "float", np.dtype(np.int32): "int",
               np.dtype(np.uint8): "uchar"}
 LAS_SCALE_M = 1e-4  # coordinates stored to 0.1 mm
+LAS_MAX_SPAN_M = (2**31 - 1) * LAS_SCALE_M  # int32 steps from the offset: 214 km
 
 
 def _columns(xyz_m: np.ndarray, columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -34,14 +36,16 @@ def _columns(xyz_m: np.ndarray, columns: dict[str, np.ndarray]) -> dict[str, np.
     return out
 
 
-def write_ply(path: str | Path, xyz_m: np.ndarray, **columns: np.ndarray) -> Path:
+def write_ply(path: str | Path, xyz_m: np.ndarray, *, crs=None, **columns: np.ndarray) -> Path:
     """Binary little-endian PLY: x, y, z as double, then each column with its own type."""
     fields = _columns(xyz_m, columns)
     record = np.empty(len(xyz_m), dtype=[(name, values.dtype.newbyteorder("<")) for name, values in fields.items()])
     for name, values in fields.items():
         record[name] = values
-    header = ["ply", "format binary_little_endian 1.0", "comment written by graphcal",
-              f"element vertex {len(record)}"]
+    header = ["ply", "format binary_little_endian 1.0", "comment written by graphcal"]
+    if crs is not None:
+        header.append(f"comment crs {crs.to_string() if crs.to_epsg() else crs.to_wkt()}")
+    header.append(f"element vertex {len(record)}")
     header += [f"property {_PLY_TYPES[values.dtype]} {name}" for name, values in fields.items()]
     header += ["end_header"]
     path = Path(path)
@@ -51,8 +55,9 @@ def write_ply(path: str | Path, xyz_m: np.ndarray, **columns: np.ndarray) -> Pat
     return path
 
 
-def write_las(path: str | Path, xyz_m: np.ndarray, **columns: np.ndarray) -> Path:
-    """LAS 1.4 point format 6 (LAZ when the name ends in .laz), coordinates to 0.1 mm.
+def write_las(path: str | Path, xyz_m: np.ndarray, *, crs=None, **columns: np.ndarray) -> Path:
+    """LAS 1.4 point format 6 (LAZ when the name ends in .laz), coordinates to 0.1 mm from an
+    offset at the cloud's minimum corner (whole metres), the pyproj `crs` in the header.
 
     "time" fills the GPS time [s] and "intensity" the intensity; other columns are extra
     dimensions of their own type."""
@@ -64,6 +69,11 @@ def write_las(path: str | Path, xyz_m: np.ndarray, **columns: np.ndarray) -> Pat
     xyz_m = np.asarray(xyz_m, dtype=np.float64)
     header.offsets = np.floor(xyz_m.min(axis=0)) if len(xyz_m) else np.zeros(3)
     header.scales = np.full(3, LAS_SCALE_M)
+    if len(xyz_m) and np.any(xyz_m.max(axis=0) - header.offsets >= LAS_MAX_SPAN_M):
+        raise ConfigError(f"{path}: the cloud spans {np.ptp(xyz_m, axis=0).max() / 1e3:.0f} km, more than LAS "
+                          f"integers hold at {LAS_SCALE_M} m steps ({LAS_MAX_SPAN_M / 1e3:.0f} km): write a PLY")
+    if crs is not None:
+        header.add_crs(crs)
     extra = [name for name in fields if name not in ("x", "y", "z", "time", "intensity")]
     header.add_extra_dims([laspy.ExtraBytesParams(name=name, type=fields[name].dtype) for name in extra])
     las = laspy.LasData(header)
@@ -92,13 +102,13 @@ def write_uos(path: str | Path, xyz_m: np.ndarray) -> Path:
     return Path(path)
 
 
-def write_cloud(path: str | Path, xyz_m: np.ndarray, **columns: np.ndarray) -> Path:
-    """Write by the file's suffix: .ply, .las, .laz or .3d (uos, xyz only)."""
+def write_cloud(path: str | Path, xyz_m: np.ndarray, *, crs=None, **columns: np.ndarray) -> Path:
+    """Write by the file's suffix: .ply, .las, .laz or .3d (uos, xyz only, no CRS)."""
     suffix = Path(path).suffix.lower()
     if suffix == ".ply":
-        return write_ply(path, xyz_m, **columns)
+        return write_ply(path, xyz_m, crs=crs, **columns)
     if suffix in (".las", ".laz"):
-        return write_las(path, xyz_m, **columns)
+        return write_las(path, xyz_m, crs=crs, **columns)
     if suffix == ".3d":
         return write_uos(path, xyz_m)
     raise ValueError(f"{path}: unknown point cloud suffix (expected .ply, .las, .laz or .3d)")

@@ -60,7 +60,9 @@ def calibrate(recording: Recording, config: CalibrationConfig | None = None, qui
 
 def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> CalibrationResult:
     started = time.perf_counter()
+    timings = {}  # stage -> seconds
     data = prepare(recording, config.control_interval_s, config.max_points, np.random.default_rng(config.seed))
+    timings["prepare"] = time.perf_counter() - started
     estimate = initial_estimate(recording, data)
     nominal = estimate.extrinsic
     priors = Priors.of(config, data.sensor.n_fibres, len(data.control_times_s))
@@ -68,21 +70,27 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
     estimated = tuple(any(ESTIMATES[stage][k] for stage in stages) for k in range(3))
     history = History()
     for stage in stages:
+        mark = time.perf_counter()
         estimate = solve_stage(data, estimate, config, stage, ESTIMATES[stage], nominal, priors, history, quiet)
+        timings[f"solve {stage}"] = time.perf_counter() - mark
+    mark = time.perf_counter()
     final = final_fit(data, estimate, config, estimated, nominal, priors)
+    timings["final fit and marginals"] = time.perf_counter() - mark
     unobservable = final.uncertainty.unobservable()
     if unobservable:  # hold them at nominal and solve again: they must not drag the others
+        mark = time.perf_counter()
         priors = holding(priors, unobservable)
         estimate = hold_at_nominal(solve_stage(data, hold_at_nominal(estimate, priors, nominal), config,
                                                "unobservable held", estimated, nominal, priors, history, quiet),
                                    priors, nominal)
         final = final_fit(data, estimate, config, estimated, nominal, priors)
+        timings["solve again, unobservable held"] = time.perf_counter() - mark
     if estimated[2]:
         unobservable += list(TRAJECTORY_GAUGE[:2 if config.pose_corrections else 1])
     calibration = Calibration(data.sensor.model, data.sensor.reference_fibre, estimate, data.control_times_s,
                               tuple(unobservable))
     return CalibrationResult(calibration, final.uncertainty, estimated, history.rows, data.rows[final.pairs.index_p],
-                             final.residual_m, final.pairs.weight, config, time.perf_counter() - started)
+                             final.residual_m, final.pairs.weight, config, time.perf_counter() - started, timings)
 
 
 class FinalFit:
