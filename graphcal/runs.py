@@ -23,18 +23,18 @@ class CalibrationRun:
 
     folder: Path
     result: object
-    paired: object
+    residuals: object
     evaluation: object | None
 
 
 def calibration_run(recording_path: Path, config: CalibrationConfig, out: Path | None = None, spawn: bool = False,
                     evaluate: bool = True, viewer_points: int | None = None, evaluation_points: int = 500_000,
                     command: str = "calibrate", quiet: bool = False) -> CalibrationRun:
-    """Calibrate, save the results, the pairs before/after, the evaluation against truth/ (when
+    """Calibrate, save the results, the residuals before/after, the evaluation against truth/ (when
     the recording has one and evaluate), run.rrd and report.html into the run folder."""
+    from graphcal.calibration.before_after import residuals_before_after
     from graphcal.calibration.calibrate import calibrate
     from graphcal.calibration.evaluate import evaluate as against_truth
-    from graphcal.calibration.paired import paired_residuals
     from graphcal.viz.calibration import (
         VIEWER_POINTS,
         calibration_blueprint,
@@ -46,9 +46,9 @@ def calibration_run(recording_path: Path, config: CalibrationConfig, out: Path |
     run.timings_s.update({f"calibrate: {name}": seconds for name, seconds in result.timings_s.items()})
     with run.stage("save results"):
         result.save(run.path, command=" ".join(["graphcal", command, str(recording_path)]))
-    with run.stage("pairs before/after"), status("residuals of the nominal pairs before and after", quiet):
-        paired = paired_residuals(recording, result)
-        paired.save(run.path)
+    with run.stage("residuals before/after"), status("pairing the returns before and after", quiet):
+        residuals = residuals_before_after(recording, result)
+        residuals.save(run.path)
     evaluation = None
     if evaluate and recording.truth is not None:
         with run.stage("evaluate against truth"), status("comparing with truth/", quiet):
@@ -57,9 +57,9 @@ def calibration_run(recording_path: Path, config: CalibrationConfig, out: Path |
     blueprint = calibration_blueprint(result.estimated)
     with (run.stage("viewer file"), status(f"writing {run.path / RRD}", quiet),
           recording_stream(run.path / RRD, recording.name, blueprint, spawn) as rec):
-        log_calibration(rec, recording, result, paired, evaluation, run.path, viewer_points or VIEWER_POINTS)
+        log_calibration(rec, recording, result, residuals, evaluation, run.path, viewer_points or VIEWER_POINTS)
     _finish_with_report(run, recording_path, quiet)
-    return CalibrationRun(run.path, result, paired, evaluation)
+    return CalibrationRun(run.path, result, residuals, evaluation)
 
 
 def deskew_run(recording_path: Path, source: str, cloud_format: str, out: Path | None = None, use_gyro: bool = True,

@@ -17,7 +17,7 @@ from rerun.chunk import RrdReader
 from typer.testing import CliRunner
 
 import graphcal
-from graphcal.calibration.paired import PairedResiduals
+from graphcal.calibration.before_after import BeforeAfter
 from graphcal.cli import app
 from graphcal.recording import Recording
 from graphcal.sim.script import load_scenario_builder
@@ -58,13 +58,14 @@ def _column(batches, name):
 def test_calibrate_writes_a_complete_run_folder(calibrated):
     recording, folder = calibrated
     for name in ("calibration.yaml", "config.yaml", "history.csv", "residuals.parquet", "pairs_nominal.parquet",
+                 "pairs_calibrated.parquet",
                  "evaluation.yaml", "run.rrd", "report.html", "run.yaml"):
         assert (folder / name).is_file(), name
     manifest = yaml.safe_load((folder / "run.yaml").read_text())
     assert manifest["format"] == "graphcal-run/1" and manifest["recording"] == str(recording.resolve())
     stages = manifest["timings_s"]
     for stage in ("load and validate the recording", "calibrate: prepare", "calibrate: solve trajectory",
-                  "calibrate: final fit and marginals", "pairs before/after", "evaluate against truth", "viewer file",
+                  "calibrate: final fit and marginals", "residuals before/after", "evaluate against truth", "viewer file",
                   "report"):
         assert stages[stage] >= 0.0, stage
     assert not list(folder.glob(".*.tmp")), "a temporary file was left behind"
@@ -99,10 +100,11 @@ def test_rrd_holds_the_run_read_back_with_rerun(calibrated):
     np.testing.assert_allclose(offset - offset[0], 0.0, atol=1e-3)
     np.testing.assert_allclose(offset[0], np.round(offset[0]), atol=1e-3)
     assert np.abs(np.array(positions)).max() < 200.0
-    # the residual colouring shows exactly the pairs found at the nominal calibration, at their p
-    paired = PairedResiduals.load(folder)
-    (residual_points,) = _column(chunks["/world/cloud/before/by_residual"], "Points3D:positions")
-    np.testing.assert_allclose(np.array(residual_points) + offset[0], paired.p_before_m, atol=2e-3)
+    # the residual colouring shows exactly the returns paired in each cloud, at their p
+    residuals = BeforeAfter.load(folder)
+    for which in ("before", "after"):
+        (points,) = _column(chunks[f"/world/cloud/{which}/by_residual"], "Points3D:positions")
+        np.testing.assert_allclose(np.array(points) + offset[0], getattr(residuals, which).p_m, atol=2e-3)
     ((summary,),) = _column(chunks["/summary"], "TextDocument:text")
     assert "trajectory.common_translation" in summary and "local origin" in summary
 
@@ -111,17 +113,23 @@ def recording_fibres(path):
     return Recording.load(path, validate=False).sensor.n_fibres
 
 
-def test_paired_residuals_reproduce_the_first_iteration(calibrated):
-    """The pairs of pairs_nominal.parquet are those of the first outer iteration: their J at the
-    nominal calibration is the history's first J; at the calibrated parameters it is lower."""
-    _, folder = calibrated
-    paired = PairedResiduals.load(folder)
-    before, after = paired.energy_cm2()
+def test_residuals_before_are_the_first_iteration_and_shrink_after(calibrated):
+    """In the nominal cloud the pairs are the first outer iteration's: their J and weight sum are
+    the history's first; paired again the same way in the calibrated cloud, J is much lower."""
+    recording, folder = calibrated
+    residuals = BeforeAfter.load(folder)
     first = _history(folder)[0]
-    assert len(paired.before_m) == int(first["pairs"])
-    assert before == pytest.approx(float(first["energy_cm2"]), rel=1e-5)
-    assert float(paired.weight.sum()) == pytest.approx(float(first["weight_sum"]), rel=1e-5)
-    assert after < 0.5 * before
+    assert len(residuals.before.row_p) == int(first["pairs"])
+    assert residuals.before.energy_cm2() == pytest.approx(float(first["energy_cm2"]), rel=1e-5)
+    assert float(residuals.before.weight.sum()) == pytest.approx(float(first["weight_sum"]), rel=1e-5)
+    assert residuals.after.energy_cm2() < 0.2 * residuals.before.energy_cm2()
+    # the residual is n.(p - m) with p and m where the calibration puts them (independent: apply_calibration)
+    rec = Recording.load(recording, validate=False)
+    world = graphcal.apply_calibration(graphcal.Calibration.load(folder, rec.sensor), rec)
+    after = residuals.after
+    np.testing.assert_allclose(world[after.row_p], after.p_m, atol=1e-6)
+    distance = np.linalg.norm(world[after.row_p] - world[after.row_m], axis=1)
+    assert np.all(np.abs(after.residual_m) <= distance + 1e-6)
 
 
 def test_report_is_self_contained_and_complete(calibrated):

@@ -63,21 +63,21 @@ def _mark_phases(axes, history: list[dict]) -> None:
 
 
 def residuals_png(before_m: np.ndarray, after_m: np.ndarray) -> bytes:
-    """Histograms of the signed residuals [cm] of the same pairs before and after: on the
-    before's range (left) and zoomed on the after's own range (right)."""
+    """Histograms of the signed residuals [cm] before and after (log counts): on the before's
+    range (left) and zoomed on the after's own range (right)."""
     figure, (left, right) = _figure(1, 2)
     before, after = np.asarray(before_m) * 100.0, np.asarray(after_m) * 100.0
     rms = {name: float(np.sqrt(np.mean(v ** 2))) for name, v in (("before", before), ("after", after))}
     panels = ((left, (("before", before, BEFORE), ("after", after, AFTER)), before, "before and after"),
-              (right, (("after", after, AFTER),), after, "after, zoomed on its own range"))
+              (right, (("after", after, AFTER),), after, "after, zoomed"))
     for axes, series, ranged, title in panels:
-        limit = max(float(np.percentile(np.abs(ranged), 99.5)), 1e-3)
+        limit = max(float(np.percentile(np.abs(ranged), 99)), 1e-3)
         edges = np.linspace(-limit, limit, 81)
         for name, values, color in series:
             axes.hist(np.clip(values, edges[0], edges[-1]), edges, histtype="stepfilled", alpha=0.45, color=color,
                       label=f"{name}: RMS {rms[name]:.3g} cm")
-        axes.set(xlabel="signed point-to-plane residual n·(p−m) [cm] (beyond the range: in the end bins)",
-                 ylabel="pairs", title=title)
+        axes.set(xlabel="signed residual n·(p−m) [cm]", ylabel="pairs (log scale)", yscale="log",
+                 title=f"{title} (beyond the range: in the end bins)")
         axes.legend(loc="upper right")
     return _png(figure)
 
@@ -113,7 +113,7 @@ def corrections_png(time_s: np.ndarray, values_cm: np.ndarray, sigma_cm: np.ndar
         ax.errorbar(time_s, values_cm[:, k], yerr=np.nan_to_num(sigma_cm[:, k]), fmt="o-", ms=3.5, color=SIGMA,
                     capsize=2, label="estimate ± 1σ")
         if truth_cm is not None:
-            ax.plot(time_s, truth_cm[:, k] + shift[k], "s--", ms=3, color=TRUTH,
+            ax.plot(time_s, truth_cm[:, k] + shift[k], "s--", ms=8, mfc="none", mew=1.5, color=TRUTH, zorder=3,
                     label="true INS error + common shift")
         ax.set(xlabel="control time [s]", ylabel=f"d{axis} [cm]", title=f"correction along {axis} (world)")
     axes[0].legend(loc="best", fontsize=8)

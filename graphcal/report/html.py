@@ -1,7 +1,7 @@
 """report.html of a calibration run folder: one self-contained file (figures as base64 PNG).
 
-It is built from the folder's files alone (calibration.yaml, history.csv, pairs_nominal.parquet,
-evaluation.yaml, run.yaml), plus the recording's truth/ when run.yaml names a recording that has
+It is built from the folder's files alone (calibration.yaml, history.csv, pairs_nominal.parquet and
+pairs_calibrated.parquet, evaluation.yaml, run.yaml), plus the recording's truth/ when run.yaml names a recording that has
 one (true offsets and INS errors drawn next to the estimates)."""
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from graphcal.atomic import atomic_path
-from graphcal.calibration.paired import FILE as PAIRS_FILE
-from graphcal.calibration.paired import PairedResiduals
+from graphcal.calibration.before_after import FILES as PAIRS_FILES
+from graphcal.calibration.before_after import BeforeAfter
 from graphcal.errors import RecordingError
 from graphcal.report import figures
 from graphcal.report.tables import (
@@ -105,15 +105,16 @@ def _header(folder: Path, calibration: dict, manifest: dict, history: list[dict]
 
 
 def _residuals(folder: Path) -> str:
-    if not (folder / PAIRS_FILE).is_file():
-        return _section("Residuals before and after", "<p>not computed for this run (no pairs_nominal.parquet)</p>")
-    paired = PairedResiduals.load(folder)
-    before, after = paired.energy_cm2()
-    return _section("Residuals before and after, same pairs", _image(figures.residuals_png(paired.before_m,
-                                                                                            paired.after_m)),
-                    f"The {len(paired.before_m):,} pairs the first outer iteration finds at the nominal calibration, "
-                    f"each residual evaluated at the nominal (before) and at the calibrated parameters (after), "
-                    f"normals as found at the nominal cloud. Their J: {before:.4g} → {after:.4g} cm².")
+    if not all((folder / name).is_file() for name in PAIRS_FILES.values()):
+        return _section("Residuals before and after", "<p>not computed for this run (no pairs_*.parquet)</p>")
+    residuals = BeforeAfter.load(folder)
+    before, after = residuals.before, residuals.after
+    return _section("Residuals before and after", _image(figures.residuals_png(before.residual_m, after.residual_m)),
+                    "Signed point-to-plane residuals of the returns the calibration used, paired in the nominal "
+                    "cloud (before) and again in the calibrated cloud (after) as the first outer iteration pairs them "
+                    "(coarse settings: nothing cut on the distance to the plane, so some pairs across edges remain "
+                    f"even in a perfect cloud). Before: {len(before.row_p):,} pairs, J {before.energy_cm2():.4g} cm²; "
+                    f"after: {len(after.row_p):,} pairs, J {after.energy_cm2():.4g} cm².")
 
 
 def _truth(folder: Path) -> str:

@@ -11,7 +11,7 @@ Entity paths (docs/viewer.md):
     /parameters/intrinsics/<name>/{estimate,plus_1sigma,minus_1sigma,truth}   timeline "fibre"
     /parameters/corrections/<name>/...         timeline "control"
     /parameters/table                          Markdown table of every estimate and sigma
-    /residuals/{before,after}                  histograms of the paired residuals [cm]
+    /residuals/{before,after}                  histograms of the residuals before and after [cm]
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from graphcal.calibration.before_after import BeforeAfter
 from graphcal.calibration.evaluate import (
     Evaluation,
     nominal_calibration,
@@ -30,7 +31,6 @@ from graphcal.calibration.evaluate import (
     world_of,
 )
 from graphcal.calibration.observability import INTRINSIC_NAMES
-from graphcal.calibration.paired import PairedResiduals
 from graphcal.calibration.result import CalibrationResult
 from graphcal.geodesy import to_world
 from graphcal.intrinsics import offsets_to_file_units
@@ -65,7 +65,7 @@ class Shown:
 
 
 def log_calibration(stream: rr.RecordingStream, recording: Recording, result: CalibrationResult,
-                    paired: PairedResiduals, evaluation: Evaluation | None = None, folder: Path | None = None,
+                    residuals: BeforeAfter, evaluation: Evaluation | None = None, folder: Path | None = None,
                     max_points: int = VIEWER_POINTS, seed: int = 0) -> None:
     """Everything about one calibration run (module docstring), and its blueprint's data."""
     calibration = result.calibration
@@ -74,19 +74,19 @@ def log_calibration(stream: rr.RecordingStream, recording: Recording, result: Ca
     stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     stream.log("world", fibre_annotations(recording.sensor.elevation_deg), static=True)
     span = (float(data.time_s.min()), float(data.time_s.max()))
-    scale = float(np.percentile(np.abs(paired.before_m), 95)) if len(paired.before_m) else 0.01
-    for name, cal, p_m, residual in (("before", nominal_calibration(recording), paired.p_before_m, paired.before_m),
-                                     ("after", calibration, paired.p_after_m, paired.after_m)):
+    scale = float(np.percentile(np.abs(residuals.before.residual_m), 95)) if len(residuals.before.row_p) else 0.01
+    for name, cal, pairs in (("before", nominal_calibration(recording), residuals.before),
+                             ("after", calibration, residuals.after)):
         log_cloud(stream, f"world/cloud/{name}", world_of(cal, data) - origin, fibre=data.fibre,
                   time_s=(data.time_s, *span))
-        log_cloud(stream, f"world/cloud/{name}", p_m - origin, residual_m=(residual, scale))
+        log_cloud(stream, f"world/cloud/{name}", pairs.p_m - origin, residual_m=(pairs.residual_m, scale))
     log_trajectories(stream, recording, result, origin)
     log_history(stream, result.history)
     log_parameters(stream, recording, result)
     edges = np.linspace(-3 * scale, 3 * scale, 61) * 100.0
-    log_histogram(stream, "residuals/before", paired.before_m * 100.0, edges, BEFORE)
-    log_histogram(stream, "residuals/after", paired.after_m * 100.0, edges, AFTER)
-    log_summary(stream, calibration_summary(recording, result, paired, evaluation, folder,
+    log_histogram(stream, "residuals/before", residuals.before.residual_m * 100.0, edges, BEFORE)
+    log_histogram(stream, "residuals/after", residuals.after.residual_m * 100.0, edges, AFTER)
+    log_summary(stream, calibration_summary(recording, result, residuals, evaluation, folder,
                                             Shown(len(data.rows), origin, scale)))
 
 
@@ -176,17 +176,17 @@ def parameter_table(result: CalibrationResult) -> str:
     return "\n".join(lines)
 
 
-def calibration_summary(recording: Recording, result: CalibrationResult, paired: PairedResiduals,
+def calibration_summary(recording: Recording, result: CalibrationResult, residuals: BeforeAfter,
                         evaluation: Evaluation | None, folder: Path | None, shown: Shown) -> str:
     before, after = result.energy_cm2
-    pair_before, pair_after = paired.energy_cm2()
     used = result.config.max_points or len(recording.points)
     lines = [f"# graphcal calibrate: {recording.name}", "",
              (f"mode **{result.config.mode}**, {min(used, len(recording.points)):,} of {len(recording.points):,} "
              f"returns used, {len(result.history)} outer iterations, {result.seconds:.1f} s"), "",
              f"- J (history): {before:.3g} cm² before the first solve, {after:.3g} cm² after the last",
-             (f"- the {len(paired.before_m):,} pairs found at the nominal calibration: J {pair_before:.3g} -> "
-             f"{pair_after:.3g} cm²"),
+             (f"- the returns paired as the first iteration pairs them: J {residuals.before.energy_cm2():.3g} cm² "
+              f"in the nominal cloud ({len(residuals.before.row_p):,} pairs), {residuals.after.energy_cm2():.3g} cm² "
+              f"in the calibrated one ({len(residuals.after.row_p):,} pairs)"),
              f"- unobservable (held at nominal): {', '.join(result.unobservable) or 'none'}"]
     if evaluation is not None:
         lines.append(f"- against truth, cloud-to-cloud mean: {evaluation.cloud_before.mean * 100:.3g} -> "
@@ -195,9 +195,9 @@ def calibration_summary(recording: Recording, result: CalibrationResult, paired:
     lines += ["", "## Reading the views",
               ("- top: the cloud before (left) and after (right); tabs colour it by **fibre** (hover a point for its "
               "fibre), by **residual** or by **time**"),
-              (f"- residual colours: signed point-to-plane residual n·(p−m) of the pairs found at the nominal "
-              f"calibration, blue −{shown.residual_scale_m * 100:.2g} cm .. red +{shown.residual_scale_m * 100:.2g} "
-              "cm, the same scale before and after; only those returns p are drawn"),
+              (f"- residual colours: signed point-to-plane residual n·(p−m) of each pair in that cloud, "
+              f"blue −{shown.residual_scale_m * 100:.2g} cm .. red +{shown.residual_scale_m * 100:.2g} cm, the same "
+              "scale before and after; only the paired returns p are drawn"),
               ("- trajectory: INS (grey, before), corrected (green, after), truth (orange, when known); green arrows: "
               f"the translation correction at each control time, drawn {ARROW_SCALE:g}x longer"),
               ("- bottom: J and the weight sum per outer iteration (timeline `iteration`); per-fibre intrinsics and "
