@@ -37,11 +37,10 @@ def calibration_run(recording_path: Path, config: CalibrationConfig, out: Path |
     from graphcal.calibration.evaluate import evaluate as against_truth
     from graphcal.viz.calibration import (
         VIEWER_POINTS,
-        calibration_blueprint,
         log_calibration,
     )
 
-    run, recording = _start(recording_path, out, command, quiet)
+    run, recording = start_run(recording_path, out, command, quiet)
     result = calibrate(recording, config, quiet=quiet)
     run.timings_s.update({f"calibrate: {name}": seconds for name, seconds in result.timings_s.items()})
     with run.stage("save results"):
@@ -54,9 +53,8 @@ def calibration_run(recording_path: Path, config: CalibrationConfig, out: Path |
         with run.stage("evaluate against truth"), status("comparing with truth/", quiet):
             evaluation = against_truth(result, recording, max_points=evaluation_points)
             write_yaml(run.path / "evaluation.yaml", evaluation.to_dict())
-    blueprint = calibration_blueprint(result.estimated)
     with (run.stage("viewer file"), status(f"writing {run.path / RRD}", quiet),
-          recording_stream(run.path / RRD, recording.name, blueprint, spawn) as rec):
+          recording_stream(run.path / RRD, recording.name, spawn) as rec):
         log_calibration(rec, recording, result, residuals, evaluation, run.path, viewer_points or VIEWER_POINTS)
     _finish_with_report(run, recording_path, quiet)
     return CalibrationRun(run.path, result, residuals, evaluation)
@@ -69,10 +67,10 @@ def deskew_run(recording_path: Path, source: str, cloud_format: str, out: Path |
     from graphcal.deskewing import iter_scans, motion_track
     from graphcal.scan_files import save_scans
     from graphcal.viz.calibration import VIEWER_POINTS
-    from graphcal.viz.deskew import deskew_blueprint, deskew_summary, log_deskew
+    from graphcal.viz.deskew import deskew_summary, log_deskew
     from graphcal.viz.log import log_summary
 
-    run, recording = _start(recording_path, out, f"deskew-{source}", quiet,
+    run, recording = start_run(recording_path, out, f"deskew-{source}", quiet,
                             check=lambda rec: motion_track(rec, source, use_gyro))
     manifest = {"recording": str(recording_path), "source": source, "gyro": use_gyro,
                 "crs": recording.world.crs.to_string()}
@@ -80,10 +78,11 @@ def deskew_run(recording_path: Path, source: str, cloud_format: str, out: Path |
         save_scans(iter_scans(recording, source, use_gyro=use_gyro, quiet=quiet), run.path, cloud_format, manifest)
     scans = int(read_yaml(run.path / "deskew.yaml")["scans"])
     with (run.stage("viewer file"), status(f"writing {run.path / RRD}", quiet),
-          recording_stream(run.path / RRD, recording.name, deskew_blueprint(), spawn) as rec):
+          recording_stream(run.path / RRD, recording.name, spawn) as rec):
         shown, origin = log_deskew(rec, iter_scans(recording, "none", quiet=True),
                                    iter_scans(recording, source, use_gyro=use_gyro, quiet=True),
-                                   len(recording.points), viewer_points or VIEWER_POINTS)
+                                   len(recording.points), recording.world.poses.position_m,
+                                   viewer_points or VIEWER_POINTS)
         log_summary(rec, deskew_summary(recording, source, scans, shown, origin, run.path))
     run.finish(recording=str(Path(recording_path).resolve()))
     return run.path, scans
@@ -129,7 +128,7 @@ def apply_run(calibration_path: Path, recording_path: Path, out: Path | None = N
     if out is not None and out.suffix.lower() not in (".las", ".laz", ".ply"):
         raise ConfigError(f"--out {out}: expected a .las, .laz or .ply file name")
     if out is None:
-        run, recording = _start(recording_path, None, "apply", quiet)
+        run, recording = start_run(recording_path, None, "apply", quiet)
     else:
         run, recording = None, Recording.load(recording_path)
     calibration = Calibration.load(calibration_path, recording.sensor)
@@ -150,7 +149,7 @@ def apply_run(calibration_path: Path, recording_path: Path, out: Path | None = N
     return path
 
 
-def _start(recording_path: Path, out: Path | None, command: str, quiet: bool,
+def start_run(recording_path: Path, out: Path | None, command: str, quiet: bool,
            check=None) -> tuple[RunFolder, Recording]:
     """Load and validate the recording (timed), check(recording) if given, then create the run
     folder: bad input fails before any folder is made."""

@@ -37,6 +37,8 @@ from graphcal.intrinsics import offsets_to_file_units
 from graphcal.recording import Recording
 from graphcal.viz.colors import fibre_annotations
 from graphcal.viz.log import (
+    collapsed_panels,
+    eye_over,
     log_arrows,
     log_cloud,
     log_histogram,
@@ -45,6 +47,7 @@ from graphcal.viz.log import (
     log_summary,
     log_with_sigma,
 )
+from graphcal.viz.stream import send_layout
 
 VIEWER_POINTS = 1_000_000  # returns shown per cloud (a random subset, seeded)
 ARROW_SCALE = 10.0  # trajectory corrections are centimetres on a 100 m scene: drawn 10x longer
@@ -71,14 +74,15 @@ def log_calibration(stream: rr.RecordingStream, recording: Recording, result: Ca
     calibration = result.calibration
     data = returns_for(calibration, recording, max_points, seed)
     origin = data.origin_m
+    clouds = {"before": world_of(nominal_calibration(recording), data) - origin,
+              "after": world_of(calibration, data) - origin}
+    send_layout(stream, calibration_blueprint(result.estimated, eye_over(clouds["after"])))
     stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     stream.log("world", fibre_annotations(recording.sensor.elevation_deg), static=True)
     span = (float(data.time_s.min()), float(data.time_s.max()))
     scale = float(np.percentile(np.abs(residuals.before.residual_m), 95)) if len(residuals.before.row_p) else 0.01
-    for name, cal, pairs in (("before", nominal_calibration(recording), residuals.before),
-                             ("after", calibration, residuals.after)):
-        log_cloud(stream, f"world/cloud/{name}", world_of(cal, data) - origin, fibre=data.fibre,
-                  time_s=(data.time_s, *span))
+    for name, pairs in (("before", residuals.before), ("after", residuals.after)):
+        log_cloud(stream, f"world/cloud/{name}", clouds[name], fibre=data.fibre, time_s=(data.time_s, *span))
         log_cloud(stream, f"world/cloud/{name}", pairs.p_m - origin, residual_m=(pairs.residual_m, scale))
     log_trajectories(stream, recording, result, origin)
     log_history(stream, result.history)
@@ -212,12 +216,14 @@ def calibration_summary(recording: Recording, result: CalibrationResult, residua
     return "\n".join(lines)
 
 
-def calibration_blueprint(estimated: tuple[bool, bool, bool]) -> rrb.Blueprint:
-    """Before | after clouds on top (tabs per colouring), summary, J and weight sum, parameters below."""
+def calibration_blueprint(estimated: tuple[bool, bool, bool], eye: rrb.EyeControls3D) -> rrb.Blueprint:
+    """Before | after clouds on top (tabs per colouring, the same starting camera), summary, J and
+    weight sum, parameters below; side panels collapsed."""
     def clouds(which: str, trajectories: list[str]) -> rrb.Tabs:
         return rrb.Tabs(*[rrb.Spatial3DView(name=f"{which}: colour by {colouring}", origin="/world",
                                             contents=[f"+ /world/cloud/{which}/by_{colouring}"]
-                                            + [f"+ /world/trajectory/{t}" for t in trajectories])
+                                            + [f"+ /world/trajectory/{t}" for t in trajectories],
+                                            eye_controls=eye)
                           for colouring in COLOURINGS])
 
     parameters = [rrb.TextDocumentView(origin="/parameters/table", name="parameters table"),
@@ -239,6 +245,5 @@ def calibration_blueprint(estimated: tuple[bool, bool, bool]) -> rrb.Blueprint:
                 rrb.Tabs(*parameters),
                 column_shares=[2, 2, 3]),
             row_shares=[3, 2]),
-        rrb.TimePanel(timeline="iteration"),
-        collapse_panels=False)
+        *collapsed_panels("iteration"))
 

@@ -17,17 +17,19 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from graphcal.viz.calibration import VIEWER_POINTS
-from graphcal.viz.log import POINT_RADIUS_UI
+from graphcal.viz.log import POINT_RADIUS_UI, collapsed_panels, eye_over
+from graphcal.viz.stream import send_layout
 
 RAW, DESKEWED = (240, 140, 40), (40, 120, 230)
 
 
 def log_deskew(stream: rr.RecordingStream, raw_scans: Iterable, deskewed_scans: Iterable, n_returns: int,
-               max_points: int = VIEWER_POINTS) -> tuple[int, np.ndarray | None]:
+               trajectory_m: np.ndarray, max_points: int = VIEWER_POINTS) -> tuple[int, np.ndarray | None]:
     """Log the revolutions of two passes over the same recording (graphcal.deskewing.Scan, in
     order): source "none" and the deskewing source. Every k-th return of each revolution is kept,
-    k such that about max_points of the n_returns are shown. Returns (returns shown per cloud,
-    the world cloud's local origin [m])."""
+    k such that about max_points of the n_returns are shown; trajectory_m (N,3) [m, world]: where
+    the vehicle went, with the first revolution it frames the world views' starting camera. Returns (returns shown per cloud, the world
+    cloud's local origin [m])."""
     step = max(1, int(np.ceil(n_returns / max_points)))
     stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     world = {"raw": [], "deskewed": []}
@@ -35,6 +37,8 @@ def log_deskew(stream: rr.RecordingStream, raw_scans: Iterable, deskewed_scans: 
     for raw, deskewed in zip(raw_scans, deskewed_scans):
         if origin is None:
             origin = np.floor(deskewed.position_world_lidar_m)
+            first = deskewed.rotation_world_lidar.apply(deskewed.xyz_m[::step]) + deskewed.position_world_lidar_m
+            send_layout(stream, deskew_blueprint(eye_over(np.concatenate([first, trajectory_m]) - origin)))
         stream.set_time("scan", sequence=deskewed.index)
         for name, scan, color in (("raw", raw, RAW), ("deskewed", deskewed, DESKEWED)):
             xyz = scan.xyz_m[::step]
@@ -67,14 +71,15 @@ def deskew_summary(recording, source: str, scans: int, shown: int, origin_m: np.
         f"- run folder: `{folder}` (one cloud and one 3DTK pose per revolution, poses.csv, deskew.yaml)"])
 
 
-def deskew_blueprint() -> rrb.Blueprint:
+def deskew_blueprint(eye: rrb.EyeControls3D) -> rrb.Blueprint:
+    """One revolution (sensor frame) and the summary on top, the world raw | deskewed below."""
+    sensor_eye = rrb.EyeControls3D(position=[-25.0, -25.0, 20.0], look_target=[0.0, 0.0, 0.0], eye_up=[0.0, 0.0, 1.0])
     return rrb.Blueprint(
         rrb.Vertical(
-            rrb.Horizontal(rrb.Spatial3DView(origin="/deskew", name="one revolution, L_end frame: raw vs deskewed"),
-                           rrb.TextDocumentView(origin="/summary", name="summary"), column_shares=[3, 1]),
-            rrb.Horizontal(rrb.Spatial3DView(origin="/world", contents="+ /world/deskew/raw",
-                                             name="world: raw revolutions"),
-                           rrb.Spatial3DView(origin="/world", contents="+ /world/deskew/deskewed",
-                                             name="world: deskewed revolutions"))),
-        rrb.TimePanel(timeline="scan"),
-        collapse_panels=False)
+            rrb.Horizontal(rrb.Spatial3DView(origin="/deskew", name="one revolution, L_end frame: raw vs deskewed",
+                                             eye_controls=sensor_eye),
+                           rrb.TextDocumentView(origin="/summary", name="summary"), column_shares=[3, 2]),
+            rrb.Horizontal(*[rrb.Spatial3DView(origin="/world", contents=f"+ /world/deskew/{name}",
+                                               name=f"world: {name} revolutions", eye_controls=eye)
+                             for name in ("raw", "deskewed")])),
+        *collapsed_panels("scan"))

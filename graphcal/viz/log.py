@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import rerun as rr
+import rerun.blueprint as rrb
 
 from graphcal.viz.colors import value_colors
 
@@ -49,10 +50,10 @@ def log_line(stream: rr.RecordingStream, path: str, xyz_local_m: np.ndarray, col
 
 def log_arrows(stream: rr.RecordingStream, path: str, origins_local_m: np.ndarray, vectors_m: np.ndarray, color,
                labels: list[str] | None = None) -> None:
-    """Arrows from origins [m, local] along vectors [m], static."""
+    """Arrows from origins [m, local] along vectors [m], static; labels show on hover."""
     stream.log(path, rr.Arrows3D(origins=np.asarray(origins_local_m, dtype=np.float32),
                                  vectors=np.asarray(vectors_m, dtype=np.float32), colors=[color], labels=labels,
-                                 radii=LINE_RADIUS_UI), static=True)
+                                 show_labels=False, radii=LINE_RADIUS_UI), static=True)
 
 
 def log_series(stream: rr.RecordingStream, path: str, timeline: str, index: np.ndarray, values: np.ndarray,
@@ -86,3 +87,20 @@ def log_histogram(stream: rr.RecordingStream, path: str, values: np.ndarray, edg
     counts, _ = np.histogram(values, edges)
     stream.log(path, rr.BarChart(counts.astype(np.float64), abscissa=0.5 * (edges[1:] + edges[:-1]), color=color,
                                  widths=np.diff(edges).astype(np.float32)), static=True)
+
+
+def eye_over(xyz_local_m: np.ndarray) -> rrb.EyeControls3D:
+    """A 3D view's starting camera over points [m, local, z up]: from the south-west, 35 deg above
+    the horizon, far enough to take in the bulk of them (2nd-98th percentiles)."""
+    low, high = np.percentile(np.asarray(xyz_local_m), [2, 98], axis=0)
+    centre, size = 0.5 * (low + high), float(np.max(high - low))
+    direction = np.array([-0.55, -0.55, 0.63])  # unit vector, 40 deg elevation
+    return rrb.EyeControls3D(position=centre + 1.1 * max(size, 10.0) * direction, look_target=centre,
+                             eye_up=[0.0, 0.0, 1.0])
+
+
+def collapsed_panels(timeline: str) -> tuple:
+    """Blueprint panels for a layout that tells its story at once: the blueprint tree and the
+    selection panel folded away, the time panel folded to its bar on `timeline`."""
+    return (rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
+            rrb.TimePanel(timeline=timeline, state="collapsed"))

@@ -11,6 +11,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import rerun as rr
+import rerun.blueprint as rrb
 
 from graphcal.atomic import atomic_path
 
@@ -37,10 +38,11 @@ def no_viewer_reason() -> str | None:
 
 
 @contextmanager
-def recording_stream(path: Path, name: str, blueprint=None, spawn: bool = False) -> Iterator[rr.RecordingStream]:
+def recording_stream(path: Path, name: str, spawn: bool = False) -> Iterator[rr.RecordingStream]:
     """A stream writing `path` (.rrd, atomically: it appears whole when the block ends without
-    error) with `blueprint` as its default layout; with spawn, a viewer is started and fed live
-    too (a warning, not a failure, when it cannot be: the file is written either way)."""
+    error); with spawn, a viewer is started and fed live too (a warning, not a failure, when it
+    cannot be: the file is written either way). The log_* composers send their layout
+    (send_layout) once they know where the data lies."""
     with atomic_path(path) as tmp:
         stream = rr.RecordingStream(APPLICATION_ID, recording_id=f"{name}-{Path(path).parent.name}")
         sinks = [rr.FileSink(str(tmp))]
@@ -51,10 +53,15 @@ def recording_stream(path: Path, name: str, blueprint=None, spawn: bool = False)
                 sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{VIEWER_PORT}/proxy"))
             else:
                 print(f"warning: no live viewer, {reason}; writing {path} only", file=sys.stderr)
-        stream.set_sinks(*sinks, default_blueprint=blueprint)
+        stream.set_sinks(*sinks)
         stream.send_recording_name(name)
         try:
             yield stream
         finally:
             stream.flush(timeout_sec=FLUSH_TIMEOUT_S)
             stream.disconnect()
+
+
+def send_layout(stream: rr.RecordingStream, blueprint: rrb.Blueprint) -> None:
+    """Make `blueprint` the layout of the file (and of a live viewer) at once."""
+    stream.send_blueprint(blueprint, make_active=True, make_default=True)
