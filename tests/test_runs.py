@@ -229,3 +229,19 @@ def test_deskew_run_rrd_shows_raw_and_deskewed_revolutions(tmp_path):
         (world,) = _column(chunks[f"/world/deskew/{name}"], "Points3D:positions")
         assert 1000 <= len(world) <= 2 * 2000
     assert "timings_s" in yaml.safe_load((tmp_path / "run" / "run.yaml").read_text())
+
+
+def test_spawn_without_a_display_warns_and_writes_the_file_whole(tmp_path, monkeypatch, capsys):
+    from graphcal.viz.log import log_summary
+    from graphcal.viz.stream import recording_stream
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with recording_stream(tmp_path / "run.rrd", "test", spawn=True) as stream:
+        log_summary(stream, "# a run")
+    assert "no live viewer, no display" in capsys.readouterr().err
+    assert "/summary" in RrdReader(tmp_path / "run.rrd").store().schema().entity_paths()
+    with pytest.raises(RuntimeError), recording_stream(tmp_path / "failed.rrd", "test") as stream:
+        log_summary(stream, "# half a run")
+        raise RuntimeError("the run fails half way")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.rrd"]  # no file, no temporary left
