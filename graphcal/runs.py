@@ -66,9 +66,8 @@ def deskew_run(recording_path: Path, source: str, cloud_format: str, out: Path |
     with the raw and deskewed revolutions. Returns (folder, revolutions)."""
     from graphcal.deskewing import iter_scans, motion_track
     from graphcal.scan_files import save_scans
-    from graphcal.viz.calibration import VIEWER_POINTS
     from graphcal.viz.deskew import deskew_summary, log_deskew
-    from graphcal.viz.log import log_summary
+    from graphcal.viz.log import VIEWER_POINTS, log_summary
 
     run, recording = start_run(recording_path, out, f"deskew-{source}", quiet,
                             check=lambda rec: motion_track(rec, source, use_gyro))

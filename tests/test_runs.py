@@ -100,11 +100,16 @@ def test_rrd_holds_the_run_read_back_with_rerun(calibrated):
     np.testing.assert_allclose(offset - offset[0], 0.0, atol=1e-3)
     np.testing.assert_allclose(offset[0], np.round(offset[0]), atol=1e-3)
     assert np.abs(np.array(positions)).max() < 200.0
-    # the residual colouring shows exactly the returns paired in each cloud, at their p
+    # the residual colouring shows returns paired in each cloud, at their p (at most VIEWER_POINTS of them)
+    from scipy.spatial import cKDTree
+
     residuals = BeforeAfter.load(folder)
     for which in ("before", "after"):
         (points,) = _column(chunks[f"/world/cloud/{which}/by_residual"], "Points3D:positions")
-        np.testing.assert_allclose(np.array(points) + offset[0], getattr(residuals, which).p_m, atol=2e-3)
+        p_m = getattr(residuals, which).p_m
+        assert len(points) == min(len(p_m), VIEWER_POINTS)
+        distance, _ = cKDTree(p_m).query(np.array(points) + offset[0])
+        assert distance.max() < 2e-3
     ((summary,),) = _column(chunks["/summary"], "TextDocument:text")
     assert "trajectory.common_translation" in summary and "local origin" in summary
 

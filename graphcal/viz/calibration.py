@@ -37,6 +37,7 @@ from graphcal.intrinsics import offsets_to_file_units
 from graphcal.recording import Recording
 from graphcal.viz.colors import fibre_annotations
 from graphcal.viz.log import (
+    VIEWER_POINTS,
     collapsed_panels,
     eye_over,
     log_arrows,
@@ -49,13 +50,12 @@ from graphcal.viz.log import (
 )
 from graphcal.viz.stream import send_layout
 
-VIEWER_POINTS = 1_000_000  # returns shown per cloud (a random subset, seeded)
 ARROW_SCALE = 10.0  # trajectory corrections are centimetres on a 100 m scene: drawn 10x longer
 MAX_TRAJECTORY_POINTS = 20_000
 BEFORE, AFTER, TRUTH = (160, 160, 160), (40, 200, 90), (240, 160, 30)
 # display units of the intrinsics: m -> cm, deg stays deg
 INTRINSIC_DISPLAY = (("d_range_cm", 100.0), ("d_azimuth_deg", 1.0), ("d_elevation_deg", 1.0), ("h_z_cm", 100.0))
-COLOURINGS = ("fibre", "residual", "time")
+COLOURINGS = ("residual", "fibre", "time")  # the first tab is the one shown
 
 
 @dataclass(frozen=True)
@@ -81,9 +81,12 @@ def log_calibration(stream: rr.RecordingStream, recording: Recording, result: Ca
     stream.log("world", fibre_annotations(recording.sensor.elevation_deg), static=True)
     span = (float(data.time_s.min()), float(data.time_s.max()))
     scale = float(np.percentile(np.abs(residuals.before.residual_m), 95)) if len(residuals.before.row_p) else 0.01
+    rng = np.random.default_rng(seed)
     for name, pairs in (("before", residuals.before), ("after", residuals.after)):
         log_cloud(stream, f"world/cloud/{name}", clouds[name], fibre=data.fibre, time_s=(data.time_s, *span))
-        log_cloud(stream, f"world/cloud/{name}", pairs.p_m - origin, residual_m=(pairs.residual_m, scale))
+        shown = np.sort(rng.choice(len(pairs.row_p), min(len(pairs.row_p), max_points), replace=False))
+        log_cloud(stream, f"world/cloud/{name}", pairs.p_m[shown] - origin,
+                  residual_m=(pairs.residual_m[shown], scale))
     log_trajectories(stream, recording, result, origin)
     log_history(stream, result.history)
     log_parameters(stream, recording, result)
@@ -197,11 +200,11 @@ def calibration_summary(recording: Recording, result: CalibrationResult, residua
                      f"{evaluation.cloud_after.mean * 100:.3g} cm ({evaluation.cloud_after_gauge_free.mean * 100:.3g}"
                      " cm once the unobservable common motion is removed)")
     lines += ["", "## Reading the views",
-              ("- top: the cloud before (left) and after (right); tabs colour it by **fibre** (hover a point for its "
-              "fibre), by **residual** or by **time**"),
+              ("- top: the cloud before (left) and after (right); tabs colour it by **residual**, by **fibre** "
+              "(hover a point for its fibre) or by **time**"),
               (f"- residual colours: signed point-to-plane residual n·(p−m) of each pair in that cloud, "
               f"blue −{shown.residual_scale_m * 100:.2g} cm .. red +{shown.residual_scale_m * 100:.2g} cm, the same "
-              "scale before and after; only the paired returns p are drawn"),
+              f"scale before and after; only the paired returns p are drawn (at most {shown.returns:,})"),
               ("- trajectory: INS (grey, before), corrected (green, after), truth (orange, when known); green arrows: "
               f"the translation correction at each control time, drawn {ARROW_SCALE:g}x longer"),
               ("- bottom: J and the weight sum per outer iteration (timeline `iteration`); per-fibre intrinsics and "

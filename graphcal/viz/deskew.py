@@ -16,8 +16,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from graphcal.viz.calibration import VIEWER_POINTS
-from graphcal.viz.log import POINT_RADIUS_UI, collapsed_panels, eye_over
+from graphcal.viz.log import POINT_RADIUS_UI, VIEWER_POINTS, collapsed_panels, eye_over
 from graphcal.viz.stream import send_layout
 
 RAW, DESKEWED = (240, 140, 40), (40, 120, 230)

@@ -12,6 +12,7 @@ import rerun.blueprint as rrb
 
 from graphcal.viz.colors import value_colors
 
+VIEWER_POINTS = 1_000_000  # default most returns drawn per cloud (a random subset, seeded, or every k-th)
 POINT_RADIUS_UI = -1.5  # negative: a size in screen points, whatever the zoom
 LINE_RADIUS_UI = -2.0
 
