@@ -101,9 +101,11 @@ def calibrate(recording: Annotated[Path, typer.Argument(help="recording director
               out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-calibrate-<UTC time>)")] = None,
               evaluate: Annotated[bool, typer.Option(help="compare with truth/ when the recording has one")] = True,
               spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, quiet: Quiet = False) -> None:
-    """Self-calibrate a recording. The run folder gets calibration.yaml (estimates, 1-sigmas,
-    unobservable parameters), config.yaml, history.csv, residuals.parquet, pairs_nominal.parquet,
-    evaluation.yaml (with truth), run.rrd, report.html and run.yaml (stage timings).
+    """Self-calibrate a recording into a run folder: results, run.rrd, report.html.
+
+    The run folder gets calibration.yaml (estimates, 1-sigmas, unobservable parameters),
+    config.yaml, history.csv, residuals.parquet, pairs_nominal.parquet, pairs_calibrated.parquet,
+    evaluation.yaml (with truth), run.rrd, report.html and run.yaml (seconds per stage).
 
     Example: graphcal calibrate out/sim6_turn --mode trajectory --spawn
     """
@@ -138,8 +140,10 @@ def deskew(recording: Annotated[Path, typer.Argument(help="recording directory")
            = None,
            gyro: Annotated[bool, typer.Option(help="odometry: yaw from the gyro column when there is one")] = True,
            spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, quiet: Quiet = False) -> None:
-    """Deskew every revolution into its end-of-scan lidar frame (seed 002): one cloud and one 3DTK
-    pose per revolution, poses.csv, deskew.yaml, run.rrd (raw vs deskewed) and run.yaml."""
+    """Deskew every revolution into its end-of-scan lidar frame (seed 002).
+
+    The run folder gets one cloud and one 3DTK pose per revolution, poses.csv, deskew.yaml,
+    run.rrd (raw vs deskewed) and run.yaml."""
     from graphcal.cloud_io import FORMATS
     from graphcal.deskewing import SOURCES
     from graphcal.errors import ConfigError
@@ -161,8 +165,9 @@ def deskew(recording: Annotated[Path, typer.Argument(help="recording directory")
 def evaluate_command(calibration: Annotated[Path, typer.Argument(help="run folder or calibration.yaml")],
                      recording: Annotated[Path, typer.Argument(help="simulated recording directory (with truth/)")],
                      quiet: Quiet = False) -> None:
-    """Compare a calibration with the recording's truth/: prints the table, writes evaluation.yaml
-    next to calibration.yaml (and refreshes report.html when there is one)."""
+    """Compare a calibration with the recording's truth/ and print the table.
+
+    Writes evaluation.yaml next to calibration.yaml (and refreshes report.html when there is one)."""
     from graphcal.runs import evaluation_run
 
     evaluation, path = evaluation_run(calibration, recording, quiet)
@@ -178,8 +183,10 @@ def apply_command(calibration: Annotated[Path, typer.Argument(help="run folder o
                   out: Annotated[Path | None, typer.Option(help=".las, .laz or .ply file (default: cloud.laz in a "
                                                                  "run folder runs/<name>-apply-<UTC time>)")] = None,
                   quiet: Quiet = False) -> None:
-    """Write the recording's cloud corrected by a calibration: world CRS coordinates (in the LAS
-    header), GPS time, intensity, and fibre and residual_m as extra dimensions."""
+    """Write the recording's cloud corrected by a calibration (LAS, LAZ or PLY).
+
+    World CRS coordinates (the CRS in the LAS header), GPS time, intensity, and fibre and
+    residual_m as extra dimensions."""
     from graphcal.runs import apply_run
 
     path = apply_run(calibration, recording, out, quiet)
@@ -231,8 +238,10 @@ def demo(out: Annotated[Path, typer.Option(help="folder of the demo: its recordi
          size: Annotated[float, typer.Option(help="fraction of the sensor's firings kept")] = 0.5,
          max_points: Annotated[int, typer.Option(help="returns the calibration draws", min=1000)] = 250_000,
          spawn: Spawn = False, quiet: Quiet = False) -> None:
-    """Flagship demo, end to end (about 2 minutes on 2 cores): simulate sim6_turn, calibrate its
-    trajectory, compare with truth, write run.rrd and report.html, and say what to open."""
+    """Flagship demo, end to end: simulate, calibrate, evaluate, run.rrd, report.
+
+    Simulates sim6_turn, calibrates its trajectory, compares with truth, writes run.rrd and
+    report.html, and says what to open (2 to 2.5 minutes on 2 shared cores)."""
     from graphcal.demo import run_demo
 
     run_demo(out, size=size, max_points=max_points, spawn=spawn, quiet=quiet)

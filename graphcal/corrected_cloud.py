@@ -10,6 +10,7 @@ calibration comes from another recording.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -17,11 +18,14 @@ import pyarrow.parquet as pq
 
 from graphcal.calibration.evaluate import apply_calibration
 from graphcal.calibration.result import Calibration
-from graphcal.cloud_io import write_cloud
+from graphcal.cloud_io import las_writer, ply_writer
 from graphcal.errors import RecordingError
+from graphcal.points import PointTable
+from graphcal.progress import progress
 from graphcal.recording import Recording
 
 RESIDUALS = "residuals.parquet"
+BATCH_ROWS = 1 << 18  # returns georeferenced and written at a time
 
 
 def read_residuals(path: Path, n_points: int) -> tuple[np.ndarray, np.ndarray]:
@@ -38,13 +42,26 @@ def read_residuals(path: Path, n_points: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def write_corrected_cloud(path: Path, calibration: Calibration, recording: Recording,
-                          residuals: tuple[np.ndarray, np.ndarray] | None = None) -> Path:
+                          residuals: tuple[np.ndarray, np.ndarray] | None = None, quiet: bool = False) -> Path:
     """Every return of `recording` placed with `calibration`, written by the file's suffix
-    (.las, .laz, .ply); residuals: (rows, residual [m]) of the calibration's own recording."""
-    xyz = apply_calibration(calibration, recording)
-    columns = recording.points.read(["time", "fibre", "intensity"])
-    residual = np.full(len(xyz), np.nan, dtype=np.float32)
+    (.las, .laz, .ply) BATCH_ROWS returns at a time (memory stays flat: about 1 kB per return of
+    a batch); residuals: (rows, residual [m]) of the calibration's own recording."""
+    n_points = len(recording.points)
+    residual = np.full(n_points, np.nan, dtype=np.float32)
     if residuals is not None:
         residual[residuals[0]] = residuals[1]
-    return write_cloud(path, xyz, crs=recording.world.crs, time=columns["time"],
-                       intensity=columns["intensity"], fibre=columns["fibre"].astype(np.uint8), residual_m=residual)
+    crs = recording.world.crs
+    if Path(path).suffix.lower() == ".ply":
+        writer = ply_writer(path, n_points, crs=crs)
+    else:  # integer coordinates from whole metres near the cloud: the trajectory's lower corner
+        writer = las_writer(path, np.floor(recording.world.poses.position_m.min(axis=0)), crs=crs)
+    batches = recording.points.iter_batches(["time", "fibre", "range", "azimuth", "intensity"], BATCH_ROWS)
+    start = 0
+    with writer as write:
+        for batch in progress(batches, f"writing {path}", total=-(-n_points // BATCH_ROWS), quiet=quiet):
+            part = replace(recording, points=PointTable.from_arrays(**batch))
+            rows = slice(start, start + len(batch["time"]))
+            write(apply_calibration(calibration, part), time=batch["time"], intensity=batch["intensity"],
+                  fibre=batch["fibre"].astype(np.uint8), residual_m=residual[rows])
+            start = rows.stop
+    return Path(path)

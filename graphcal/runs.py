@@ -6,8 +6,10 @@ for a calibration, report.html; each stage is timed into run.yaml.
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.progress import status
@@ -16,15 +18,20 @@ from graphcal.run_folder import RunFolder
 from graphcal.viz.stream import RRD, recording_stream
 from graphcal.yamlfile import read_yaml, write_yaml
 
+if TYPE_CHECKING:
+    from graphcal.calibration.before_after import BeforeAfter
+    from graphcal.calibration.evaluate import Evaluation
+    from graphcal.calibration.result import CalibrationResult
+
 
 @dataclass(frozen=True)
 class CalibrationRun:
     """A finished calibration run: its folder and what it computed (evaluation None without truth)."""
 
     folder: Path
-    result: object
-    residuals: object
-    evaluation: object | None
+    result: CalibrationResult
+    residuals: BeforeAfter
+    evaluation: Evaluation | None
 
 
 def calibration_run(recording_path: Path, config: CalibrationConfig, out: Path | None = None, spawn: bool = False,
@@ -35,16 +42,14 @@ def calibration_run(recording_path: Path, config: CalibrationConfig, out: Path |
     from graphcal.calibration.before_after import residuals_before_after
     from graphcal.calibration.calibrate import calibrate
     from graphcal.calibration.evaluate import evaluate as against_truth
-    from graphcal.viz.calibration import (
-        VIEWER_POINTS,
-        log_calibration,
-    )
+    from graphcal.viz.calibration import log_calibration
+    from graphcal.viz.log import VIEWER_POINTS
 
     run, recording = start_run(recording_path, out, command, quiet)
     result = calibrate(recording, config, quiet=quiet)
     run.timings_s.update({f"calibrate: {name}": seconds for name, seconds in result.timings_s.items()})
     with run.stage("save results"):
-        result.save(run.path, command=" ".join(["graphcal", command, str(recording_path)]))
+        result.save(run.path, command=" ".join(["graphcal"] + sys.argv[1:]))
     with run.stage("residuals before/after"), status("pairing the returns before and after", quiet):
         residuals = residuals_before_after(recording, result)
         residuals.save(run.path)
@@ -70,7 +75,7 @@ def deskew_run(recording_path: Path, source: str, cloud_format: str, out: Path |
     from graphcal.viz.log import VIEWER_POINTS, log_summary
 
     run, recording = start_run(recording_path, out, f"deskew-{source}", quiet,
-                            check=lambda rec: motion_track(rec, source, use_gyro))
+                               check=lambda rec: motion_track(rec, source, use_gyro))
     manifest = {"recording": str(recording_path), "source": source, "gyro": use_gyro,
                 "crs": recording.world.crs.to_string()}
     with run.stage("deskew and write scans"):
@@ -87,7 +92,7 @@ def deskew_run(recording_path: Path, source: str, cloud_format: str, out: Path |
     return run.path, scans
 
 
-def evaluation_run(calibration_path: Path, recording_path: Path, quiet: bool = False):
+def evaluation_run(calibration_path: Path, recording_path: Path, quiet: bool = False) -> tuple[Evaluation, Path]:
     """Evaluate a calibration (run folder or calibration.yaml) against the recording's truth/;
     writes evaluation.yaml next to calibration.yaml and refreshes report.html if there is one."""
     from graphcal.calibration.evaluate import evaluate
@@ -137,19 +142,18 @@ def apply_run(calibration_path: Path, recording_path: Path, out: Path | None = N
     if made_from and Path(made_from).resolve() == Path(recording_path).resolve() and (folder / RESIDUALS).is_file():
         residuals = read_residuals(folder / RESIDUALS, len(recording.points))
     path = out or run.path / "cloud.laz"
-    with status(f"writing {path}", quiet):
-        if run is None:
-            write_corrected_cloud(path, calibration, recording, residuals)
-        else:
-            with run.stage("apply and write"):
-                write_corrected_cloud(path, calibration, recording, residuals)
-            run.finish(recording=str(Path(recording_path).resolve()), calibration=str(Path(calibration_path).resolve()),
+    if run is None:
+        write_corrected_cloud(path, calibration, recording, residuals, quiet)
+    else:
+        with run.stage("apply and write"):
+            write_corrected_cloud(path, calibration, recording, residuals, quiet)
+        run.finish(recording=str(Path(recording_path).resolve()), calibration=str(Path(calibration_path).resolve()),
                        cloud=path.name, residuals="from the calibration's final fit" if residuals else "none (NaN)")
     return path
 
 
 def start_run(recording_path: Path, out: Path | None, command: str, quiet: bool,
-           check=None) -> tuple[RunFolder, Recording]:
+              check=None) -> tuple[RunFolder, Recording]:
     """Load and validate the recording (timed), check(recording) if given, then create the run
     folder: bad input fails before any folder is made."""
     import time
