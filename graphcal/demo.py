@@ -19,7 +19,7 @@ from graphcal.sim.simulator import simulate
 SIZE = 0.5  # half the firings of the full drive: ~1.9 M returns
 MAX_POINTS = 250_000  # returns the calibration draws (seeded)
 VIEWER_POINTS = 500_000
-EVALUATION_POINTS = 200_000
+EVALUATION_POINTS = 200_000  # cloud-to-cloud from this many random returns to the whole true cloud
 
 
 def run_demo(out: Path, size: float = SIZE, max_points: int = MAX_POINTS, max_outer_iterations: int | None = None,
