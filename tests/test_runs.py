@@ -251,3 +251,23 @@ def test_spawn_without_a_display_warns_and_writes_the_file_whole(tmp_path, monke
         log_summary(stream, "# half a run")
         raise RuntimeError("the run fails half way")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.rrd"]  # no file, no temporary left
+
+
+def test_run_folder_names_times_and_links_the_latest(tmp_path):
+    from graphcal.errors import RecordingError
+    from graphcal.run_folder import RunFolder, read_manifest
+
+    first = RunFolder.create(None, "sim6_turn", "calibrate", root=tmp_path)
+    assert re.fullmatch(r"sim6_turn-calibrate-\d{8}T\d{6}Z", first.path.name)
+    with first.stage("solve"):
+        pass
+    with first.stage("solve"):  # a stage run twice adds up
+        pass
+    first.finish(recording="/data/rec")
+    manifest = read_manifest(first.path)
+    assert manifest["recording"] == "/data/rec" and list(manifest["timings_s"]) == ["solve"]
+    second = RunFolder.create(tmp_path / "second", "sim6_turn", "deskew-ins", root=tmp_path)
+    assert (tmp_path / "latest").resolve() == first.path.resolve()  # an explicit --out is not "latest"
+    assert second.path == tmp_path / "second"
+    with pytest.raises(RecordingError, match="not a graphcal run manifest|file not found"):
+        read_manifest(second.path)
