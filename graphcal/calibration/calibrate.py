@@ -60,7 +60,9 @@ def calibrate(recording: Recording, config: CalibrationConfig | None = None, qui
 
 def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> CalibrationResult:
     started = time.perf_counter()
+    timings = {}  # stage -> seconds
     data = prepare(recording, config.control_interval_s, config.max_points, np.random.default_rng(config.seed))
+    timings["prepare"] = time.perf_counter() - started
     estimate = initial_estimate(recording, data)
     nominal = estimate.extrinsic
     priors = Priors.of(config, data.sensor.n_fibres, len(data.control_times_s))
@@ -68,27 +70,34 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
     estimated = tuple(any(ESTIMATES[stage][k] for stage in stages) for k in range(3))
     history = History()
 
+    def timed(name: str, work, *args):
+        mark = time.perf_counter()
+        out = work(*args)
+        timings[name] = time.perf_counter() - mark
+        return out
+
     def run_stages(estimate: Estimate, priors: Priors, label: str = "") -> Estimate:
         for stage in stages:
-            estimate = solve_stage(data, estimate, config, stage + label, ESTIMATES[stage], nominal, priors, history,
-                                   quiet)
+            estimate = timed(f"solve {stage}{label}", solve_stage, data, estimate, config, stage + label,
+                             ESTIMATES[stage], nominal, priors, history, quiet)
         return estimate
 
     estimate = run_stages(estimate, priors)
-    final = final_fit(data, estimate, config, estimated, nominal, priors)
+    final = timed("final fit and marginals", final_fit, data, estimate, config, estimated, nominal, priors)
     unobservable = final.uncertainty.unobservable()
     if unobservable:  # hold them at nominal and run the stages again: they must not drag the others
         priors = holding(priors, unobservable)
         # stage by stage still: successive modes must not turn joint here
         estimate = hold_at_nominal(run_stages(hold_at_nominal(estimate, priors, nominal), priors, ", unobservable held"),
                                    priors, nominal)
-        final = final_fit(data, estimate, config, estimated, nominal, priors)
+        final = timed("final fit and marginals, unobservable held", final_fit, data, estimate, config, estimated,
+                      nominal, priors)
     if estimated[2]:
         unobservable += list(TRAJECTORY_GAUGE[:2 if config.pose_corrections else 1])
     calibration = Calibration(data.sensor.model, data.sensor.reference_fibre, estimate, data.control_times_s,
                               tuple(unobservable))
     return CalibrationResult(calibration, final.uncertainty, estimated, history.rows, data.rows[final.pairs.index_p],
-                             final.residual_m, final.pairs.weight, config, time.perf_counter() - started)
+                             final.residual_m, final.pairs.weight, config, time.perf_counter() - started, timings)
 
 
 class FinalFit:

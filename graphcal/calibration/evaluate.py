@@ -27,19 +27,22 @@ def apply_calibration(calibration: Calibration, recording: Recording) -> np.ndar
     """World coordinates [m, the recording's projected CRS] of every return with the
     calibration's offsets, extrinsic and trajectory corrections (interpolated at each return's
     time; held at the first/last control outside their span). Shape (N, 3), recording order."""
-    return _world(calibration, _returns_for(calibration, recording))
+    return world_of(calibration, returns_for(calibration, recording))
 
 
-def _returns_for(calibration: Calibration, recording: Recording) -> ReturnData:
-    """Every return of the recording, placed between the calibration's control times."""
+def returns_for(calibration: Calibration, recording: Recording, max_points: int | None = None,
+                seed: int = 0) -> ReturnData:
+    """Every return of the recording (or the random subset of max_points that calibrate draws
+    with this seed), placed between the calibration's control times."""
     if calibration.sensor_model != recording.sensor.model:
         raise GraphcalError(f"calibration is for a {calibration.sensor_model}, the recording has a "
                             f"{recording.sensor.model}")
     corrected = len(calibration.control_times_s) >= 2
-    return prepare(recording, np.inf, control_times_s=calibration.control_times_s if corrected else None)
+    return prepare(recording, np.inf, max_points, np.random.default_rng(seed),
+                   control_times_s=calibration.control_times_s if corrected else None)
 
 
-def _world(calibration: Calibration, data: ReturnData, rows: np.ndarray | None = None) -> np.ndarray:
+def world_of(calibration: Calibration, data: ReturnData, rows: np.ndarray | None = None) -> np.ndarray:
     """World coordinates [m] of the given rows (all if None) with the calibration; identity
     corrections at data's control times when it has none."""
     estimate = calibration.estimate
@@ -93,6 +96,22 @@ class Evaluation:
                      "parameters is removed")
         return "\n".join(lines)
 
+    def to_dict(self) -> dict:
+        """Plain numbers for evaluation.yaml (lengths m, angles deg; intrinsic RMS in cm, deg, deg,
+        cm), and the table as printed."""
+        def stats(d: DistanceStats) -> dict:
+            return {"mean": d.mean, "median": d.median, "p95": d.p95, "max": d.max}
+
+        names = ("d_range_cm", "d_azimuth_deg", "d_elevation_deg", "h_z_cm")
+        return {"intrinsic_rms": {"before": dict(zip(names, map(float, self.intrinsic_rms_before))),
+                                  "after": dict(zip(names, map(float, self.intrinsic_rms_after)))},
+                "lever_arm_error_m": list(map(float, self.lever_arm_error_m)),
+                "rotation_error_deg": list(map(float, self.rotation_error_deg)),
+                "cloud_to_cloud_m": {"before": stats(self.cloud_before), "after": stats(self.cloud_after),
+                                     "after_gauge_free": stats(self.cloud_after_gauge_free)},
+                "common_offset_m": [float(v) for v in self.common_offset_m],
+                "energy_cm2": [float(v) for v in self.energy_cm2], "table": self.table()}
+
 
 def intrinsic_rms(offsets: np.ndarray, truth: np.ndarray, reference_fibre: int) -> np.ndarray:
     """Eq. 4.6: RMS over the fibres but the reference of offset - truth, in (cm, deg, deg, cm)."""
@@ -100,20 +119,22 @@ def intrinsic_rms(offsets: np.ndarray, truth: np.ndarray, reference_fibre: int) 
     return offsets_to_file_units(np.sqrt(np.mean(error ** 2, axis=0))) * [100.0, 1.0, 1.0, 100.0]  # m -> cm
 
 
-def evaluate(result: CalibrationResult, recording: Recording, max_points: int = 500_000,
+def evaluate(result: CalibrationResult | Calibration, recording: Recording, max_points: int = 500_000,
              seed: int = 0) -> Evaluation:
     """Compare with truth/ (simulated recordings only). Cloud distances on a random subset of
-    max_points returns (seeded) against the whole true cloud."""
+    max_points returns (seeded) against the whole true cloud. A Calibration alone (read from
+    calibration.yaml) has no J: energy_cm2 is then NaN."""
     truth = recording.truth
     if truth is None:
         raise GraphcalError(f"{recording.path or recording.name}: no truth/ folder, nothing to evaluate against")
-    cal = result.calibration
+    cal = result if isinstance(result, Calibration) else result.calibration
+    energy = (np.nan, np.nan) if isinstance(result, Calibration) else result.energy_cm2
     sensor = recording.sensor
     reference_cloud = truth.world_points()
     rows = np.random.default_rng(seed).choice(len(reference_cloud), min(max_points, len(reference_cloud)), replace=False)
-    data = _returns_for(cal, recording)  # read once, georeferenced only at the sampled rows
-    nominal_cloud = _world(nominal_calibration(recording), data, rows)
-    after_cloud = _world(cal, data, rows)
+    data = returns_for(cal, recording)  # read once, georeferenced only at the sampled rows
+    nominal_cloud = world_of(nominal_calibration(recording), data, rows)
+    after_cloud = world_of(cal, data, rows)
     true_R, true_t = truth.extrinsic.R_body_lidar, np.asarray(truth.extrinsic.lever_arm_m)
     ext = cal.estimate.extrinsic
     nominal = recording.extrinsic
@@ -126,7 +147,7 @@ def evaluate(result: CalibrationResult, recording: Recording, max_points: int = 
         return float(np.linalg.norm((np.asarray(t) - true_t)[seen]))
 
     offset = np.mean(after_cloud - reference_cloud[rows], axis=0)
-    gauge_free = remove_gauge(after_cloud, reference_cloud[rows], result.unobservable)
+    gauge_free = remove_gauge(after_cloud, reference_cloud[rows], cal.unobservable)
     return Evaluation(
         intrinsic_rms(np.zeros_like(truth.intrinsics), truth.intrinsics, sensor.reference_fibre),
         intrinsic_rms(cal.estimate.offsets, truth.intrinsics, sensor.reference_fibre),
@@ -134,7 +155,7 @@ def evaluate(result: CalibrationResult, recording: Recording, max_points: int = 
         (rotation_error(nominal.R_body_lidar), rotation_error(ext.rotation().matrix())),
         DistanceStats.of(cloud_to_cloud(nominal_cloud, reference_cloud)),
         DistanceStats.of(cloud_to_cloud(after_cloud, reference_cloud)),
-        result.energy_cm2, offset,
+        energy, offset,
         DistanceStats.of(cloud_to_cloud(gauge_free, reference_cloud)))
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import csv
 import datetime
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import gtsam
@@ -103,7 +103,8 @@ class CalibrationResult:
     """graphcal.calibrate's answer: the calibration, 1-sigmas (file units, see Uncertainty),
     which parameter groups were estimated, the history (one dict per outer iteration: J [cm^2]
     before/after the solve, weight sum, pairs, gate, step), and the final per-point residuals
-    (row of the return p in the recording, signed point-to-plane distance [m], weight)."""
+    (row of the return p in the recording, signed point-to-plane distance [m], weight), the
+    total seconds and the seconds of each step (prepare, solve <stage>, final fit and marginals ...)."""
 
     calibration: Calibration
     uncertainty: Uncertainty
@@ -114,6 +115,7 @@ class CalibrationResult:
     residual_weight: np.ndarray
     config: CalibrationConfig
     seconds: float
+    timings_s: dict[str, float] = field(default_factory=dict)
 
     @property
     def energy_cm2(self) -> tuple[float, float]:
