@@ -5,7 +5,7 @@ from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.evaluate import Evaluation, apply_calibration, evaluate
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.deskewing import deskew
-from graphcal.errors import ConfigError, GraphcalError, RecordingError
+from graphcal.errors import CalibrationError, ConfigError, GraphcalError, RecordingError
 from graphcal.recording import Recording
 from graphcal.sensor import SensorModel, sensor_from_catalog
 from graphcal.sim.scenario import Scenario
@@ -14,6 +14,7 @@ from graphcal.sim.simulator import simulate
 __version__ = "0.1.0"
 __all__ = [
            "Calibration",
+           "CalibrationError",
            "CalibrationConfig",
            "CalibrationResult",
            "ConfigError",

@@ -14,20 +14,21 @@ app = typer.Typer(help="Target-free lidar self-calibration with a GTSAM factor g
                        "Commands that produce results write a run folder (runs/<recording>-<command>-<UTC time>/, "
                        "runs/latest points at the last one): run.yaml, the results, run.rrd, report.html.\n\n"
                        "Exit codes: 0 done; 2 bad input or an unusable environment (one line on stderr says what); "
-                       "1 an unexpected failure (a bug: the traceback is printed).",
+                       "3 a result graphcal recognises as wrong and refuses (e.g. collapsed fibres; one line says "
+                       "what); 1 an unexpected failure (a bug: the traceback is printed).",
                   no_args_is_help=True, pretty_exceptions_enable=False)
 
 def _clear_errors(command):
-    """Turn graphcal's own errors into one line on stderr and exit code 2."""
+    """Turn graphcal's own errors into one line on stderr and exit code 2 (3 for a refused result)."""
     @functools.wraps(command)
     def wrapper(*args, **kwargs):
-        from graphcal.errors import GraphcalError
+        from graphcal.errors import CalibrationError, GraphcalError
 
         try:
             return command(*args, **kwargs)
         except GraphcalError as error:
             typer.echo(f"error: {error}", err=True)
-            raise typer.Exit(2) from None
+            raise typer.Exit(3 if isinstance(error, CalibrationError) else 2) from None
     return wrapper
 
 

@@ -43,6 +43,7 @@ from graphcal.calibration.solve import (
     hold_at_nominal,
     solve_stage,
 )
+from graphcal.errors import CalibrationError
 from graphcal.intrinsics import offsets_to_file_units
 from graphcal.recording import Recording
 
@@ -92,12 +93,35 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
                                    priors, nominal)
         final = timed("final fit and marginals, unobservable held", final_fit, data, estimate, config, estimated,
                       nominal, priors)
+    if estimated[0]:
+        check_fibres_apart(data.sensor.elevation_deg, estimate.offsets[:, 2], recording)
     if estimated[2]:
         unobservable += list(TRAJECTORY_GAUGE[:2 if config.pose_corrections else 1])
     calibration = Calibration(data.sensor.model, data.sensor.reference_fibre, estimate, data.control_times_s,
                               tuple(unobservable))
     return CalibrationResult(calibration, final.uncertainty, estimated, history.rows, data.rows[final.pairs.index_p],
                              final.residual_m, final.pairs.weight, config, time.perf_counter() - started, timings)
+
+
+# calibrated elevations spread over less than this fraction of the nominal ones: the fibres collapsed
+COLLAPSE_RATIO = 0.5
+
+
+def check_fibres_apart(elevation_deg: np.ndarray, d_elevation_rad: np.ndarray, recording: Recording) -> None:
+    """Raise CalibrationError when the fibres' calibrated elevations have collapsed together.
+
+    The self-consistency energy has a trivial minimum: fibres that sweep one cone see the same
+    points, and every point-to-plane distance between them vanishes. A run that starts far from
+    the truth, or stops early, can slide towards it (J falls while the cloud gets worse); no
+    real sensor has its beams' spread halved, so such a result is refused, not returned."""
+    calibrated = elevation_deg + np.degrees(d_elevation_rad)
+    nominal_spread, spread = float(np.std(elevation_deg)), float(np.std(calibrated))
+    if spread < COLLAPSE_RATIO * nominal_spread:
+        raise CalibrationError(
+            f"{recording.path or recording.name}: the fibres' calibrated elevations collapsed together (spread "
+            f"{spread:.2f} deg against {nominal_spread:.2f} deg nominal): a degenerate minimum where neighbouring "
+            "fibres coincide, not a calibration; start closer to the truth (smaller offsets), allow more outer "
+            "iterations (max_outer_iterations), or tighten the angle prior (intrinsic_sigma_angle_deg)")
 
 
 class FinalFit:
