@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from factors.spherical import FactoryTerms, from_xyz, to_xyz, to_xyz_with_jacobian
+from factors.spherical import FactoryTerms, from_xyz, to_xyz_with_jacobian
 from graphcal.errors import RecordingError, finite_number
 
 OPTIONAL_FIBRE_FIELDS = ("azimuth_offset_deg", "range_offset_m", "vertical_offset_m",

@@ -28,6 +28,26 @@ def test_features_of_a_plane_a_line_and_a_blob():
         assert values.min() >= 0 and values.max() <= 1
 
 
+def test_static_rings_need_voxel_features():
+    """A static head sees a wall at the same spots every revolution: a point's nearest
+    neighbours are that spot seen again, a blob of range noise stretched along the beam whose
+    smallest axis is not the wall's normal. Features from voxels span the rings and find it."""
+    rng = np.random.default_rng(1)
+    elevation = np.radians(np.arange(-6, 7) * 1.33)  # 13 rings, HDL-32E spacing
+    azimuth = np.radians(np.arange(-20, 20, 0.16))
+    phi, theta = (a.ravel() for a in np.meshgrid(elevation, azimuth))
+    direction = np.column_stack([np.cos(phi) * np.cos(theta), np.cos(phi) * np.sin(theta), np.sin(phi)])
+    range_m = 8.0 / direction[:, 0]  # the wall x = 8 m
+    revolutions = [direction * (range_m + rng.normal(0, 0.02, len(range_m)))[:, None] for _ in range(15)]
+    points = np.concatenate(revolutions)
+    blobs = local_features(points, 0.5, 20)
+    assert np.median(blobs.planarity) > 0.5  # they look planar, so they would be paired,
+    assert np.mean(np.abs(blobs.normal[:, 0]) > np.cos(np.radians(10))) < 0.01  # with wrong normals
+    features = local_features(points, 0.5, 20, voxel_m=0.1)
+    assert np.mean(np.abs(features.normal[:, 0]) > np.cos(np.radians(10))) > 0.99
+    assert np.median(features.planarity) > 0.5
+
+
 def test_neighbour_fibres_follow_elevation_order():
     sensor = sensor_from_catalog("HDL-32E")
     neighbours = neighbour_fibres(sensor.elevation_deg, 1)

@@ -97,7 +97,7 @@ def residuals_before_after(recording: Recording, result: CalibrationResult) -> B
 def pairs_in(data: ReturnData, calibration: Calibration, association: Association, config: CalibrationConfig) -> Pairs:
     """The first outer iteration's association in the cloud of `calibration`."""
     points = world_of(calibration, data) - data.origin_m
-    features = local_features(points, config.feature_radius_m, config.feature_neighbours)
+    features = local_features(points, config.feature_radius_m, config.feature_neighbours, config.feature_voxel_m)
     pairs = association.pairs(points, data.fibre, features, config.gate_start_m, config)
     residual = np.einsum("ni,ni->n", pairs.normal, points[pairs.index_p] - points[pairs.index_m])
     return Pairs(data.rows[pairs.index_p], data.rows[pairs.index_m], pairs.weight, residual,

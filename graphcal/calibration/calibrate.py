@@ -10,7 +10,12 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from graphcal.association import local_features
-from graphcal.calibration.config import ESTIMATES, STAGES, CalibrationConfig
+from graphcal.calibration.config import (
+    ESTIMATES,
+    STAGES,
+    STATIC_BELOW_M,
+    CalibrationConfig,
+)
 from graphcal.calibration.observability import (
     CONTROL_NAMES,
     EXTRINSIC_NAMES,
@@ -63,6 +68,8 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
     started = time.perf_counter()
     timings = {}  # stage -> seconds
     data = prepare(recording, config.control_interval_s, config.max_points, np.random.default_rng(config.seed))
+    static = bool(np.ptp(data.X_nav, axis=0).max() < STATIC_BELOW_M)
+    config = config.for_sensor(static)
     timings["prepare"] = time.perf_counter() - started
     estimate = initial_estimate(recording, data)
     nominal = estimate.extrinsic
@@ -97,6 +104,9 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
         check_fibres_apart(data.sensor.elevation_deg, estimate.offsets[:, 2], recording)
     if estimated[2]:
         unobservable += list(TRAJECTORY_GAUGE[:2 if config.pose_corrections else 1])
+    if static:  # whatever the mode: the whole cloud moves rigidly with the extrinsic and the trajectory
+        unobservable += [name for name in (*(f"extrinsic.{n}" for n in EXTRINSIC_NAMES), *TRAJECTORY_GAUGE)
+                         if name not in unobservable]
     calibration = Calibration(data.sensor.model, data.sensor.reference_fibre, estimate, data.control_times_s,
                               tuple(unobservable))
     return CalibrationResult(calibration, final.uncertainty, estimated, history.rows, data.rows[final.pairs.index_p],
@@ -136,7 +146,7 @@ def final_fit(data: ReturnData, estimate: Estimate, config: CalibrationConfig, e
               priors: Priors) -> FinalFit:
     fine = config.fine()
     points = world_at(data, estimate, config.pose_corrections)
-    features = local_features(points, config.feature_radius_m, config.feature_neighbours)
+    features = local_features(points, config.feature_radius_m, config.feature_neighbours, config.feature_voxel_m)
     pairs = Association.of(data, fine).pairs(points, data.fibre, features, fine.fine_gate_m, fine)
     residual = np.einsum("ni,ni->n", pairs.normal, points[pairs.index_p] - points[pairs.index_m])
     graph, values = build_graph(data, estimate, pairs, config, estimated, nominal, priors, damped=False)

@@ -14,6 +14,8 @@ Mode = Literal["intrinsic", "extrinsic", "trajectory", "joint", "joint_trajector
 ESTIMATES = {"intrinsic": (True, False, False), "extrinsic": (False, True, False),
              "trajectory": (False, False, True), "joint": (True, True, False),
              "joint_trajectory": (True, True, True)}
+STATIC_BELOW_M = 1.0  # a sensor whose positions span less than this is static
+STATIC_FEATURE_VOXEL_M = 0.1  # spans the HDL-32E's rings on walls within ~10 m
 STAGES = {"extrinsic_then_intrinsic": ("extrinsic", "intrinsic"),
           "intrinsic_then_extrinsic": ("intrinsic", "extrinsic")}
 
@@ -33,6 +35,9 @@ class CalibrationConfig(BaseModel):
     refresh_every: int = Field(2, ge=1, description="K: outer iterations between feature refreshes")
     feature_radius_m: float = Field(0.5, gt=0)
     feature_neighbours: int = Field(20, ge=5)
+    feature_voxel_m: float | None = Field(None, ge=0, description=(
+        "features from the cloud averaged in voxels of this size (0: from every return); None: "
+        f"{STATIC_FEATURE_VOXEL_M} m for a static sensor (it sees the same spots every revolution), else 0"))
     min_planarity: float = Field(0.3, ge=0, le=1, description="coarse phase: p and m both at least this planar")
     max_normal_angle_deg: float = Field(30.0, gt=0, le=90, description="coarse phase: normals at p and m agree within")
     max_plane_distance_m: float = Field(np.inf, gt=0, description="coarse phase: m this close to the plane at p")
@@ -65,6 +70,12 @@ class CalibrationConfig(BaseModel):
     robust: Literal["none", "huber", "cauchy"] = "none"
     robust_k: float = Field(2.0, gt=0, description="in units of sigma0")
     seed: int = 0
+
+    def for_sensor(self, static: bool) -> CalibrationConfig:
+        """The settings left to the recording (None) resolved for a static or a moving sensor."""
+        if self.feature_voxel_m is not None:
+            return self
+        return self.model_copy(update={"feature_voxel_m": STATIC_FEATURE_VOXEL_M if static else 0.0})
 
     def fine(self) -> CalibrationConfig:
         """The settings of the fine phase."""

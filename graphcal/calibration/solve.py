@@ -249,7 +249,8 @@ def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
         points = world_at(data, estimate, pose)
         refreshed = since_refresh >= config.refresh_every
         if refreshed:
-            features, since_refresh = local_features(points, config.feature_radius_m, config.feature_neighbours), 0
+            features, since_refresh = local_features(points, config.feature_radius_m, config.feature_neighbours,
+                                                     config.feature_voxel_m), 0
         since_refresh += 1
         pairs = association.pairs(points, data.fibre, features, gate, settings)
         before, weight_sum = energy_cm2(points[pairs.index_p], points[pairs.index_m], pairs)
