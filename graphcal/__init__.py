@@ -5,6 +5,7 @@ from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.evaluate import Evaluation, apply_calibration, evaluate
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.deskewing import deskew
+from graphcal.diagnosis.diagnose import Diagnosis, diagnose
 from graphcal.errors import ConfigError, GraphcalError, RecordingError
 from graphcal.recording import Recording
 from graphcal.sensor import SensorModel, sensor_from_catalog
@@ -17,6 +18,7 @@ __all__ = [
            "CalibrationConfig",
            "CalibrationResult",
            "ConfigError",
+           "Diagnosis",
            "Evaluation",
            "GraphcalError",
            "Recording",
@@ -27,6 +29,7 @@ __all__ = [
            "apply_calibration",
            "calibrate",
            "deskew",
+           "diagnose",
            "evaluate",
            "sensor_from_catalog",
            "simulate",

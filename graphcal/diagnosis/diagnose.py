@@ -1,0 +1,234 @@
+"""graphcal.diagnose: find where the model and a recording disagree, name the physics left out,
+model it, show the fit improve; repeat until no candidate is significant (DIA: detection,
+identification, adaptation).
+
+1. baseline fit of the current model (graphcal.calibrate);
+2. score test of every candidate effect (graphcal.diagnosis.score), significant ones confirmed on
+   held-out time blocks, ranked by p-value; candidates the data cannot tell apart reported together;
+3. the winner is added to the graph (an effect key in every block) and everything re-solved;
+4. back to 2 with the winner in the model, until nothing is significant. Then the residual field is
+   located (graphcal.diagnosis.locate).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from factors.effects import CANDIDATES
+from graphcal.atomic import atomic_path
+from graphcal.calibration.config import CalibrationConfig
+from graphcal.calibration.result import Calibration, CalibrationResult
+from graphcal.diagnosis.fit import Fit, baseline, refit
+from graphcal.diagnosis.locate import locate
+from graphcal.diagnosis.score import (
+    ALPHA,
+    CandidateTest,
+    linearise,
+    score_candidate,
+    separation,
+)
+from graphcal.progress import progress
+from graphcal.recording import Recording
+
+FORMAT = "graphcal-diagnosis/1"
+NOT_SEPARABLE_CORRELATION = 0.95
+# what would tell two candidates apart (either order); the default names the usual remedies
+SEPARATING_DATA = {
+    frozenset({"intra_sweep_motion", "spin_rate"}): "the same signature (a time error growing over the revolution): "
+    "a revolution stamp shows as a full period (1 revolution), a spin-rate error as a few per cent; the sensor's "
+    "reported spin rate would settle it",
+    frozenset({"range_scale", "projection_scale"}): "the same signature (lidar lengths against trajectory lengths): "
+    "only the projection's known scale factor tells them apart; a recording in a local metric frame, or ranges to "
+    "a surveyed target, would separate them",
+    frozenset({"time_offset", "lever_arm"}): "a speed change, or passes in both directions",
+    frozenset({"heading_bias", "heading_drift"}): "a longer drive (the drift grows, the bias does not)",
+}
+DEFAULT_SEPARATING_DATA = "a turn, a speed change, or a second pass in the opposite direction"
+UNIT_DISPLAY = {"s": (1e3, "ms"), "m": (1e2, "cm"), "1": (1e6, "ppm"), "deg": (1.0, "deg"),
+                "deg/s": (1.0, "deg/s"), "revolution": (1.0, "revolution")}
+
+
+def expected_magnitude(name: str, recording: Recording) -> float | None:
+    """A candidate whose size physics fixes: revolution stamps miss a whole revolution, and a map
+    projection's scale factor is known (pyproj, at the recording's fixes)."""
+    if name == "intra_sweep_motion":
+        return 1.0
+    if name == "projection_scale":
+        return float(np.mean(recording.world.scale_factor) - 1.0)
+    return None
+
+
+def plausible(test: CandidateTest, recording: Recording) -> bool:
+    """Whether an estimate fits its candidate's physics: a fixed-size candidate within 3 sigma (plus 20 %)
+    of its known size; a spin-rate error below 30 %."""
+    expected = expected_magnitude(test.name, recording)
+    if expected is not None:
+        return abs(test.magnitude - expected) < 3 * test.sigma + 0.2 * abs(expected)
+    if test.name == "spin_rate":
+        return abs(test.magnitude) < 0.3
+    return True
+
+
+def display(name: str, value: float) -> str:
+    scale, unit = UNIT_DISPLAY[CANDIDATES[name].unit]
+    return f"{value * scale:.3g} {unit}"
+
+
+@dataclass
+class Diagnosis:
+    """What graphcal.diagnose found: findings (strongest first; diagnosis.json of RECORDING.md),
+    candidates the data could not tell apart, the residual field's top locations, every candidate's
+    first-round test, the candidates the model already mimics entirely, and J before/after [cm^2]."""
+
+    findings: list[dict]
+    not_separable: list[dict]
+    locations: list[dict]
+    candidates: list[dict]
+    concealed: list[dict]
+    energy_cm2: dict
+    seconds: float
+    calibration: CalibrationResult | None = field(default=None, repr=False)
+
+    def to_json(self) -> dict:
+        return {"format": FORMAT, "findings": self.findings, "not_separable": self.not_separable,
+                "locations": self.locations, "candidates": self.candidates, "concealed": self.concealed,
+                "energy_cm2": self.energy_cm2, "seconds": round(self.seconds, 2)}
+
+    def save(self, directory: str | Path) -> Path:
+        """diagnosis.json (and the re-solved calibration.yaml, effects listed) into directory."""
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        with atomic_path(directory / "diagnosis.json") as tmp:
+            tmp.write_text(json.dumps(self.to_json(), indent=1, default=_plain))
+        if self.calibration is not None:
+            self.calibration.save(directory / "calibration", command="graphcal diagnose")
+        return directory / "diagnosis.json"
+
+    def summary(self) -> str:
+        if not self.findings:
+            return "no left-out effect is significant: " + ("; ".join(
+                f"{c['effect']} < {display(c['effect'], c['mdb'])} (MDB)" for c in self.candidates
+                if np.isfinite(c["mdb"])) or "no candidate could be tested")
+        return "\n".join(f["statement"] for f in self.findings)
+
+
+def _plain(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"{type(value)} is not JSON serialisable")
+
+
+def _row(test: CandidateTest, recording: Recording, n: int) -> dict:
+    return {"effect": test.name, "magnitude": test.magnitude, "sigma": test.sigma, "mdb": test.mdb,
+            "unit": CANDIDATES[test.name].unit, "statistic": test.statistic, "dof": test.dof, "p_value": test.p_value,
+            "concealment_r2": test.concealment_r2, "absorbed_by": [a for a, _ in test.absorbed_by],
+            "held_out_cm2": list(test.held_out_cm2), "significant": test.significant(n),
+            "plausible": plausible(test, recording) if test.identifiable else False}
+
+
+def candidate_names(fit: Fit, candidates: list[str] | None) -> list[str]:
+    """The candidates to test: all by default, less those the model already estimates (the lever arm
+    when the extrinsic is estimated) or has added."""
+    names = list(candidates or CANDIDATES)
+    unknown = sorted(set(names) - set(CANDIDATES))
+    if unknown:
+        from graphcal.errors import ConfigError
+        raise ConfigError(f"unknown candidate effect(s) {unknown}; known: {', '.join(CANDIDATES)}")
+    return [n for n in names if n not in fit.model.names and not (n == "lever_arm" and fit.estimated[1])]
+
+
+def score_all(fit: Fit, names: list[str]) -> tuple[dict, object]:
+    """Every candidate's score test at a fit (the modelled effects in the base), and the linearisation."""
+    cluster, half = fit.clusters()
+    lin = linearise(fit.data, fit.estimate, fit.pairs, fit.config, fit.estimated, fit.nominal, fit.priors,
+                    fit.with_candidates(names), cluster, half)
+    return {n: score_candidate(lin, n, names) for n in names}, lin
+
+
+def diagnose(recording: Recording, config: CalibrationConfig | None = None, candidates: list[str] | None = None,
+             max_effects: int = 3, refit_iterations: int = 4, quiet: bool = False) -> Diagnosis:
+    """Diagnose a recording against graphcal's model calibrated with config (default: joint
+    intrinsics + extrinsic). candidates: effect names to test (default: every one of
+    factors.effects.CANDIDATES). At most max_effects are added, each re-solved with
+    refit_iterations outer iterations."""
+    started = time.perf_counter()
+    config = config or CalibrationConfig(mode="joint")
+    fit, result = baseline(recording, config, quiet=quiet)
+    energy = {"before": fit.energy_cm2}
+    findings, not_separable, first_round, concealed = [], [], None, []
+    for _ in progress(range(max_effects + 1), "diagnosing", total=max_effects + 1, quiet=quiet):
+        names = candidate_names(fit, candidates)
+        tests, lin = score_all(fit, names)
+        if findings:  # sigma of the last effect added, at its refit
+            findings[-1]["sigma"] = _sigma_at_refit(lin, findings[-1]["effect"], names)
+        if first_round is None:
+            first_round = [_row(t, recording, len(names)) for t in sorted(tests.values(), key=lambda t: t.log10_p)]
+            concealed = [{"effect": t.name, "concealment_r2": t.concealment_r2,
+                          "absorbed_by": [a for a, _ in t.absorbed_by]} for t in tests.values() if not t.identifiable]
+        significant = [t for t in tests.values() if t.identifiable and t.significant(len(names))]
+        eligible = sorted((t for t in significant if plausible(t, recording)), key=lambda t: t.log10_p)
+        if not eligible or len(findings) == max_effects:
+            break
+        winner = eligible[0]
+        for other in significant:
+            if other.name != winner.name:
+                rho = separation(lin, winner.name, other.name, names)
+                if rho > NOT_SEPARABLE_CORRELATION:
+                    not_separable.append({"effects": [winner.name, other.name], "correlation": rho,
+                                          "named": winner.name, "would_separate": SEPARATING_DATA.get(
+                                              frozenset({winner.name, other.name}), DEFAULT_SEPARATING_DATA)})
+        before = fit.energy_cm2
+        active = fit.model.names + (winner.name,)
+        prior = {n: float(max(10 * np.abs(fit.model.values.get(n, winner.theta)).max(), 10 * np.sqrt(
+            np.max(np.diag(winner.covariance))))) for n in active}
+        fit = refit(fit, active, prior, refit_iterations)
+        findings.append(_finding(winner, fit, before, recording))
+    energy["after"] = fit.energy_cm2
+    calibration = _calibration(result, fit, findings)
+    return Diagnosis(findings, not_separable, locate(fit), first_round, concealed, energy,
+                     time.perf_counter() - started, calibration)
+
+
+def _sigma_at_refit(lin, name: str, names: list[str]) -> float:
+    return score_candidate(lin, name, names + [name]).sigma
+
+
+def _finding(test: CandidateTest, fit: Fit, energy_before: float, recording: Recording) -> dict:
+    value = fit.model.values[test.name]
+    magnitude = CANDIDATES[test.name].magnitude(value)
+    absorbed = test.absorbed_by[0]
+    held_before, held_after = test.held_out_cm2
+    statement = (f"the recording shows {CANDIDATES[test.name].physics} ({test.name}: {display(test.name, magnitude)} "
+                 f"± {display(test.name, test.sigma)}), which the model left out; it was absorbed by {absorbed[0]} "
+                 f"(correlation {absorbed[1]:+.2f}, concealment R² {test.concealment_r2:.2f}); adding it lowers "
+                 f"held-out J from {held_before:.3g} to {held_after:.3g} cm² and J from {energy_before:.3g} to "
+                 f"{fit.energy_cm2:.3g} cm²")
+    return {"effect": test.name, "magnitude": magnitude, "sigma": test.sigma, "unit": CANDIDATES[test.name].unit,
+            "parameters": np.asarray(value).tolist(), "statement": statement,
+            "absorbed_by": [a for a, _ in test.absorbed_by], "mdb": test.mdb, "concealment_r2": test.concealment_r2,
+            "evidence": {"statistic": test.statistic, "dof": test.dof, "p_value": test.p_value,
+                         "log10_p": test.log10_p, "naive_statistic": test.naive_statistic},
+            "energy_cm2": {"before": energy_before, "after": fit.energy_cm2, "held_out_before": held_before,
+                           "held_out_after": held_after}}
+
+
+def _calibration(result: CalibrationResult, fit: Fit, findings: list[dict]) -> CalibrationResult:
+    """The baseline's result with the re-solved estimate and the effects it carries (sigmas: the
+    baseline's)."""
+    calibration = result.calibration
+    calibration = Calibration(calibration.sensor_model, calibration.reference_fibre, fit.estimate,
+                              calibration.control_times_s, calibration.unobservable)
+    effects = tuple({k: f[k] for k in ("effect", "magnitude", "sigma", "unit", "parameters", "statement")}
+                    for f in findings)
+    return CalibrationResult(calibration, result.uncertainty, result.estimated, result.history, result.residual_rows,
+                             result.residual_m, result.residual_weight, result.config, result.seconds, effects)
+
+
+__all__ = ["ALPHA", "Diagnosis", "diagnose"]
