@@ -76,22 +76,10 @@ def calibrate(recording: Annotated[Path, typer.Argument(help="recording director
     """Self-calibrate a recording; writes calibration.yaml, config, history and residuals."""
     import datetime
 
-    import pydantic
-
     from graphcal.calibration.calibrate import calibrate as run
-    from graphcal.calibration.config import CalibrationConfig
-    from graphcal.errors import ConfigError
     from graphcal.recording import Recording
-    from graphcal.yamlfile import read_yaml
 
-    settings = (read_yaml(config) or {}) if config is not None else {}
-    if not isinstance(settings, dict):
-        raise ConfigError(f"{config}: not a mapping of CalibrationConfig settings (name: value per line)")
-    try:
-        chosen = CalibrationConfig(**{"mode": mode, **settings})
-    except pydantic.ValidationError as error:
-        first = error.errors()[0]
-        raise ConfigError(f"{config or '--mode'}: {'.'.join(map(str, first['loc']))}: {first['msg']}") from None
+    chosen = _calibration_config(mode, config)
     rec = Recording.load(recording)
     result = run(rec, chosen, quiet=quiet)
     stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%dT%H%M%SZ")
@@ -102,6 +90,57 @@ def calibrate(recording: Annotated[Path, typer.Argument(help="recording director
         typer.echo(f"J {before:.3g} -> {after:.3g} cm^2 in {result.seconds:.1f} s; wrote {path}")
         if result.unobservable:
             typer.echo(f"unobservable (held at nominal): {', '.join(result.unobservable)}")
+
+
+@app.command()
+@_clear_errors
+def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory")],
+             simulation: Annotated[Path | None, typer.Option(help="a simulation of the same drive with nominal "
+                                                                   "physics: name the effect explaining the difference")] = None,
+             mode: Annotated[str, typer.Option(help="calibration mode of the nominal model (see calibrate)")] = "joint",
+             config: Annotated[Path | None, typer.Option(help="YAML file of CalibrationConfig settings")] = None,
+             max_effects: Annotated[int, typer.Option(help="most effects added")] = 3,
+             out: Annotated[Path | None, typer.Option(help="output folder (default runs/<name>-diagnose-<UTC time>)")] = None,
+             quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+    """Find where the model and the recording disagree, name the physics left out, model it, show the
+    fit improve; writes diagnosis.json (and the re-solved calibration)."""
+    import datetime
+
+    from graphcal.recording import Recording
+
+    chosen = _calibration_config(mode, config)
+    rec = Recording.load(recording)
+    if simulation is not None:
+        from graphcal.diagnosis.compare import compare
+
+        result = compare(rec, Recording.load(simulation), max_points=chosen.max_points)
+    else:
+        from graphcal.diagnosis.diagnose import diagnose as run
+
+        result = run(rec, chosen, max_effects=max_effects, quiet=quiet)
+    stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%dT%H%M%SZ")
+    path = result.save(out or Path("runs") / f"{rec.name}-diagnose-{stamp}")
+    if not quiet:
+        typer.echo(result.summary())
+        typer.echo(f"wrote {path} in {result.seconds:.1f} s")
+
+
+def _calibration_config(mode: str, config: Path | None):
+    """CalibrationConfig from --mode and an optional YAML file, or ConfigError naming the setting."""
+    import pydantic
+
+    from graphcal.calibration.config import CalibrationConfig
+    from graphcal.errors import ConfigError
+    from graphcal.yamlfile import read_yaml
+
+    settings = (read_yaml(config) or {}) if config is not None else {}
+    if not isinstance(settings, dict):
+        raise ConfigError(f"{config}: not a mapping of CalibrationConfig settings (name: value per line)")
+    try:
+        return CalibrationConfig(**{"mode": mode, **settings})
+    except pydantic.ValidationError as error:
+        first = error.errors()[0]
+        raise ConfigError(f"{config or '--mode'}: {'.'.join(map(str, first['loc']))}: {first['msg']}") from None
 
 
 @app.command()

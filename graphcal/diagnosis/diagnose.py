@@ -104,7 +104,7 @@ class Diagnosis:
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         with atomic_path(directory / "diagnosis.json") as tmp:
-            tmp.write_text(json.dumps(self.to_json(), indent=1, default=_plain))
+            tmp.write_text(json.dumps(_finite(self.to_json()), indent=1, default=_plain, allow_nan=False))
         if self.calibration is not None:
             self.calibration.save(directory / "calibration", command="graphcal diagnose")
         return directory / "diagnosis.json"
@@ -115,6 +115,17 @@ class Diagnosis:
                 f"{c['effect']} < {display(c['effect'], c['mdb'])} (MDB)" for c in self.candidates
                 if np.isfinite(c["mdb"])) or "no candidate could be tested")
         return "\n".join(f["statement"] for f in self.findings)
+
+
+def _finite(value):
+    """NaN and infinities as null (JSON has neither)."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    if isinstance(value, float | np.floating) and not np.isfinite(value):
+        return None
+    return value
 
 
 def _plain(value):

@@ -22,6 +22,7 @@ Concealment R^2 = 1 - S / L_kk: the share of the candidate's signature the base 
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import gtsam
@@ -47,6 +48,7 @@ POWER = 0.8
 IDENTIFIABLE_R2 = 0.995  # above this concealment the candidate is not tested: the model already has it
 
 
+@functools.lru_cache(maxsize=64)
 def noncentrality(dof: int, alpha: float = ALPHA, power: float = POWER) -> float:
     """lambda0 of the MDB: the non-centrality at which a chi2(dof) test of size alpha has the power
     asked (17.07 for one parameter at alpha 0.1 %, power 80 %)."""
@@ -84,6 +86,22 @@ class Linearisation:
         """J [cm^2] of a half's pairs after the linear step (named coordinates)."""
         cost = self.half_cost[half] - 2 * self.half_vector[half] @ step + step @ self.half_information[half] @ step
         return float(cost * self.sigma0_m ** 2 / self.half_weight[half] * 1e4)
+
+
+def linearisation_of_rows(r: np.ndarray, A: np.ndarray, names: list[str], effect_columns: dict,
+                          cluster: np.ndarray, half: np.ndarray, sigma0_m: float) -> Linearisation:
+    """The Linearisation of a stacked least-squares problem without priors: whitened residuals (K,),
+    their Jacobian (K, n), each column's name, the effects' columns, and per row its cluster and half
+    (0/1). Every row counts with weight 1 in J."""
+    g = -A * r[:, None]
+    scores = np.zeros((int(cluster.max()) + 1, A.shape[1]))
+    np.add.at(scores, cluster, g)
+    info = np.stack([A[half == h].T @ A[half == h] for h in (0, 1)])
+    vector = np.stack([g[half == h].sum(axis=0) for h in (0, 1)])
+    cost = np.array([float(r[half == h] @ r[half == h]) for h in (0, 1)])
+    weight = np.array([float(np.sum(half == h)) for h in (0, 1)])
+    return Linearisation(info.sum(axis=0), vector.sum(axis=0), names, effect_columns, scores, info, vector, cost,
+                         weight, sigma0_m)
 
 
 def _key_names(key: int, width: int, model: EffectModel, pose: bool) -> list[str]:
@@ -146,6 +164,8 @@ def linearise(data: ReturnData, estimate: Estimate, pairs: Correspondences, conf
 def _solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:
     """L^-1 B for a symmetric positive semi-definite L spanning many orders of magnitude (held
     parameters next to loose ones): scaled to a unit diagonal, then a pseudo-inverse by eigenvalues."""
+    if L.size == 0:
+        return np.zeros(B.shape)
     scale = 1.0 / np.sqrt(np.maximum(np.diag(L), 1e-300))
     w, V = np.linalg.eigh(L * np.outer(scale, scale))
     kept = w > w.max() * 1e-12
@@ -235,6 +255,8 @@ def _absorbing(L, base, k, Xs, S_inv, theta, names, top: int = 3) -> list:
     cross = -(direction @ S_inv) @ Xs.T  # Cov(direction . theta, x_b)
     var_theta = direction @ S_inv @ direction
     var_base = np.diag(_solve(L[np.ix_(base, base)], np.eye(len(base)))) + np.einsum("ij,jk,ik->i", Xs, S_inv, Xs)
+    if not len(base):
+        return []
     correlation = cross / np.sqrt(np.maximum(var_theta * var_base, 1e-300))
     order = np.argsort(-np.abs(correlation))[:top]
     return [(names[base[j]], float(correlation[j])) for j in order]
