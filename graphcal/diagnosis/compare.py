@@ -40,6 +40,7 @@ from graphcal.diagnosis.score import (
 from graphcal.recording import Recording
 
 GATE_M = 0.3
+MAX_EFFECTS = 3
 MIN_PLANARITY = 0.7
 SIGMA0_M = 0.01
 
@@ -66,14 +67,28 @@ def compare(recording: Recording, simulation: Recording, max_points: int | None 
     names = list(candidates or CANDIDATES)
     r, J, columns = _linear_system(data, estimate, context, names, rows, normal[rows], sim_points[nearest[rows]])
     lin = _linearisation(r, J, columns, names, data.time_s[rows] - data.time_s[0], points[rows])
-    tests = {n: score_candidate(lin, n, names) for n in names}
-    first = [_row(t, recording, len(names)) for t in sorted(tests.values(), key=lambda t: t.log10_p)]
-    significant = [t for t in tests.values() if t.identifiable and t.significant(len(names))]
-    eligible = sorted((t for t in significant if plausible(t, recording)), key=lambda t: t.log10_p)
     before = float(r @ r) * SIGMA0_M ** 2 / len(r) * 1e4
-    findings, not_separable = [], []
-    for test in eligible:
-        after = float(np.sum((r + J[:, lin.effect_columns[test.name]] @ test.theta) ** 2)) * SIGMA0_M ** 2 / len(r) * 1e4
+    findings, not_separable, first, active = [], [], None, []
+    while len(active) < MAX_EFFECTS:  # DIA without refits: the problem is linear, conditioning is exact
+        remaining = [n for n in names if n not in active]
+        tests = {n: score_candidate(lin, n, remaining) for n in remaining}
+        if first is None:
+            first = [_row(t, recording, len(names)) for t in sorted(tests.values(), key=lambda t: t.log10_p)]
+        significant = [t for t in tests.values() if t.identifiable and t.significant(len(names))]
+        eligible = sorted((t for t in significant if plausible(t, recording)), key=lambda t: -t.bic_gain)
+        if not eligible:
+            break
+        test = eligible[0]
+        for other in significant:
+            rho = separation(lin, test.name, other.name, remaining) if other.name != test.name else 0.0
+            if rho > NOT_SEPARABLE_CORRELATION:
+                not_separable.append({"effects": sorted([test.name, other.name]), "correlation": rho,
+                                      "named": test.name, "would_separate": SEPARATING_DATA.get(
+                                          frozenset({test.name, other.name}), DEFAULT_SEPARATING_DATA)})
+        active.append(test.name)
+        columns = np.concatenate([lin.effect_columns[n] for n in active])
+        step = np.linalg.lstsq(J[:, columns], -r, rcond=None)[0]
+        after = float(np.sum((r + J[:, columns] @ step) ** 2)) * SIGMA0_M ** 2 / len(r) * 1e4
         findings.append({"effect": test.name, "magnitude": test.magnitude, "sigma": test.sigma,
                          "unit": CANDIDATES[test.name].unit, "parameters": test.theta.tolist(),
                          "statement": f"the recording differs from the simulation by {CANDIDATES[test.name].physics} "
@@ -82,14 +97,9 @@ def compare(recording: Recording, simulation: Recording, max_points: int | None 
                                       f"simulation from {before:.3g} to {after:.3g} cm²",
                          "absorbed_by": [], "mdb": test.mdb, "concealment_r2": test.concealment_r2,
                          "evidence": {"statistic": test.statistic, "dof": test.dof, "p_value": test.p_value,
-                                      "log10_p": test.log10_p},
+                                      "log10_p": test.log10_p, "bic_gain": test.bic_gain},
                          "energy_cm2": {"before": before, "after": after, "held_out_before": test.held_out_cm2[0],
                                         "held_out_after": test.held_out_cm2[1]}})
-        for other in significant:
-            if other.name != test.name and separation(lin, test.name, other.name, []) > NOT_SEPARABLE_CORRELATION:
-                not_separable.append({"effects": [test.name, other.name], "named": test.name,
-                                      "would_separate": SEPARATING_DATA.get(frozenset({test.name, other.name}),
-                                                                            DEFAULT_SEPARATING_DATA)})
     return Diagnosis(findings, not_separable, [], first, [], {"before": before}, time.perf_counter() - started)
 
 

@@ -4,7 +4,7 @@ identification, adaptation).
 
 1. baseline fit of the current model (graphcal.calibrate);
 2. score test of every candidate effect (graphcal.diagnosis.score), significant ones confirmed on
-   held-out time blocks, ranked by p-value; candidates the data cannot tell apart reported together;
+   held-out time blocks, ranked by BIC gain; candidates the data cannot tell apart reported together;
 3. the winner is added to the graph (an effect key in every block) and everything re-solved;
 4. back to 2 with the winner in the model, until nothing is significant. Then the residual field is
    located (graphcal.diagnosis.locate).
@@ -25,6 +25,7 @@ from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.diagnosis.fit import Fit, baseline, refit
 from graphcal.diagnosis.locate import locate
+from graphcal.diagnosis.rerun_views import log_residual_field
 from graphcal.diagnosis.score import (
     ALPHA,
     CandidateTest,
@@ -93,6 +94,7 @@ class Diagnosis:
     energy_cm2: dict
     seconds: float
     calibration: CalibrationResult | None = field(default=None, repr=False)
+    fit: Fit | None = field(default=None, repr=False)
 
     def to_json(self) -> dict:
         return {"format": FORMAT, "findings": self.findings, "not_separable": self.not_separable,
@@ -100,13 +102,16 @@ class Diagnosis:
                 "energy_cm2": self.energy_cm2, "seconds": round(self.seconds, 2)}
 
     def save(self, directory: str | Path) -> Path:
-        """diagnosis.json (and the re-solved calibration.yaml, effects listed) into directory."""
+        """diagnosis.json, and when there are, the re-solved calibration (calibration/calibration.yaml, its
+        effects listed) and the rerun views of the final residual field (residuals.rrd)."""
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         with atomic_path(directory / "diagnosis.json") as tmp:
             tmp.write_text(json.dumps(_finite(self.to_json()), indent=1, default=_plain, allow_nan=False))
         if self.calibration is not None:
             self.calibration.save(directory / "calibration", command="graphcal diagnose")
+        if self.fit is not None:
+            log_residual_field(self.fit, directory / "residuals.rrd")
         return directory / "diagnosis.json"
 
     def summary(self) -> str:
@@ -139,6 +144,7 @@ def _plain(value):
 def _row(test: CandidateTest, recording: Recording, n: int) -> dict:
     return {"effect": test.name, "magnitude": test.magnitude, "sigma": test.sigma, "mdb": test.mdb,
             "unit": CANDIDATES[test.name].unit, "statistic": test.statistic, "dof": test.dof, "p_value": test.p_value,
+            "bic_gain": test.bic_gain,
             "concealment_r2": test.concealment_r2, "absorbed_by": [a for a, _ in test.absorbed_by],
             "held_out_cm2": list(test.held_out_cm2), "significant": test.significant(n),
             "plausible": plausible(test, recording) if test.identifiable else False}
@@ -184,17 +190,23 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
             concealed = [{"effect": t.name, "concealment_r2": t.concealment_r2,
                           "absorbed_by": [a for a, _ in t.absorbed_by]} for t in tests.values() if not t.identifiable]
         significant = [t for t in tests.values() if t.identifiable and t.significant(len(names))]
-        eligible = sorted((t for t in significant if plausible(t, recording)), key=lambda t: t.log10_p)
+        eligible = sorted((t for t in significant if plausible(t, recording)), key=lambda t: -t.bic_gain)
         if not eligible or len(findings) == max_effects:
             break
         winner = eligible[0]
-        for other in significant:
-            if other.name != winner.name:
-                rho = separation(lin, winner.name, other.name, names)
-                if rho > NOT_SEPARABLE_CORRELATION:
-                    not_separable.append({"effects": [winner.name, other.name], "correlation": rho,
-                                          "named": winner.name, "would_separate": SEPARATING_DATA.get(
-                                              frozenset({winner.name, other.name}), DEFAULT_SEPARATING_DATA)})
+        twins = [(other, separation(lin, winner.name, other.name, names)) for other in significant
+                 if other.name != winner.name]
+        twins = [(other, rho) for other, rho in twins if rho > NOT_SEPARABLE_CORRELATION]
+        for other, _ in twins:  # the data cannot choose: a candidate whose known size fits is the better name
+            if (expected_magnitude(winner.name, recording) is None and other in eligible
+                    and expected_magnitude(other.name, recording) is not None):
+                winner = other
+        for other, rho in twins:
+            names_pair = sorted({winner.name, other.name}) if other.name != winner.name else None
+            if names_pair:
+                not_separable.append({"effects": names_pair, "correlation": rho, "named": winner.name,
+                                      "would_separate": SEPARATING_DATA.get(frozenset(names_pair),
+                                                                            DEFAULT_SEPARATING_DATA)})
         before = fit.energy_cm2
         active = fit.model.names + (winner.name,)
         prior = {n: float(max(10 * np.abs(fit.model.values.get(n, winner.theta)).max(), 10 * np.sqrt(
@@ -204,7 +216,7 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
     energy["after"] = fit.energy_cm2
     calibration = _calibration(result, fit, findings)
     return Diagnosis(findings, not_separable, locate(fit), first_round, concealed, energy,
-                     time.perf_counter() - started, calibration)
+                     time.perf_counter() - started, calibration, fit)
 
 
 def _sigma_at_refit(lin, name: str, names: list[str]) -> float:
@@ -225,7 +237,7 @@ def _finding(test: CandidateTest, fit: Fit, energy_before: float, recording: Rec
             "parameters": np.asarray(value).tolist(), "statement": statement,
             "absorbed_by": [a for a, _ in test.absorbed_by], "mdb": test.mdb, "concealment_r2": test.concealment_r2,
             "evidence": {"statistic": test.statistic, "dof": test.dof, "p_value": test.p_value,
-                         "log10_p": test.log10_p, "naive_statistic": test.naive_statistic},
+                         "log10_p": test.log10_p, "bic_gain": test.bic_gain, "naive_statistic": test.naive_statistic},
             "energy_cm2": {"before": energy_before, "after": fit.energy_cm2, "held_out_before": held_before,
                            "held_out_after": held_after}}
 

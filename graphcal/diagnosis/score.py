@@ -13,7 +13,7 @@ candidate k (parameters theta_k = 0 at the fit):
 
 T = u^T S^-1 u / f, with f = tr(S^-1 V) / d_k the variance factor of the projected score: V is its
 cluster-robust variance, the sum over clusters c (blocks of space and time) of u_c u_c^T with u_c
-the projected score of the pairs in c. Residuals of neighbouring pairs share points and surfaces,
+the projected score of the pairs in c, once the candidate is fitted (its own signal out). Residuals of neighbouring pairs share points and surfaces,
 and sigma0 is a nominal noise: f takes both into account where u^T S^-1 u (the textbook statistic)
 counts 10^5 correlated pairs as independent and flags everything. (f rather than the full V^-1:
 V is poorly conditioned for a candidate of 32 parameters seen by a few hundred clusters.)
@@ -59,15 +59,17 @@ def noncentrality(dof: int, alpha: float = ALPHA, power: float = POWER) -> float
 @dataclass(frozen=True)
 class Linearisation:
     """The graph at a fit, in named coordinates: information (n,n) and vector (n,) of the whole graph
-    (data and priors), the parameter name of each column, the columns of each effect, the data's
-    projected scores summed per cluster (C, n), and per half of the drive (interleaved time blocks)
-    the data's information, vector, cost sum r^2 and weight sum."""
+    (data and priors), the parameter name of each column, the columns of each effect, the data's rows
+    in blocks (cluster id (N,), Jacobian (N, w), whitened residual (N,), global columns (w,)), the
+    number of clusters, and per half of the drive (interleaved time blocks) the data's information,
+    vector, cost sum r^2 and weight sum."""
 
     information: np.ndarray
     vector: np.ndarray
     names: list[str]
     effect_columns: dict
-    cluster_scores: np.ndarray
+    rows: list
+    n_clusters: int
     half_information: np.ndarray
     half_vector: np.ndarray
     half_cost: np.ndarray
@@ -94,13 +96,12 @@ def linearisation_of_rows(r: np.ndarray, A: np.ndarray, names: list[str], effect
     their Jacobian (K, n), each column's name, the effects' columns, and per row its cluster and half
     (0/1). Every row counts with weight 1 in J."""
     g = -A * r[:, None]
-    scores = np.zeros((int(cluster.max()) + 1, A.shape[1]))
-    np.add.at(scores, cluster, g)
     info = np.stack([A[half == h].T @ A[half == h] for h in (0, 1)])
     vector = np.stack([g[half == h].sum(axis=0) for h in (0, 1)])
     cost = np.array([float(r[half == h] @ r[half == h]) for h in (0, 1)])
     weight = np.array([float(np.sum(half == h)) for h in (0, 1)])
-    return Linearisation(info.sum(axis=0), vector.sum(axis=0), names, effect_columns, scores, info, vector, cost,
+    return Linearisation(info.sum(axis=0), vector.sum(axis=0), names, effect_columns,
+                         [(cluster, A, r, np.arange(A.shape[1]))], int(cluster.max()) + 1, info, vector, cost,
                          weight, sigma0_m)
 
 
@@ -138,17 +139,16 @@ def linearise(data: ReturnData, estimate: Estimate, pairs: Correspondences, conf
         to_named[s:s + 6, s:s + 6] = tangent_to_axes(estimate.extrinsic.rotation().matrix())
     names = [name for k, w in zip(keys, widths) for name in _key_names(k, w, model, config.pose_corrections)]
     n_clusters = int(cluster.max()) + 1 if len(cluster) else 0
-    scores = np.zeros((n_clusters, n))
+    blocks = []
     half_information, half_vector = np.zeros((2, n, n)), np.zeros((2, n))
     half_cost, half_weight = np.zeros(2), np.zeros(2)
     for rows, block in make_blocks(data, estimate, pairs, config, estimated, model):
         r, A = residuals(block, values)
         cols = np.concatenate([np.arange(column[k], column[k] + J.shape[1])
                                for k, J in jacobian_by_key(block, A).items()])
+        A = A @ to_named[np.ix_(cols, cols)].T  # block-diagonal: the block's own columns stay its own
+        blocks.append((cluster[rows], A, r, cols))
         g = -A * r[:, None]  # each pair's contribution to eta
-        local = np.zeros((n_clusters, len(cols)))
-        np.add.at(local, cluster[rows], g)
-        scores[:, cols] += local
         for h in (0, 1):
             of = half[rows] == h
             half_information[h][np.ix_(cols, cols)] += A[of].T @ A[of]
@@ -156,9 +156,8 @@ def linearise(data: ReturnData, estimate: Estimate, pairs: Correspondences, conf
             half_cost[h] += float(r[of] @ r[of])
             half_weight[h] += float(pairs.weight[rows][of].sum())
     effect_columns = {name: np.arange(column[k], column[k] + model.dim(name)) for k, name in zip(model.keys, model.names)}
-    return Linearisation(to_named @ information @ to_named.T, to_named @ vector, names, effect_columns,
-                         scores @ to_named.T, to_named @ half_information @ to_named.T, half_vector @ to_named.T,
-                         half_cost, half_weight, config.sigma0_m)
+    return Linearisation(to_named @ information @ to_named.T, to_named @ vector, names, effect_columns, blocks,
+                         n_clusters, half_information, half_vector, half_cost, half_weight, config.sigma0_m)
 
 
 def _solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -194,10 +193,20 @@ class CandidateTest:
     concealment_r2: float
     absorbed_by: list
     held_out_cm2: tuple[float, float]
+    n_clusters: int = 0
 
     def significant(self, n_candidates: int, alpha: float = ALPHA) -> bool:
-        """Bonferroni over the candidates, and confirmed on held-out data (lower held-out J)."""
-        return bool(self.p_value < alpha / max(n_candidates, 1) and self.held_out_cm2[1] < self.held_out_cm2[0])
+        """Bonferroni over the candidates, a positive BIC gain, and confirmed on held-out data (lower
+        held-out J)."""
+        return bool(self.p_value < alpha / max(n_candidates, 1) and self.bic_gain > 0
+                    and self.held_out_cm2[1] < self.held_out_cm2[0])
+
+    @property
+    def bic_gain(self) -> float:
+        """T - d ln(C): the fit's gain less BIC's price of d parameters, C the number of independent
+        clusters; ranks candidates of different sizes (a 32-parameter candidate soaks up part of
+        any signal and its p-value alone would rank it too high)."""
+        return float(self.statistic - self.dof * np.log(max(self.n_clusters, 2)))
 
     @property
     def identifiable(self) -> bool:
@@ -231,22 +240,44 @@ def score_candidate(lin: Linearisation, name: str, candidates: list[str]) -> Can
     Xs = _solve(L[np.ix_(base, base)], L[np.ix_(base, k)])
     S = L[np.ix_(k, k)] - L[np.ix_(k, base)] @ Xs
     u = eta[k] - Xs.T @ eta[base]
-    projected = lin.cluster_scores[:, k] - lin.cluster_scores[:, base] @ Xs
     r2 = float(np.mean(1.0 - np.diag(S) / np.maximum(np.diag(L[np.ix_(k, k)]), 1e-300)))
     if r2 > IDENTIFIABLE_R2:  # the base parameters mimic it entirely: nothing left to test
         nan = np.full(len(k), np.nan)
         return CandidateTest(name, len(k), 0.0, 1.0, 0.0, nan, np.full((len(k), len(k)), np.nan), np.nan, np.nan,
                              np.inf, r2, _absorbing(L, base, k, Xs, np.linalg.pinv(S), np.ones(len(k)), lin.names),
-                             (np.nan, np.nan))
+                             (np.nan, np.nan), lin.n_clusters)
     S_inv = np.linalg.pinv(S)
-    factor = max(float(np.trace(S_inv @ (projected.T @ projected))) / len(k), 1e-12)
-    statistic = float(u @ S_inv @ u) / factor
     theta = S_inv @ u
+    V = _cluster_variance(lin, base, k, Xs, theta)
+    factor = max(float(np.trace(S_inv @ V)) / len(k), 1e-12)
+    statistic = float(u @ S_inv @ u) / factor
     covariance = S_inv * factor
     sigma, mdb = _headline_sigma(name, theta, covariance)
     return CandidateTest(name, len(k), statistic, float(stats.chi2.sf(statistic, len(k))), float(u @ S_inv @ u),
                          theta, covariance, CANDIDATES[name].magnitude(theta), sigma, mdb, r2,
-                         _absorbing(L, base, k, Xs, S_inv, theta, lin.names), _held_out(lin, base, k))
+                         _absorbing(L, base, k, Xs, S_inv, theta, lin.names), _held_out(lin, base, k),
+                         lin.n_clusters)
+
+
+def _cluster_variance(lin: Linearisation, base: np.ndarray, k: np.ndarray, Xs: np.ndarray,
+                      theta: np.ndarray) -> np.ndarray:
+    """Cluster-robust variance (d, d) of the candidate's projected score, with the candidate fitted
+    (theta): sum over clusters of u_c u_c^T, u_c = -J~_c^T (r_c + J~_c theta), J~ = J_k - J_b Xs the
+    candidate's Jacobian projected off the base. At theta the candidate's own signal is out of the
+    scores: their spread is the noise's, correlated within clusters, not the effect's."""
+    position = np.full(len(lin.names), -1)
+    position[base] = np.arange(len(base))
+    where_k = {c: j for j, c in enumerate(k)}
+    scores = np.zeros((lin.n_clusters, len(k)))
+    for cluster, A, r, cols in lin.rows:
+        in_base = position[cols] >= 0
+        in_k = np.array([c in where_k for c in cols])
+        order = np.array([where_k[c] for c in cols[in_k]])
+        J = np.zeros((len(r), len(k)))
+        J[:, order] = A[:, in_k]
+        J -= A[:, in_base] @ Xs[position[cols[in_base]]]
+        np.add.at(scores, cluster, -J * (r + J @ theta)[:, None])
+    return scores.T @ scores
 
 
 def _absorbing(L, base, k, Xs, S_inv, theta, names, top: int = 3) -> list:
