@@ -47,7 +47,7 @@ CONCEALED = {
     "incidence_range_bias": Concealment({"incidence_range_bias": {"bias_m": 0.03}}, 0.03, "joint",
                                         "per-fibre range offsets and elevations: on flat ground each fibre sees "
                                         "one incidence"),
-    "azimuth_eccentricity": Concealment({"azimuth_eccentricity": {"amplitude_deg": 0.05, "phase_deg": 30.0}}, 0.05,
+    "azimuth_eccentricity": Concealment({"azimuth_eccentricity": {"amplitude_deg": 0.08, "phase_deg": 30.0}}, 0.08,
                                         "joint", "per-fibre azimuth offsets and the boresight yaw (its mean)"),
     "heading_drift": Concealment({"heading_drift": {"rate_deg_s": 0.01}}, 0.01, "joint",
                                  "the boresight yaw (its mean over the drive)"),

@@ -41,7 +41,7 @@ def clean(tmp_path_factory):
 @pytest.fixture(scope="module")
 def two_effects(tmp_path_factory):
     rec = recording(tmp_path_factory, "two", effect="time_offset", effects=("azimuth_eccentricity",))
-    return rec, graphcal.diagnose(rec, config(), max_effects=3, refit_iterations=2, quiet=True)
+    return rec, graphcal.diagnose(rec, config(), max_effects=2, refit_iterations=3, quiet=True)
 
 
 def test_clean_recording_gets_no_false_alarm(clean):
@@ -84,7 +84,7 @@ def test_recording_against_a_simulation_of_the_same_drive(clean, tmp_path_factor
     assert saved["findings"][0]["magnitude"] == pytest.approx(CONCEALED["time_offset"].magnitude, rel=0.2)
 
 
-def test_bad_candidate_name_is_a_clear_error(clean, tmp_path):
+def test_bad_mode_is_a_clear_error(clean, tmp_path):
     result = CliRunner().invoke(app, ["diagnose", str(clean.path), "--mode", "sideways", "--out", str(tmp_path)])
     assert result.exit_code == 2 and "mode" in result.output
 
