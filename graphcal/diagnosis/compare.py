@@ -100,7 +100,7 @@ def compare(recording: Recording, simulation: Recording, max_points: int | None 
                                       "log10_p": test.log10_p, "bic_gain": test.bic_gain},
                          "energy_cm2": {"before": before, "after": after, "held_out_before": test.held_out_cm2[0],
                                         "held_out_after": test.held_out_cm2[1]}})
-    return Diagnosis(findings, not_separable, [], first, [], {"before": before}, time.perf_counter() - started)
+    return Diagnosis(findings, not_separable, [], [], first, [], {"before": before}, time.perf_counter() - started)
 
 
 def _linear_system(data, estimate, context: ReturnContext, names, rows, normal_w, m_w):

@@ -84,11 +84,13 @@ def display(name: str, value: float) -> str:
 class Diagnosis:
     """What graphcal.diagnose found: findings (strongest first; diagnosis.json of RECORDING.md),
     candidates the data could not tell apart, the residual field's top locations, every candidate's
-    first-round test, the candidates the model already mimics entirely, and J before/after [cm^2]."""
+    first-round test, the candidates the model already mimics entirely, and J before/after [cm^2].
+    locations are those of the final fit, locations_baseline those of the fit without any effect."""
 
     findings: list[dict]
     not_separable: list[dict]
     locations: list[dict]
+    locations_baseline: list[dict]
     candidates: list[dict]
     concealed: list[dict]
     energy_cm2: dict
@@ -98,7 +100,7 @@ class Diagnosis:
 
     def to_json(self) -> dict:
         return {"format": FORMAT, "findings": self.findings, "not_separable": self.not_separable,
-                "locations": self.locations, "candidates": self.candidates, "concealed": self.concealed,
+                "locations": self.locations, "locations_baseline": self.locations_baseline, "candidates": self.candidates, "concealed": self.concealed,
                 "energy_cm2": self.energy_cm2, "seconds": round(self.seconds, 2)}
 
     def save(self, directory: str | Path) -> Path:
@@ -178,7 +180,7 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
     started = time.perf_counter()
     config = config or CalibrationConfig(mode="joint")
     fit, result = baseline(recording, config, quiet=quiet)
-    energy = {"before": fit.energy_cm2}
+    energy, located = {"before": fit.energy_cm2}, locate(fit)
     findings, not_separable, first_round, concealed = [], [], None, []
     for _ in progress(range(max_effects + 1), "diagnosing", total=max_effects + 1, quiet=quiet):
         names = candidate_names(fit, candidates)
@@ -215,7 +217,8 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
         findings.append(_finding(winner, fit, before, recording))
     energy["after"] = fit.energy_cm2
     calibration = _calibration(result, fit, findings)
-    return Diagnosis(findings, not_separable, locate(fit), first_round, concealed, energy,
+    return Diagnosis(findings, not_separable, locate(fit) if findings else located, located, first_round, concealed,
+                     energy,
                      time.perf_counter() - started, calibration, fit)
 
 
