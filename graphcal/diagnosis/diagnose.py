@@ -181,12 +181,15 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
     config = config or CalibrationConfig(mode="joint")
     fit, result = baseline(recording, config, quiet=quiet)
     energy, located = {"before": fit.energy_cm2}, locate(fit)
-    findings, not_separable, first_round, concealed = [], [], None, []
+    findings, not_separable, first_round, concealed, added = [], [], None, [], None
     for _ in progress(range(max_effects + 1), "diagnosing", total=max_effects + 1, quiet=quiet):
         names = candidate_names(fit, candidates)
         tests, lin = score_all(fit, names)
-        if findings:  # sigma of the last effect added, at its refit
-            findings[-1]["sigma"] = _sigma_at_refit(lin, findings[-1]["effect"], names)
+        if added is not None:  # the effect added last, with its sigma at the refit
+            winner, before = added
+            sigma = score_candidate(lin, winner.name, names + [winner.name]).sigma
+            findings.append(_finding(winner, fit, before, sigma))
+            added = None
         if first_round is None:
             first_round = [_row(t, recording, len(names)) for t in sorted(tests.values(), key=lambda t: t.log10_p)]
             concealed = [{"effect": t.name, "concealment_r2": t.concealment_r2,
@@ -214,7 +217,7 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
         prior = {n: float(max(10 * np.abs(fit.model.values.get(n, winner.theta)).max(), 10 * np.sqrt(
             np.max(np.diag(winner.covariance))))) for n in active}
         fit = refit(fit, active, prior, refit_iterations)
-        findings.append(_finding(winner, fit, before, recording))
+        added = (winner, before)
     energy["after"] = fit.energy_cm2
     calibration = _calibration(result, fit, findings)
     return Diagnosis(findings, not_separable, locate(fit) if findings else located, located, first_round, concealed,
@@ -222,21 +225,19 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
                      time.perf_counter() - started, calibration, fit)
 
 
-def _sigma_at_refit(lin, name: str, names: list[str]) -> float:
-    return score_candidate(lin, name, names + [name]).sigma
-
-
-def _finding(test: CandidateTest, fit: Fit, energy_before: float, recording: Recording) -> dict:
+def _finding(test: CandidateTest, fit: Fit, energy_before: float, sigma: float) -> dict:
+    """The finding of an effect added: its size at the refit (fit) with sigma, what absorbed it and the
+    held-out J from its test at the fit before (test)."""
     value = fit.model.values[test.name]
     magnitude = CANDIDATES[test.name].magnitude(value)
     absorbed = test.absorbed_by[0]
     held_before, held_after = test.held_out_cm2
     statement = (f"the recording shows {CANDIDATES[test.name].physics} ({test.name}: {display(test.name, magnitude)} "
-                 f"± {display(test.name, test.sigma)}), which the model left out; it was absorbed by {absorbed[0]} "
+                 f"± {display(test.name, sigma)}), which the model left out; it was absorbed by {absorbed[0]} "
                  f"(correlation {absorbed[1]:+.2f}, concealment R² {test.concealment_r2:.2f}); adding it lowers "
                  f"held-out J from {held_before:.3g} to {held_after:.3g} cm² and J from {energy_before:.3g} to "
                  f"{fit.energy_cm2:.3g} cm²")
-    return {"effect": test.name, "magnitude": magnitude, "sigma": test.sigma, "unit": CANDIDATES[test.name].unit,
+    return {"effect": test.name, "magnitude": magnitude, "sigma": sigma, "unit": CANDIDATES[test.name].unit,
             "parameters": np.asarray(value).tolist(), "statement": statement,
             "absorbed_by": [a for a, _ in test.absorbed_by], "mdb": test.mdb, "concealment_r2": test.concealment_r2,
             "evidence": {"statistic": test.statistic, "dof": test.dof, "p_value": test.p_value,
