@@ -4,9 +4,10 @@ rate, intensity) with effect sizes in cm, tests on cluster means (pairs are corr
 block of space and time) with Benjamini-Hochberg control over every bin, and Ljung-Box whiteness
 along time and azimuth.
 
-The residual of a pair is d = n . (p - m) with the normal turned towards p's sensor, so that a
-positive d puts p behind the surface m lies on (seen from the sensor): range-like errors keep their
-sign across surfaces.
+The residual of a pair is d = n . (p - m) with the normal turned away from p's sensor (along the
+beam), so that a positive d puts p behind the surface m lies on, seen from the sensor: range-like
+errors keep their sign across surfaces. A bin's effect is its trimmed mean less the whole field's:
+structure against the regressor, not a common offset.
 """
 
 from __future__ import annotations
@@ -41,11 +42,12 @@ def regressors(fit) -> dict[str, np.ndarray]:
 
 
 def oriented_residual_m(fit) -> np.ndarray:
-    """d = n . (p - m) [m] with n turned towards p's sensor (K,)."""
+    """d = n . (p - m) [m] with n turned away from p's sensor (K,): positive when p lies behind m's
+    surface."""
     p, m = fit.pairs.index_p, fit.pairs.index_m
     n = fit.pairs.normal
-    towards = -np.sign(np.einsum("ni,ni->n", n, fit.points_m[p] - fit.data.X_nav[p]))
-    return towards * np.einsum("ni,ni->n", n, fit.points_m[p] - fit.points_m[m])
+    away = np.sign(np.einsum("ni,ni->n", n, fit.points_m[p] - fit.data.X_nav[p]))
+    return away * np.einsum("ni,ni->n", n, fit.points_m[p] - fit.points_m[m])
 
 
 def _edges(values: np.ndarray, name: str) -> np.ndarray:
@@ -60,6 +62,7 @@ def locate(fit, top: int = 10) -> list[dict]:
     """The significant bins (q < Q_LEVEL after BH, |effect| >= MIN_EFFECT_CM), largest |effect| first, then the whiteness
     tests; each a dict of diagnosis.json's `locations`."""
     residual = oriented_residual_m(fit) * 100.0  # cm
+    residual = residual - stats.trim_mean(residual, 0.1)
     cluster, _ = fit.clusters()
     rows = []
     for name, values in regressors(fit).items():
