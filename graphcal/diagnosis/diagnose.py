@@ -49,6 +49,8 @@ SEPARATING_DATA = {
     frozenset({"time_offset", "lever_arm"}): "a speed change, or passes in both directions",
     frozenset({"heading_bias", "heading_drift"}): "a longer drive (the drift grows, the bias does not)",
 }
+UNEXPLAINED_CM = 0.5
+UNEXPLAINED_Q = 1e-6
 DEFAULT_SEPARATING_DATA = "a turn, a speed change, or a second pass in the opposite direction"
 UNIT_DISPLAY = {"s": (1e3, "ms"), "m": (1e2, "cm"), "1": (1e6, "ppm"), "deg": (1.0, "deg"),
                 "deg/s": (1.0, "deg/s"), "revolution": (1.0, "revolution")}
@@ -220,9 +222,26 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
         added = (winner, before)
     energy["after"] = fit.energy_cm2
     calibration = _calibration(result, fit, findings)
-    return Diagnosis(findings, not_separable, locate(fit) if findings else located, located, first_round, concealed,
-                     energy,
+    final = locate(fit) if findings else located
+    findings += unexplained(final)
+    return Diagnosis(findings, not_separable, final, located, first_round, concealed, energy,
                      time.perf_counter() - started, calibration, fit)
+
+
+def unexplained(locations: list[dict]) -> list[dict]:
+    """Structure left once the candidates are modelled: the located bin with the largest |effect|,
+    if it is at least UNEXPLAINED_CM and q < UNEXPLAINED_Q (diagnosis.json's `unexplained`)."""
+    strong = [row for row in locations if "bin" in row and abs(row["effect_cm"]) >= UNEXPLAINED_CM
+              and row["q_value"] < UNEXPLAINED_Q]
+    if not strong:
+        return []
+    row = max(strong, key=lambda r: abs(r["effect_cm"]))
+    statement = (f"structure no candidate explains: residuals of {row['effect_cm']:+.2g} cm against "
+                 f"{row['regressor']} in [{row['bin'][0]:.3g}, {row['bin'][1]:.3g}] (q = {row['q_value']:.1e}, "
+                 f"{row['n_pairs']} pairs)")
+    return [{"effect": "unexplained", "magnitude": row["effect_cm"] / 100, "sigma": None, "unit": "m",
+             "statement": statement, "absorbed_by": [], "location": row,
+             "evidence": {"statistic": None, "p_value": row["p_value"], "q_value": row["q_value"]}}]
 
 
 def _finding(test: CandidateTest, fit: Fit, energy_before: float, sigma: float) -> dict:
