@@ -49,6 +49,10 @@ SEPARATING_DATA = {
     frozenset({"time_offset", "lever_arm"}): "a speed change, or passes in both directions",
     frozenset({"heading_bias", "heading_drift"}): "a longer drive (the drift grows, the bias does not)",
 }
+# the largest size each candidate can physically have (its unit): beyond, the estimate is a degenerate fit
+PHYSICAL_BOUND = {"time_offset": 0.5, "spin_rate": 0.3, "range_scale": 0.01, "incidence_range_bias": 0.5,
+                  "azimuth_eccentricity": 2.0, "heading_bias": 5.0, "heading_drift": 1.0, "lever_arm": 2.0,
+                  "fibre_horizontal_offset": 0.2}
 UNEXPLAINED_CM = 0.5
 UNEXPLAINED_Q = 1e-6
 DEFAULT_SEPARATING_DATA = "a turn, a speed change, or a second pass in the opposite direction"
@@ -68,13 +72,12 @@ def expected_magnitude(name: str, recording: Recording) -> float | None:
 
 def plausible(test: CandidateTest, recording: Recording) -> bool:
     """Whether an estimate fits its candidate's physics: a fixed-size candidate within 3 sigma (plus 20 %)
-    of its known size; a spin-rate error below 30 %."""
+    of its known size; the others within PHYSICAL_BOUND (a range scale of 100 % collapses the cloud,
+    which a self-consistency energy rewards on a static recording)."""
     expected = expected_magnitude(test.name, recording)
     if expected is not None:
         return abs(test.magnitude - expected) < 3 * test.sigma + 0.2 * abs(expected)
-    if test.name == "spin_rate":
-        return abs(test.magnitude) < 0.3
-    return True
+    return abs(test.magnitude) < PHYSICAL_BOUND[test.name]
 
 
 def display(name: str, value: float) -> str:
