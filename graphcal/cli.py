@@ -97,6 +97,8 @@ def calibrate(recording: Annotated[Path, typer.Argument(help="recording director
 def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory")],
              simulation: Annotated[Path | None, typer.Option(help="a simulation of the same drive with nominal "
                                                                    "physics: name the effect explaining the difference")] = None,
+             rescan: Annotated[bool, typer.Option(help="no scene model: simulate the drive on a mesh of the "
+                                                       "calibrated cloud, then compare with it")] = False,
              mode: Annotated[str, typer.Option(help="calibration mode of the nominal model (see calibrate)")] = "joint",
              config: Annotated[Path | None, typer.Option(help="YAML file of CalibrationConfig settings")] = None,
              max_effects: Annotated[int, typer.Option(help="most effects added")] = 3,
@@ -114,6 +116,14 @@ def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory
         from graphcal.diagnosis.compare import compare
 
         result = compare(rec, Recording.load(simulation), max_points=chosen.max_points)
+    elif rescan:
+        from graphcal.calibration.calibrate import calibrate as fit
+        from graphcal.diagnosis.compare import compare
+        from graphcal.diagnosis.rescan import rescan as simulate_on_mesh
+
+        estimate = fit(rec, chosen, quiet=quiet).calibration.estimate
+        result = compare(rec, simulate_on_mesh(rec, estimate, chosen.max_points), max_points=chosen.max_points,
+                         estimate=estimate)
     else:
         from graphcal.diagnosis.diagnose import diagnose as run
 

@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 from factors.effects import CANDIDATES, Channels, channel_jacobians
 from factors.world_point import Corrections, Turn, world_normals, world_points
 from graphcal.association import Features, local_features
-from graphcal.calibration.problem import initial_estimate, prepare, world_at
+from graphcal.calibration.problem import Estimate, initial_estimate, prepare, world_at
 from graphcal.diagnosis.context import ReturnContext
 from graphcal.diagnosis.diagnose import (
     DEFAULT_SEPARATING_DATA,
@@ -31,6 +31,7 @@ from graphcal.diagnosis.diagnose import (
     plausible,
 )
 from graphcal.diagnosis.fit import BLOCK_S, VOXEL_M
+from graphcal.diagnosis.rescan import with_controls
 from graphcal.diagnosis.score import (
     Linearisation,
     linearisation_of_rows,
@@ -46,15 +47,16 @@ SIGMA0_M = 0.01
 
 
 def compare(recording: Recording, simulation: Recording, max_points: int | None = 200_000,
-            candidates: list[str] | None = None, seed: int = 0) -> Diagnosis:
-    """Name the effect that explains recording - simulation (see the module docstring)."""
+            candidates: list[str] | None = None, seed: int = 0, estimate: Estimate | None = None) -> Diagnosis:
+    """Name the effect that explains recording - simulation (see the module docstring); both placed
+    with estimate's offsets and extrinsic (default: the nominal model)."""
     started = time.perf_counter()
     rng = np.random.default_rng(seed)
     data = prepare(recording, np.inf, max_points, rng)
-    estimate = initial_estimate(recording, data)
-    points = world_at(data, estimate, pose=False)
     sim = prepare(simulation, np.inf, None if max_points is None else 4 * max_points, rng)
-    sim_points = world_at(sim, initial_estimate(simulation, sim), pose=False) + sim.origin_m - data.origin_m
+    estimate = initial_estimate(recording, data) if estimate is None else estimate
+    points = world_at(data, with_controls(estimate, data), pose=False)
+    sim_points = world_at(sim, with_controls(estimate, sim), pose=False) + sim.origin_m - data.origin_m
     features = local_features(sim_points)
     distance, nearest = cKDTree(sim_points).query(points, distance_upper_bound=GATE_M, workers=-1)
     found = np.isfinite(distance)
@@ -65,7 +67,8 @@ def compare(recording: Recording, simulation: Recording, max_points: int | None 
     context = ReturnContext.of(data, recording.world.poses, points, Features(normal, *(np.zeros(len(points)),) * 3),
                                estimate.extrinsic.translation())
     names = list(candidates or CANDIDATES)
-    r, J, columns = _linear_system(data, estimate, context, names, rows, normal[rows], sim_points[nearest[rows]])
+    r, J, columns = _linear_system(data, with_controls(estimate, data), context, names, rows, normal[rows],
+                                   sim_points[nearest[rows]])
     lin = _linearisation(r, J, columns, names, data.time_s[rows] - data.time_s[0], points[rows])
     before = float(r @ r) * SIGMA0_M ** 2 / len(r) * 1e4
     findings, not_separable, first, active = [], [], None, []

@@ -122,11 +122,19 @@ class Diagnosis:
         return directory / "diagnosis.json"
 
     def summary(self) -> str:
-        if not self.findings:
-            return "no left-out effect is significant: " + ("; ".join(
-                f"{c['effect']} < {display(c['effect'], c['mdb'])} (MDB)" for c in self.candidates
-                if np.isfinite(c["mdb"])) or "no candidate could be tested")
-        return "\n".join(f["statement"] for f in self.findings)
+        if self.findings:
+            return "\n".join(f["statement"] for f in self.findings)
+        tested = [c for c in self.candidates if np.isfinite(c["mdb"]) and not _blind(c)]
+        blind = [c["effect"] for c in self.candidates if not np.isfinite(c["mdb"]) or _blind(c)]
+        return ("no left-out effect is significant: " + ("; ".join(
+            f"{c['effect']} < {display(c['effect'], c['mdb'])} (MDB)" for c in tested) or "no candidate could be tested")
+            + (f"; not observable in this recording: {', '.join(blind)}" if blind else ""))
+
+
+def _blind(row: dict) -> bool:
+    """A candidate whose minimal detectable size is beyond any physical size: the data cannot see it."""
+    bound = PHYSICAL_BOUND.get(row["effect"], 1.0)
+    return row["mdb"] > bound
 
 
 def _finite(value):
