@@ -4,9 +4,10 @@ which left-out effect explains their difference.
 Both are georeferenced with their nominal model. Each return p of the recording is paired with the
 nearest simulated return m on a planar patch; the simulated cloud is a fixed map, so only p moves
 with the candidates: r = n . (p(theta) - m) / sigma0. Every candidate is score-tested as in
-graphcal.diagnosis.score (no calibration parameter in the base: both sides are nominal), with the
-same cluster-robust variance factor and held-out time blocks, and the significant, plausible ones are
-reported strongest first with their least-squares size.
+graphcal.diagnosis.score (no calibration parameter: both sides have the same model), with the
+same cluster-robust variance factor and held-out time blocks; the base holds only a common
+translation of the recording against the simulation. The significant, plausible ones are reported
+strongest first with their least-squares size.
 """
 
 from __future__ import annotations
@@ -70,7 +71,8 @@ def compare(recording: Recording, simulation: Recording, max_points: int | None 
     r, J, columns = _linear_system(data, with_controls(estimate, data), context, names, rows, normal[rows],
                                    sim_points[nearest[rows]])
     lin = _linearisation(r, J, columns, names, data.time_s[rows] - data.time_s[0], points[rows])
-    before = float(r @ r) * SIGMA0_M ** 2 / len(r) * 1e4
+    translation = np.arange(J.shape[1] - 3, J.shape[1])
+    before = _energy_cm2(r, J, translation)
     findings, not_separable, first, active = [], [], None, []
     while len(active) < MAX_EFFECTS:  # DIA without refits: the problem is linear, conditioning is exact
         remaining = [n for n in names if n not in active]
@@ -89,9 +91,7 @@ def compare(recording: Recording, simulation: Recording, max_points: int | None 
                                       "named": test.name, "would_separate": SEPARATING_DATA.get(
                                           frozenset({test.name, other.name}), DEFAULT_SEPARATING_DATA)})
         active.append(test.name)
-        columns = np.concatenate([lin.effect_columns[n] for n in active])
-        step = np.linalg.lstsq(J[:, columns], -r, rcond=None)[0]
-        after = float(np.sum((r + J[:, columns] @ step) ** 2)) * SIGMA0_M ** 2 / len(r) * 1e4
+        after = _energy_cm2(r, J, np.concatenate([lin.effect_columns[n] for n in active] + [translation]))
         findings.append({"effect": test.name, "magnitude": test.magnitude, "sigma": test.sigma,
                          "unit": CANDIDATES[test.name].unit, "parameters": test.theta.tolist(),
                          "statement": f"the recording differs from the simulation by {CANDIDATES[test.name].physics} "
@@ -104,6 +104,12 @@ def compare(recording: Recording, simulation: Recording, max_points: int | None 
                          "energy_cm2": {"before": before, "after": after, "held_out_before": test.held_out_cm2[0],
                                         "held_out_after": test.held_out_cm2[1]}})
     return Diagnosis(findings, not_separable, [], [], first, [], {"before": before}, time.perf_counter() - started)
+
+
+def _energy_cm2(r: np.ndarray, J: np.ndarray, columns: np.ndarray) -> float:
+    """J [cm^2] of the pairs once the given columns are fitted (least squares)."""
+    step = np.linalg.lstsq(J[:, columns], -r, rcond=None)[0]
+    return float(np.sum((r + J[:, columns] @ step) ** 2)) * SIGMA0_M ** 2 / len(r) * 1e4
 
 
 def _linear_system(data, estimate, context: ReturnContext, names, rows, normal_w, m_w):
@@ -124,7 +130,10 @@ def _linear_system(data, estimate, context: ReturnContext, names, rows, normal_w
     r = np.einsum("ni,ni->n", n_w, p_w - m_w) / SIGMA0_M
     parts = [np.einsum("ni,nij->nj", n_w, at.of_candidate(b)) / SIGMA0_M for b in bases]
     starts = np.cumsum([0] + [p.shape[1] for p in parts])
-    return r, np.hstack(parts), {n: np.arange(a, b) for n, a, b in zip(names, starts[:-1], starts[1:])}
+    # the base: a common translation of the recording against the simulation (a datum shift; it also
+    # takes the centre of a scaled trajectory, which the position candidates scale about the mean)
+    return (r, np.hstack(parts + [n_w / SIGMA0_M]),
+            {n: np.arange(a, b) for n, a, b in zip(names, starts[:-1], starts[1:])})
 
 
 def _linearisation(r, J, columns, names, time_s, points_m) -> Linearisation:
@@ -132,4 +141,5 @@ def _linearisation(r, J, columns, names, time_s, points_m) -> Linearisation:
     _, cluster = np.unique(np.column_stack([block, np.floor(points_m / VOXEL_M).astype(np.int64)]), axis=0,
                            return_inverse=True)
     labels = [n if len(columns[n]) == 1 else f"{n}[{j}]" for n in names for j in range(len(columns[n]))]
+    labels += [f"common_translation_{axis}_m" for axis in "xyz"]
     return linearisation_of_rows(r, J, labels, columns, cluster.ravel(), block % 2, SIGMA0_M)
