@@ -4,7 +4,8 @@ simulator's truth; a recording against a simulation of the same drive names the 
 
 Small sizes (about 80 k returns, 40 k used): each effect here is several sigma at this size. The
 per-effect figures at larger sizes, for every candidate, are in benchmarks/bench_diagnose.py; the
-per-effect tests below run with GRAPHCAL_SLOW_TESTS=1 (about 30 s each).
+per-effect tests below use its settings and run with GRAPHCAL_SLOW_TESTS=1 (2-5 min each), the
+measured failures marked as such.
 """
 
 import json
@@ -89,10 +90,31 @@ def test_bad_mode_is_a_clear_error(clean, tmp_path):
     assert result.exit_code == 2 and "mode" in result.output
 
 
-@pytest.mark.skipif(not os.environ.get("GRAPHCAL_SLOW_TESTS"), reason="about 30 s per effect: GRAPHCAL_SLOW_TESTS=1")
-@pytest.mark.parametrize("effect", sorted(set(CONCEALED) - {"heading_bias"}))
+# measured failures (benchmarks/bench_diagnose.py, the same settings): see docs/diagnose.md
+KNOWN_FAILURES = {"intra_sweep_motion": "the linear test at the distorted fit names spin_rate",
+                  "projection_scale": "absorbed once the baseline converges (R2 0.94)",
+                  "fibre_horizontal_offset": "32 parameters, R2 0.91: not significant by self-consistency",
+                  "range_scale": "named, but the refit overshoots (+65 %)",
+                  "incidence_range_bias": "named, but the refit undershoots (-25 %)"}
+
+
+@pytest.mark.skipif(not os.environ.get("GRAPHCAL_SLOW_TESTS"), reason="2-5 min per effect: GRAPHCAL_SLOW_TESTS=1")
+@pytest.mark.parametrize("effect", [pytest.param(e, marks=pytest.mark.xfail(reason=KNOWN_FAILURES[e], strict=False))
+                                    if e in KNOWN_FAILURES else e for e in sorted(set(CONCEALED) - {"heading_bias"})])
 def test_each_concealed_effect_is_named_first_and_sized(effect, tmp_path_factory):
-    rec = recording(tmp_path_factory, effect, effect=effect)
-    diagnosis = graphcal.diagnose(rec, config(CONCEALED[effect].mode, 80_000), max_effects=1, quiet=True)
+    rec = graphcal.Recording.load(graphcal.simulate(CONCEALED_SCENARIO(size=0.04, seed=1, effect=effect), quiet=True)
+                                  .save(tmp_path_factory.mktemp("sim") / effect))
+    settings = CalibrationConfig(mode=CONCEALED[effect].mode, max_outer_iterations=6, max_points=80_000,
+                                 tolerance_m=1e-4)
+    diagnosis = graphcal.diagnose(rec, settings, max_effects=1, quiet=True)
     assert diagnosis.findings and diagnosis.findings[0]["effect"] == effect, diagnosis.summary()
     assert diagnosis.findings[0]["magnitude"] == pytest.approx(CONCEALED[effect].magnitude, rel=0.2)
+
+
+@pytest.mark.skipif(not os.environ.get("GRAPHCAL_SLOW_TESTS"), reason="about 5 min: GRAPHCAL_SLOW_TESTS=1")
+def test_heading_bias_is_reported_concealed_by_the_boresight_yaw(tmp_path_factory):
+    rec = graphcal.simulate(CONCEALED_SCENARIO(size=0.04, seed=1, effect="heading_bias"), quiet=True)
+    diagnosis = graphcal.diagnose(rec, config(max_points=80_000), max_effects=1, quiet=True)
+    concealed = {c["effect"]: c for c in diagnosis.concealed}
+    assert "heading_bias" in concealed and concealed["heading_bias"]["absorbed_by"][0] == "extrinsic.yaw_deg"
+    assert "heading_bias" not in [f["effect"] for f in diagnosis.findings]
