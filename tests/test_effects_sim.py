@@ -14,9 +14,9 @@ from graphcal.sim.simulator import simulate
 
 
 def small(**changes) -> Scenario:
-    base = dict(name="small", duration_s=0.8, size=0.1, scene=street(80, 16) + [Pole(xy=(10.0, 4.0))],
-                drive=Drive(segments=straight(40), speed_knots=[(0, 10.0)]),
-                extrinsic=ExtrinsicSpec(error_lever_arm_m=(0.02, -0.03, 0.05)))
+    base = {"name": "small", "duration_s": 0.8, "size": 0.1, "scene": street(80, 16) + [Pole(xy=(10.0, 4.0))],
+            "drive": Drive(segments=straight(40), speed_knots=[(0, 10.0)]),
+            "extrinsic": ExtrinsicSpec(error_lever_arm_m=(0.02, -0.03, 0.05))}
     base.update(changes)
     return Scenario(**base)
 
