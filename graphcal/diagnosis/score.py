@@ -46,6 +46,7 @@ from graphcal.diagnosis.context import EffectModel
 ALPHA = 1e-3  # family-wise false-alarm rate over the candidates
 POWER = 0.8
 IDENTIFIABLE_R2 = 0.995  # above this concealment the candidate is not tested: the model already has it
+BLIND_INFORMATION = 1e-12  # a candidate's information below this share of the median parameter's: the data are blind
 
 
 @functools.lru_cache(maxsize=64)
@@ -241,6 +242,11 @@ def score_candidate(lin: Linearisation, name: str, candidates: list[str]) -> Can
     S = L[np.ix_(k, k)] - L[np.ix_(k, base)] @ Xs
     u = eta[k] - Xs.T @ eta[base]
     r2 = float(np.mean(1.0 - np.diag(S) / np.maximum(np.diag(L[np.ix_(k, k)]), 1e-300)))
+    blind = np.diag(L[np.ix_(k, k)]).max() <= BLIND_INFORMATION * np.median(np.diag(L))
+    if blind:  # no information at all (a time offset seen from a static sensor): absorbed by nothing
+        nan = np.full(len(k), np.nan)
+        return CandidateTest(name, len(k), 0.0, 1.0, 0.0, nan, np.full((len(k), len(k)), np.nan), np.nan, np.nan,
+                             np.inf, 1.0, [], (np.nan, np.nan), lin.n_clusters)
     if r2 > IDENTIFIABLE_R2:  # the base parameters mimic it entirely: nothing left to test
         nan = np.full(len(k), np.nan)
         return CandidateTest(name, len(k), 0.0, 1.0, 0.0, nan, np.full((len(k), len(k)), np.nan), np.nan, np.nan,
