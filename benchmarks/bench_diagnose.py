@@ -22,10 +22,11 @@ from common import peak_gib, report, run_in_process
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-def _config(mode: str, max_points: int):
+def _config(mode: str, max_points: int, angle_prior_deg: float = 10.0):
     from graphcal.calibration.config import CalibrationConfig
 
-    return CalibrationConfig(mode=mode, max_outer_iterations=6, max_points=max_points, tolerance_m=1e-4)
+    return CalibrationConfig(mode=mode, max_outer_iterations=6, max_points=max_points, tolerance_m=1e-4,
+                             intrinsic_sigma_angle_deg=angle_prior_deg)
 
 
 def _effect(effects: tuple[str, ...], size: float, max_points: int, queue) -> None:
@@ -38,7 +39,8 @@ def _effect(effects: tuple[str, ...], size: float, max_points: int, queue) -> No
     recording = graphcal.simulate(build(size=size, seed=1, effect=None, effects=effects), quiet=True)
     mode = concealed[effects[0]].mode if effects else "joint"
     started = time.perf_counter()
-    diagnosis = graphcal.diagnose(recording, _config(mode, max_points), max_effects=len(effects) + 1, quiet=True)
+    diagnosis = graphcal.diagnose(recording, _config(mode, max_points, build.__globals__["ANGLE_PRIOR_DEG"]),
+                                  max_effects=len(effects) + 1, quiet=True)
     seconds = time.perf_counter() - started
     clean = graphcal.simulate(build(size=size, seed=1, effect=None), quiet=True)
     compared = compare(recording, clean, max_points=max_points)

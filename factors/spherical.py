@@ -60,12 +60,17 @@ def to_xyz(range_m, azimuth_rad, factory: FactoryTerms, offsets) -> np.ndarray:
     return xyz
 
 
-def to_xyz_with_jacobian(range_m, azimuth_rad, factory: FactoryTerms, offsets, jacobian=True):
-    """Eq. 4.2 and its Jacobian d xyz / d offsets, shape (..., 3, 4) (eq. 4.3 terms p'_2..p'_5)."""
+def to_xyz_with_jacobian(range_m, azimuth_rad, factory: FactoryTerms, offsets, jacobian=True,
+                         elevation_trig: tuple[np.ndarray, np.ndarray] | None = None):
+    """Eq. 4.2 and its Jacobian d xyz / d offsets, shape (..., 3, 4) (eq. 4.3 terms p'_2..p'_5).
+
+    elevation_trig: (cos e, sin e) per return when the caller has them (e = phi_i + d_phi is one
+    angle per fibre: a caller that knows the fibres takes its cosine once per fibre)."""
     offsets = np.asarray(offsets, dtype=np.float64)
     a, e, r = _angles(range_m, azimuth_rad, factory, offsets)
     V, H = factory.vertical_offset_m, factory.horizontal_offset_m
-    ca, sa, ce, se = np.cos(a), np.sin(a), np.cos(e), np.sin(e)
+    ca, sa = np.cos(a), np.sin(a)
+    ce, se = elevation_trig if elevation_trig is not None else (np.cos(e), np.sin(e))
     h = r * ce - V * se
     xyz = np.stack([h * ca + H * sa, -h * sa + H * ca, r * se + V * ce + offsets[..., 3]], axis=-1)
     if not jacobian:

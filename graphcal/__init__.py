@@ -6,7 +6,7 @@ from graphcal.calibration.evaluate import Evaluation, apply_calibration, evaluat
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.deskewing import deskew
 from graphcal.diagnosis.diagnose import Diagnosis, diagnose
-from graphcal.errors import ConfigError, GraphcalError, RecordingError
+from graphcal.errors import CalibrationError, ConfigError, GraphcalError, RecordingError
 from graphcal.recording import Recording
 from graphcal.sensor import SensorModel, sensor_from_catalog
 from graphcal.sim.scenario import Scenario
@@ -16,6 +16,7 @@ __version__ = "0.1.0"
 __all__ = [
            "Calibration",
            "CalibrationConfig",
+           "CalibrationError",
            "CalibrationResult",
            "ConfigError",
            "Diagnosis",

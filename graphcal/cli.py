@@ -10,20 +10,25 @@ from typing import Annotated
 
 import typer
 
-app = typer.Typer(help="Target-free lidar self-calibration with a GTSAM factor graph.", no_args_is_help=True,
-                  pretty_exceptions_enable=False)
+app = typer.Typer(help="Target-free lidar self-calibration with a GTSAM factor graph.\n\n"
+                       "Commands that produce results write a run folder (runs/<recording>-<command>-<UTC time>/, "
+                       "runs/latest points at the last one): run.yaml, the results, run.rrd, report.html.\n\n"
+                       "Exit codes: 0 done; 2 bad input or an unusable environment (one line on stderr says what); "
+                       "3 a result graphcal recognises as wrong and refuses (e.g. collapsed fibres; one line says "
+                       "what); 1 an unexpected failure (a bug: the traceback is printed).",
+                  no_args_is_help=True, pretty_exceptions_enable=False)
 
 def _clear_errors(command):
-    """Turn graphcal's own errors into one line on stderr and exit code 2."""
+    """Turn graphcal's own errors into one line on stderr and exit code 2 (3 for a refused result)."""
     @functools.wraps(command)
     def wrapper(*args, **kwargs):
-        from graphcal.errors import GraphcalError
+        from graphcal.errors import CalibrationError, GraphcalError
 
         try:
             return command(*args, **kwargs)
         except GraphcalError as error:
             typer.echo(f"error: {error}", err=True)
-            raise typer.Exit(2) from None
+            raise typer.Exit(3 if isinstance(error, CalibrationError) else 2) from None
     return wrapper
 
 
@@ -65,31 +70,66 @@ def info(recording: Annotated[Path, typer.Argument(help="recording directory")])
                f"{'yes' if (recording / 'truth').is_dir() else 'no'}")
 
 
+Spawn = Annotated[bool, typer.Option("--spawn", help="also stream to a live rerun viewer (needs a display)")]
+Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="no progress bars or summary")]
+ViewerPoints = Annotated[int, typer.Option(help="returns drawn per cloud in run.rrd (a random subset)", min=1000)]
+
+
+def calibration_config(mode: str, config: Path | None, overrides: dict | None = None):
+    """CalibrationConfig from --mode, the YAML file of settings and overrides, or ConfigError."""
+    import pydantic
+
+    from graphcal.calibration.config import CalibrationConfig
+    from graphcal.errors import ConfigError
+    from graphcal.yamlfile import read_yaml
+
+    settings = (read_yaml(config) or {}) if config is not None else {}
+    if not isinstance(settings, dict):
+        raise ConfigError(f"{config}: not a mapping of CalibrationConfig settings (name: value per line)")
+    try:
+        return CalibrationConfig(**{"mode": mode, **settings, **(overrides or {})})
+    except pydantic.ValidationError as error:
+        first = error.errors()[0]
+        raise ConfigError(f"{config or '--mode'}: {'.'.join(map(str, first['loc']))}: {first['msg']}") from None
+
+
 @app.command()
 @_clear_errors
 def calibrate(recording: Annotated[Path, typer.Argument(help="recording directory")],
               mode: Annotated[str, typer.Option(help="intrinsic, extrinsic, trajectory, joint, joint_trajectory, "
                                                      "extrinsic_then_intrinsic, intrinsic_then_extrinsic")] = "intrinsic",
               config: Annotated[Path | None, typer.Option(help="YAML file of CalibrationConfig settings")] = None,
-              out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-<UTC time>)")] = None,
-              quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
-    """Self-calibrate a recording; writes calibration.yaml, config, history and residuals."""
-    import datetime
+              out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-calibrate-<UTC time>)")] = None,
+              evaluate: Annotated[bool, typer.Option(help="compare with truth/ when the recording has one")] = True,
+              spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, quiet: Quiet = False) -> None:
+    """Self-calibrate a recording into a run folder: results, run.rrd, report.html.
 
-    from graphcal.calibration.calibrate import calibrate as run
-    from graphcal.recording import Recording
+    The run folder gets calibration.yaml (estimates, 1-sigmas, unobservable parameters),
+    config.yaml, history.csv, residuals.parquet, pairs_nominal.parquet, pairs_calibrated.parquet,
+    evaluation.yaml (with truth), run.rrd, report.html and run.yaml (seconds per stage).
 
-    chosen = _calibration_config(mode, config)
-    rec = Recording.load(recording)
-    result = run(rec, chosen, quiet=quiet)
-    stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%dT%H%M%SZ")
-    folder = out or Path("runs") / f"{rec.name}-{stamp}"
-    path = result.save(folder, command=" ".join(["graphcal"] + sys.argv[1:]))
+    Example: graphcal calibrate out/sim6_turn --mode trajectory --spawn
+    """
+    from graphcal.runs import calibration_run
+
+    run = calibration_run(recording, calibration_config(mode, config), out, spawn, evaluate, viewer_points,
+                          quiet=quiet)
     if not quiet:
-        before, after = result.energy_cm2
-        typer.echo(f"J {before:.3g} -> {after:.3g} cm^2 in {result.seconds:.1f} s; wrote {path}")
-        if result.unobservable:
-            typer.echo(f"unobservable (held at nominal): {', '.join(result.unobservable)}")
+        _print_calibration(run)
+
+
+def _print_calibration(run) -> None:
+    result, evaluation = run.result, run.evaluation
+    before, after = result.energy_cm2
+    typer.echo(f"J {before:.3g} -> {after:.3g} cm^2 in {result.seconds:.1f} s ({len(result.history)} outer iterations)")
+    if result.unobservable:
+        typer.echo(f"unobservable (held at nominal): {', '.join(result.unobservable)}")
+    if evaluation is not None:
+        typer.echo(f"against truth, cloud-to-cloud mean {evaluation.cloud_before.mean * 100:.3g} -> "
+                   f"{evaluation.cloud_after.mean * 100:.3g} cm ({evaluation.cloud_after_gauge_free.mean * 100:.3g} cm "
+                   "once the unobservable common motion is removed)")
+    typer.echo(f"wrote {run.folder}: calibration.yaml, report.html, run.rrd")
+    typer.echo(f"open {run.folder / 'report.html'} in a browser; graphcal view {run.folder}")
 
 
 @app.command()
@@ -102,55 +142,24 @@ def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory
              mode: Annotated[str, typer.Option(help="calibration mode of the nominal model (see calibrate)")] = "joint",
              config: Annotated[Path | None, typer.Option(help="YAML file of CalibrationConfig settings")] = None,
              max_effects: Annotated[int, typer.Option(help="most effects added")] = 3,
-             out: Annotated[Path | None, typer.Option(help="output folder (default runs/<name>-diagnose-<UTC time>)")] = None,
-             quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+             out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-diagnose-<UTC time>)")] = None,
+             spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, quiet: Quiet = False) -> None:
     """Find where the model and the recording disagree, name the physics left out, model it, show the
-    fit improve; writes diagnosis.json (and the re-solved calibration)."""
-    import datetime
+    fit improve (docs/diagnose.md).
 
-    from graphcal.recording import Recording
+    The run folder gets diagnosis.json, the re-solved calibration in calibration/ (its effects
+    listed), run.rrd (the residual field) and run.yaml (seconds per stage).
 
-    chosen = _calibration_config(mode, config)
-    rec = Recording.load(recording)
-    if simulation is not None:
-        from graphcal.diagnosis.compare import compare
+    Example: graphcal diagnose out/concealed --mode joint
+    """
+    from graphcal.runs import diagnosis_run
 
-        result = compare(rec, Recording.load(simulation), max_points=chosen.max_points)
-    elif rescan:
-        from graphcal.calibration.calibrate import calibrate as fit
-        from graphcal.diagnosis.compare import compare
-        from graphcal.diagnosis.rescan import rescan as simulate_on_mesh
-
-        estimate = fit(rec, chosen, quiet=quiet).calibration.estimate
-        result = compare(rec, simulate_on_mesh(rec, estimate, chosen.max_points), max_points=chosen.max_points,
-                         estimate=estimate)
-    else:
-        from graphcal.diagnosis.diagnose import diagnose as run
-
-        result = run(rec, chosen, max_effects=max_effects, quiet=quiet)
-    stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%dT%H%M%SZ")
-    path = result.save(out or Path("runs") / f"{rec.name}-diagnose-{stamp}")
+    run = diagnosis_run(recording, calibration_config(mode, config), simulation, rescan, max_effects, out, spawn,
+                        viewer_points, quiet)
     if not quiet:
-        typer.echo(result.summary())
-        typer.echo(f"wrote {path} in {result.seconds:.1f} s")
-
-
-def _calibration_config(mode: str, config: Path | None):
-    """CalibrationConfig from --mode and an optional YAML file, or ConfigError naming the setting."""
-    import pydantic
-
-    from graphcal.calibration.config import CalibrationConfig
-    from graphcal.errors import ConfigError
-    from graphcal.yamlfile import read_yaml
-
-    settings = (read_yaml(config) or {}) if config is not None else {}
-    if not isinstance(settings, dict):
-        raise ConfigError(f"{config}: not a mapping of CalibrationConfig settings (name: value per line)")
-    try:
-        return CalibrationConfig(**{"mode": mode, **settings})
-    except pydantic.ValidationError as error:
-        first = error.errors()[0]
-        raise ConfigError(f"{config or '--mode'}: {'.'.join(map(str, first['loc']))}: {first['msg']}") from None
+        typer.echo(run.diagnosis.summary())
+        typer.echo(f"wrote {run.folder}: diagnosis.json, run.rrd in {run.diagnosis.seconds:.1f} s; "
+                   f"graphcal view {run.folder}")
 
 
 @app.command()
@@ -158,40 +167,115 @@ def _calibration_config(mode: str, config: Path | None):
 def deskew(recording: Annotated[Path, typer.Argument(help="recording directory")],
            source: Annotated[str, typer.Option(help="motion during the sweep: ins, odometry, or none (raw scans)")] = "ins",
            cloud_format: Annotated[str, typer.Option("--format", help="ply, las, laz, or uos (3DTK .3d)")] = "ply",
-           out: Annotated[Path | None, typer.Option(help="output folder (default out/<name>-deskew-<source>)")] = None,
+           out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-deskew-<source>-<UTC time>)")]
+           = None,
            gyro: Annotated[bool, typer.Option(help="odometry: yaw from the gyro column when there is one")] = True,
-           quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
-    """Deskew every revolution into its end-of-scan lidar frame (seed 002): one cloud and one 3DTK
-    pose per revolution, poses.csv and deskew.yaml."""
+           spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, quiet: Quiet = False) -> None:
+    """Deskew every revolution into its end-of-scan lidar frame (seed 002).
+
+    The run folder gets one cloud and one 3DTK pose per revolution, poses.csv, deskew.yaml,
+    run.rrd (raw vs deskewed) and run.yaml."""
     from graphcal.cloud_io import FORMATS
-    from graphcal.deskewing import SOURCES, iter_scans
+    from graphcal.deskewing import SOURCES
     from graphcal.errors import ConfigError
-    from graphcal.recording import Recording
-    from graphcal.scan_files import save_scans
+    from graphcal.runs import deskew_run
 
     if source not in SOURCES:
         raise ConfigError(f"--source {source!r}: expected one of {', '.join(SOURCES)}")
     if cloud_format not in FORMATS:
         raise ConfigError(f"--format {cloud_format!r}: expected one of {', '.join(FORMATS)}")
     started = time.perf_counter()
-    rec = Recording.load(recording)
-    folder = out or Path("out") / f"{rec.name}-deskew-{source}"
-    manifest = {"recording": str(recording), "source": source, "gyro": gyro, "crs": rec.world.crs.to_string()}
-    save_scans(iter_scans(rec, source, use_gyro=gyro, quiet=quiet), folder, cloud_format, manifest)
+    folder, scans = deskew_run(recording, source, cloud_format, out, gyro, spawn, viewer_points, quiet)
     if not quiet:
-        typer.echo(f"{len(rec.points):,} returns deskewed ({source}) into {folder} in "
-                   f"{time.perf_counter() - started:.1f} s")
+        typer.echo(f"{scans} revolutions deskewed ({source}) into {folder} in {time.perf_counter() - started:.1f} s; "
+                   f"graphcal view {folder}")
+
+
+@app.command("evaluate")
+@_clear_errors
+def evaluate_command(calibration: Annotated[Path, typer.Argument(help="run folder or calibration.yaml")],
+                     recording: Annotated[Path, typer.Argument(help="simulated recording directory (with truth/)")],
+                     quiet: Quiet = False) -> None:
+    """Compare a calibration with the recording's truth/ and print the table.
+
+    Writes evaluation.yaml next to calibration.yaml (and refreshes report.html when there is one)."""
+    from graphcal.runs import evaluation_run
+
+    evaluation, path = evaluation_run(calibration, recording, quiet)
+    typer.echo(evaluation.table())
+    if not quiet:
+        typer.echo(f"wrote {path}")
+
+
+@app.command("apply")
+@_clear_errors
+def apply_command(calibration: Annotated[Path, typer.Argument(help="run folder or calibration.yaml")],
+                  recording: Annotated[Path, typer.Argument(help="recording directory")],
+                  out: Annotated[Path | None, typer.Option(help=".las, .laz or .ply file (default: cloud.laz in a "
+                                                                 "run folder runs/<name>-apply-<UTC time>)")] = None,
+                  quiet: Quiet = False) -> None:
+    """Write the recording's cloud corrected by a calibration (LAS, LAZ or PLY).
+
+    World CRS coordinates (the CRS in the LAS header), GPS time, intensity, and fibre and
+    residual_m as extra dimensions."""
+    from graphcal.runs import apply_run
+
+    path = apply_run(calibration, recording, out, quiet)
+    if not quiet:
+        typer.echo(f"wrote {path}")
 
 
 @app.command()
 @_clear_errors
-def demo(out: Annotated[Path, typer.Option(help="where to write the demo recording")] = Path("out/demo"),
-         size: Annotated[float, typer.Option(help="fraction of the sensor's firings kept")] = 1.0,
-         quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
-    """Flagship demo: simulate sim6_turn and measure how blurred the nominal cloud is."""
+def report(run_folder: Annotated[Path, typer.Argument(help="calibration run folder")], quiet: Quiet = False) -> None:
+    """Write report.html (self-contained: figures inside) from a calibration run folder."""
+    from graphcal.report.html import write_report
+
+    path = write_report(run_folder)
+    if not quiet:
+        typer.echo(f"wrote {path}")
+
+
+@app.command()
+@_clear_errors
+def view(run: Annotated[Path, typer.Argument(help="run folder (its run.rrd) or an .rrd file")],
+         web: Annotated[bool, typer.Option(help="serve the web viewer over HTTP instead (no display needed)")] = False,
+         port: Annotated[int, typer.Option(help="--web: HTTP port of the web viewer")] = 9090) -> None:
+    """Open a run in the rerun viewer (its layout is in the file)."""
+    import subprocess
+
+    from graphcal.errors import ConfigError, RecordingError
+    from graphcal.viz.stream import RRD, no_viewer_reason, viewer_executable
+
+    path = run / RRD if run.is_dir() else run
+    if not path.is_file():
+        raise RecordingError(path, "file not found", expected="a run folder with run.rrd, or an .rrd file")
+    if web:
+        if viewer_executable() is None:
+            raise ConfigError("the rerun viewer executable is not installed (pip install rerun-sdk)")
+        typer.echo(f"serving {path} at http://localhost:{port} (Ctrl-C stops)")
+        sys.exit(subprocess.call([viewer_executable(), "--web-viewer", "--web-viewer-port", str(port), str(path)]))
+    reason = no_viewer_reason()
+    if reason is not None:
+        raise ConfigError(f"cannot open the viewer here: {reason}; use graphcal view {run} --web, or open {path} "
+                          "with `rerun` on a machine with a screen")
+    subprocess.Popen([viewer_executable(), str(path)], start_new_session=True)
+    typer.echo(f"opened {path} in the rerun viewer")
+
+
+@app.command()
+@_clear_errors
+def demo(out: Annotated[Path, typer.Option(help="folder of the demo: its recording and its run")] = Path("out/demo"),
+         size: Annotated[float, typer.Option(help="fraction of the sensor's firings kept")] = 0.5,
+         max_points: Annotated[int, typer.Option(help="returns the calibration draws", min=1000)] = 250_000,
+         spawn: Spawn = False, quiet: Quiet = False) -> None:
+    """Flagship demo, end to end: simulate, calibrate, evaluate, run.rrd, report.
+
+    Simulates sim6_turn, calibrates its trajectory, compares with truth, writes run.rrd and
+    report.html, and says what to open (2 to 2.5 minutes on 2 shared cores)."""
     from graphcal.demo import run_demo
 
-    run_demo(out, size=size, quiet=quiet)
+    run_demo(out, size=size, max_points=max_points, spawn=spawn, quiet=quiet)
 
 
 import_app = typer.Typer(help="Import real data into the recording format (docs/importers.md).", no_args_is_help=True)

@@ -2,23 +2,27 @@
 
 Every writer takes xyz (N,3) [m] and named per-point columns (time [s], fibre, intensity ...),
 which become PLY properties or LAS extra dimensions ("time" is the LAS GPS time and
-"intensity" the LAS intensity, 0-255 as recorded).
+"intensity" the LAS intensity, 0-255 as recorded). A pyproj CRS, when given, goes into the LAS
+header (WKT VLR) and into a PLY comment line ("comment crs <EPSG or WKT>").
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 from graphcal.atomic import atomic_path
-from graphcal.errors import RecordingError
+from graphcal.errors import ConfigError, RecordingError
 
 FORMATS = ("ply", "las", "laz", "uos")
 # the PLY types that common readers (open3d, CloudCompare) all take; other integers become int
 _PLY_TYPES = {np.dtype(np.float64): "double", np.dtype(np.float32): "float", np.dtype(np.int32): "int",
               np.dtype(np.uint8): "uchar"}
 LAS_SCALE_M = 1e-4  # coordinates stored to 0.1 mm
+LAS_MAX_SPAN_M = (2**31 - 1) * LAS_SCALE_M  # int32 steps from the offset: 214 km
 
 
 def _columns(xyz_m: np.ndarray, columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -34,49 +38,99 @@ def _columns(xyz_m: np.ndarray, columns: dict[str, np.ndarray]) -> dict[str, np.
     return out
 
 
-def write_ply(path: str | Path, xyz_m: np.ndarray, **columns: np.ndarray) -> Path:
+def write_ply(path: str | Path, xyz_m: np.ndarray, *, crs=None, **columns: np.ndarray) -> Path:
     """Binary little-endian PLY: x, y, z as double, then each column with its own type."""
-    fields = _columns(xyz_m, columns)
-    record = np.empty(len(xyz_m), dtype=[(name, values.dtype.newbyteorder("<")) for name, values in fields.items()])
-    for name, values in fields.items():
-        record[name] = values
-    header = ["ply", "format binary_little_endian 1.0", "comment written by graphcal",
-              f"element vertex {len(record)}"]
-    header += [f"property {_PLY_TYPES[values.dtype]} {name}" for name, values in fields.items()]
-    header += ["end_header"]
+    with ply_writer(path, len(xyz_m), crs=crs) as write:
+        write(xyz_m, **columns)
+    return Path(path)
+
+
+@contextmanager
+def ply_writer(path: str | Path, n_points: int, *, crs=None) -> Iterator[Callable[..., None]]:
+    """write(xyz_m, **columns) chunk by chunk into one PLY of n_points (the header says how many
+    first); every chunk has the same columns. The file appears when all n_points are written."""
     path = Path(path)
     with atomic_path(path) as tmp, open(tmp, "wb") as stream:
-        stream.write(("\n".join(header) + "\n").encode("ascii"))
-        stream.write(record.tobytes())
-    return path
+        written = 0
+
+        def write(xyz_m: np.ndarray, **columns: np.ndarray) -> None:
+            nonlocal written
+            fields = _columns(xyz_m, columns)
+            if stream.tell() == 0:
+                header = ["ply", "format binary_little_endian 1.0", "comment written by graphcal"]
+                if crs is not None:
+                    header.append(f"comment crs {crs.to_string() if crs.to_epsg() else crs.to_wkt()}")
+                header.append(f"element vertex {n_points}")
+                header += [f"property {_PLY_TYPES[values.dtype]} {name}" for name, values in fields.items()]
+                stream.write(("\n".join(header + ["end_header"]) + "\n").encode("ascii"))
+            record = np.empty(len(xyz_m), dtype=[(name, v.dtype.newbyteorder("<")) for name, v in fields.items()])
+            for name, values in fields.items():
+                record[name] = values
+            stream.write(record.tobytes())
+            written += len(record)
+
+        yield write
+        if n_points == 0:
+            write(np.empty((0, 3)))  # the header alone
+        if written != n_points:
+            raise ValueError(f"{path}: {written} points written, the header says {n_points}")
 
 
-def write_las(path: str | Path, xyz_m: np.ndarray, **columns: np.ndarray) -> Path:
-    """LAS 1.4 point format 6 (LAZ when the name ends in .laz), coordinates to 0.1 mm.
+def write_las(path: str | Path, xyz_m: np.ndarray, *, crs=None, **columns: np.ndarray) -> Path:
+    """LAS 1.4 point format 6 (LAZ when the name ends in .laz), coordinates to 0.1 mm from an
+    offset at the cloud's minimum corner (whole metres), the pyproj `crs` in the header.
 
     "time" fills the GPS time [s] and "intensity" the intensity; other columns are extra
     dimensions of their own type."""
+    offset = np.floor(np.asarray(xyz_m, dtype=np.float64).min(axis=0)) if len(xyz_m) else np.zeros(3)
+    with las_writer(path, offset, crs=crs) as write:
+        write(xyz_m, **columns)
+    return Path(path)
+
+
+@contextmanager
+def las_writer(path: str | Path, offset_m: np.ndarray, *, crs=None) -> Iterator[Callable[..., None]]:
+    """write(xyz_m, **columns) chunk by chunk into one LAS 1.4 / LAZ file (as write_las), the
+    coordinates stored as integers of LAS_SCALE_M from offset_m (whole metres near the cloud):
+    a point LAS_MAX_SPAN_M or more from it is refused. The header (bounds, counts) is completed
+    at the end and the file appears then."""
     import laspy
 
     path = Path(path)
-    fields = _columns(xyz_m, columns)
     header = laspy.LasHeader(point_format=6, version="1.4")
-    xyz_m = np.asarray(xyz_m, dtype=np.float64)
-    header.offsets = np.floor(xyz_m.min(axis=0)) if len(xyz_m) else np.zeros(3)
-    header.scales = np.full(3, LAS_SCALE_M)
-    extra = [name for name in fields if name not in ("x", "y", "z", "time", "intensity")]
-    header.add_extra_dims([laspy.ExtraBytesParams(name=name, type=fields[name].dtype) for name in extra])
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = fields["x"], fields["y"], fields["z"]
-    if "time" in fields:
-        las.gps_time = fields["time"]
-    if "intensity" in fields:
-        las.intensity = np.clip(np.rint(fields["intensity"]), 0, 65535).astype(np.uint16)
-    for name in extra:
-        las[name] = fields[name]
+    header.offsets, header.scales = np.asarray(offset_m, dtype=np.float64), np.full(3, LAS_SCALE_M)
+    if crs is not None:
+        header.add_crs(crs)
     with atomic_path(path) as tmp, open(tmp, "wb") as stream:
-        las.write(stream, do_compress=path.suffix.lower() == ".laz")
-    return path
+        writer = None
+
+        def write(xyz_m: np.ndarray, **columns: np.ndarray) -> None:
+            nonlocal writer
+            fields = _columns(xyz_m, columns)
+            extra = [name for name in fields if name not in ("x", "y", "z", "time", "intensity")]
+            if writer is None:
+                header.add_extra_dims([laspy.ExtraBytesParams(name=name, type=fields[name].dtype) for name in extra])
+                writer = laspy.open(stream, mode="w", header=header, do_compress=path.suffix.lower() == ".laz",
+                                    closefd=False)
+            xyz = np.asarray(xyz_m, dtype=np.float64)
+            if len(xyz) and np.abs(xyz - header.offsets).max() >= LAS_MAX_SPAN_M:
+                raise ConfigError(f"{path}: points {np.abs(xyz - header.offsets).max() / 1e3:.0f} km from the "
+                                  f"LAS offset, more than integers hold at {LAS_SCALE_M} m steps "
+                                  f"({LAS_MAX_SPAN_M / 1e3:.0f} km): write a PLY")
+            points = laspy.ScaleAwarePointRecord.zeros(len(xyz), header=header)
+            points.x, points.y, points.z = fields["x"], fields["y"], fields["z"]
+            if "time" in fields:
+                points.gps_time = fields["time"]
+            if "intensity" in fields:
+                points.intensity = np.clip(np.rint(fields["intensity"]), 0, 65535).astype(np.uint16)
+            for name in extra:
+                points[name] = fields[name]
+            writer.write_points(points)
+
+        yield write
+        if writer is None:
+            write(np.empty((0, 3)))  # the header alone
+        writer.close()
 
 
 # 3DTK works in a left-handed frame, x right, y up, z forward, in cm; its own readers map a
@@ -92,13 +146,13 @@ def write_uos(path: str | Path, xyz_m: np.ndarray) -> Path:
     return Path(path)
 
 
-def write_cloud(path: str | Path, xyz_m: np.ndarray, **columns: np.ndarray) -> Path:
-    """Write by the file's suffix: .ply, .las, .laz or .3d (uos, xyz only)."""
+def write_cloud(path: str | Path, xyz_m: np.ndarray, *, crs=None, **columns: np.ndarray) -> Path:
+    """Write by the file's suffix: .ply, .las, .laz or .3d (uos, xyz only, no CRS)."""
     suffix = Path(path).suffix.lower()
     if suffix == ".ply":
-        return write_ply(path, xyz_m, **columns)
+        return write_ply(path, xyz_m, crs=crs, **columns)
     if suffix in (".las", ".laz"):
-        return write_las(path, xyz_m, **columns)
+        return write_las(path, xyz_m, crs=crs, **columns)
     if suffix == ".3d":
         return write_uos(path, xyz_m)
     raise ValueError(f"{path}: unknown point cloud suffix (expected .ply, .las, .laz or .3d)")

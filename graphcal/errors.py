@@ -36,3 +36,7 @@ def finite_number(value, path: str | Path, field: str) -> float:
 
 class ConfigError(GraphcalError, ValueError):
     """Invalid user configuration (scenario, calibration settings)."""
+
+
+class CalibrationError(GraphcalError):
+    """A calibration that reached a wrong answer it can recognise (e.g. collapsed fibres)."""

@@ -39,6 +39,12 @@ class Concealment:
     lever_arm_error_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
+# prior [deg] on the fibres' azimuth and elevation offsets of the nominal model's calibration (the
+# intrinsics are exact here: a factory calibration good to a few hundredths of a degree). With the
+# default 10 deg, the joint baseline at sizes 0.02-0.04 slides to the minimum where neighbouring
+# fibres' cones merge, which graphcal.calibrate refuses (CalibrationError).
+ANGLE_PRIOR_DEG = 0.05
+
 CONCEALED = {
     "time_offset": Concealment({"time_offset": {"offset_s": 0.005}}, 0.005, "joint",
                                "the lever arm along x: at constant speed a latency is a fixed shift along the track"),

@@ -13,20 +13,28 @@ import os
 
 import numpy as np
 import pytest
+import yaml
+from rerun.chunk import RrdReader
+from rrd_read import chunks, column
+from scipy.spatial import cKDTree
 from typer.testing import CliRunner
 
 import graphcal
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.cli import app
+from graphcal.runs import diagnosis_run
 from graphcal.sim.script import load_scenario_builder
 
 CONCEALED_SCENARIO = load_scenario_builder("concealed")
 CONCEALED = CONCEALED_SCENARIO.__globals__["CONCEALED"]
+ANGLE_PRIOR_DEG = CONCEALED_SCENARIO.__globals__["ANGLE_PRIOR_DEG"]
 SIZE = 0.02
+VIEWER_POINTS = 5000
 
 
 def config(mode: str = "joint", max_points: int = 40_000) -> CalibrationConfig:
-    return CalibrationConfig(mode=mode, max_outer_iterations=3, max_points=max_points, tolerance_m=1e-3)
+    return CalibrationConfig(mode=mode, max_outer_iterations=3, max_points=max_points, tolerance_m=1e-3,
+                             intrinsic_sigma_angle_deg=ANGLE_PRIOR_DEG)
 
 
 def recording(tmp_path_factory, name: str, **kwargs):
@@ -41,8 +49,11 @@ def clean(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def two_effects(tmp_path_factory):
+    """The two-effect recording diagnosed as `graphcal diagnose` does, into a run folder."""
     rec = recording(tmp_path_factory, "two", effect="time_offset", effects=("azimuth_eccentricity",))
-    return rec, graphcal.diagnose(rec, config(), max_effects=2, refit_iterations=3, quiet=True)
+    run = diagnosis_run(rec.path, config(), max_effects=2, out=tmp_path_factory.mktemp("runs") / "run",
+                        viewer_points=VIEWER_POINTS, quiet=True)
+    return rec, run
 
 
 def test_clean_recording_gets_no_false_alarm(clean):
@@ -53,8 +64,9 @@ def test_clean_recording_gets_no_false_alarm(clean):
     assert "no left-out effect is significant" in diagnosis.summary()
 
 
-def test_two_concealed_effects_are_both_found_and_sized(two_effects, tmp_path):
-    rec, diagnosis = two_effects
+def test_two_concealed_effects_are_both_found_and_sized(two_effects):
+    rec, run = two_effects
+    diagnosis = run.diagnosis
     truth = rec.truth.effects
     found = {f["effect"]: f for f in diagnosis.findings}
     assert set(found) == {"time_offset", "azimuth_eccentricity"}, diagnosis.summary()
@@ -65,14 +77,37 @@ def test_two_concealed_effects_are_both_found_and_sized(two_effects, tmp_path):
         assert finding["energy_cm2"]["held_out_after"] < finding["energy_cm2"]["held_out_before"]
         assert finding["evidence"]["p_value"] < 1e-4 and np.isfinite(finding["sigma"]) and finding["sigma"] > 0
     assert diagnosis.energy_cm2["after"] < diagnosis.energy_cm2["before"]
-    path = diagnosis.save(tmp_path / "run")
-    saved = json.loads(path.read_text())
+
+
+def test_diagnosis_run_folder(two_effects):
+    """diagnosis.json, the re-solved calibration with its effects, run.yaml's stages, and run.rrd read
+    back with rerun's reader: the residual field of the final fit (at most VIEWER_POINTS pairs, local
+    coordinates) and the binned effects."""
+    rec, run = two_effects
+    diagnosis, folder = run.diagnosis, run.folder
+    saved = json.loads((folder / "diagnosis.json").read_text())
     assert saved["format"] == "graphcal-diagnosis/1"
     assert [f["effect"] for f in saved["findings"]] == [f["effect"] for f in diagnosis.findings]
     assert "ms" in saved["findings"][0]["statement"] or "deg" in saved["findings"][0]["statement"]
-    calibration = (tmp_path / "run" / "calibration" / "calibration.yaml").read_text()
+    calibration = (folder / "calibration" / "calibration.yaml").read_text()
     assert "time_offset" in calibration and "azimuth_eccentricity" in calibration
-    assert (tmp_path / "run" / "residuals.rrd").stat().st_size > 1000
+    manifest = yaml.safe_load((folder / "run.yaml").read_text())
+    assert manifest["command"] == "diagnose" and manifest["recording"] == str(rec.path.resolve())
+    for stage in ("load and validate the recording", "diagnose", "save results", "viewer file"):
+        assert manifest["timings_s"][stage] >= 0.0, stage
+    assert len(RrdReader(folder / "run.rrd").blueprints()) == 1
+    found = chunks(folder / "run.rrd")
+    expected = {"/summary", "/world/residual/by_residual", "/world/residual/by_time_s", "/binned/fibre",
+                "/binned/azimuth_deg"}
+    assert expected <= set(found), expected - set(found)
+    (positions,) = column(found["/world/residual/by_residual"], "Points3D:positions")
+    fit = diagnosis.fit
+    paired = fit.points_m[fit.pairs.index_p]
+    assert len(positions) == min(len(paired), VIEWER_POINTS)
+    distance, _ = cKDTree(paired).query(np.array(positions))
+    assert distance.max() < 1e-3  # the final fit's points p, local coordinates (float32)
+    ((summary,),) = column(found["/summary"], "TextDocument:text")
+    assert diagnosis.findings[0]["statement"] in summary and "local origin" in summary
 
 
 def test_recording_against_a_simulation_of_the_same_drive(clean, tmp_path_factory, tmp_path):
@@ -80,6 +115,8 @@ def test_recording_against_a_simulation_of_the_same_drive(clean, tmp_path_factor
     result = CliRunner().invoke(app, ["diagnose", str(rec.path), "--simulation", str(clean.path), "--out",
                                       str(tmp_path / "run"), "-q"])
     assert result.exit_code == 0, result.output
+    manifest = yaml.safe_load((tmp_path / "run" / "run.yaml").read_text())
+    assert manifest["simulation"] == str(clean.path.resolve()) and (tmp_path / "run" / "run.rrd").is_file()
     saved = json.loads((tmp_path / "run" / "diagnosis.json").read_text())
     assert saved["findings"][0]["effect"] == "time_offset"
     assert saved["findings"][0]["magnitude"] == pytest.approx(CONCEALED["time_offset"].magnitude, rel=0.2)
@@ -105,7 +142,7 @@ def test_each_concealed_effect_is_named_first_and_sized(effect, tmp_path_factory
     rec = graphcal.Recording.load(graphcal.simulate(CONCEALED_SCENARIO(size=0.04, seed=1, effect=effect), quiet=True)
                                   .save(tmp_path_factory.mktemp("sim") / effect))
     settings = CalibrationConfig(mode=CONCEALED[effect].mode, max_outer_iterations=6, max_points=80_000,
-                                 tolerance_m=1e-4)
+                                 tolerance_m=1e-4, intrinsic_sigma_angle_deg=ANGLE_PRIOR_DEG)
     diagnosis = graphcal.diagnose(rec, settings, max_effects=1, quiet=True)
     assert diagnosis.findings and diagnosis.findings[0]["effect"] == effect, diagnosis.summary()
     assert diagnosis.findings[0]["magnitude"] == pytest.approx(CONCEALED[effect].magnitude, rel=0.2)

@@ -62,11 +62,14 @@ def test_cli_bad_input_is_one_clear_line(tmp_path):
     assert result.exit_code == 2 and "sim6_turn" in result.output and "Traceback" not in result.output
 
 
-def test_demo_measures_the_blur_of_the_nominal_cloud(tmp_path):
-    figures = run_demo(tmp_path / "demo", size=0.02, quiet=True)
-    # a 13 cm piecewise-linear trajectory error: centimetres of blur, not millimetres or metres
-    assert 0.02 < figures["per_point_error"].mean < 0.3
-    assert figures["cloud_to_cloud"].mean <= figures["per_point_error"].mean
+def test_demo_runs_end_to_end_and_sharpens_the_cloud(tmp_path):
+    figures = run_demo(tmp_path / "demo", size=0.01, max_points=5000, max_outer_iterations=2, quiet=True)
+    # a 0.35 m piecewise-linear INS error: centimetres of blur, not millimetres or metres
+    assert 0.02 < figures["cloud_before"].mean < 0.3
+    assert figures["cloud_after_gauge_free"].mean < figures["cloud_before"].mean
+    assert figures["energy_cm2"][1] < figures["energy_cm2"][0]
+    for name in ("recording/recording.yaml", "calibration.yaml", "run.rrd", "report.html", "run.yaml"):
+        assert (tmp_path / "demo" / name).is_file(), name
 
 
 def test_cli_calibrate_writes_a_run_folder_and_rejects_a_bad_config(tmp_path):

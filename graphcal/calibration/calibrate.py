@@ -43,6 +43,7 @@ from graphcal.calibration.solve import (
     hold_at_nominal,
     solve_stage,
 )
+from graphcal.errors import CalibrationError
 from graphcal.intrinsics import offsets_to_file_units
 from graphcal.recording import Recording
 
@@ -60,29 +61,67 @@ def calibrate(recording: Recording, config: CalibrationConfig | None = None, qui
 
 def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> CalibrationResult:
     started = time.perf_counter()
+    timings = {}  # stage -> seconds
     data = prepare(recording, config.control_interval_s, config.max_points, np.random.default_rng(config.seed))
+    timings["prepare"] = time.perf_counter() - started
     estimate = initial_estimate(recording, data)
     nominal = estimate.extrinsic
     priors = Priors.of(config, data.sensor.n_fibres, len(data.control_times_s))
     stages = STAGES.get(config.mode, (config.mode,))
     estimated = tuple(any(ESTIMATES[stage][k] for stage in stages) for k in range(3))
     history = History()
-    for stage in stages:
-        estimate = solve_stage(data, estimate, config, stage, ESTIMATES[stage], nominal, priors, history, quiet)
-    final = final_fit(data, estimate, config, estimated, nominal, priors)
+
+    def timed(name: str, work, *args):
+        mark = time.perf_counter()
+        out = work(*args)
+        timings[name] = time.perf_counter() - mark
+        return out
+
+    def run_stages(estimate: Estimate, priors: Priors, label: str = "") -> Estimate:
+        for stage in stages:
+            estimate = timed(f"solve {stage}{label}", solve_stage, data, estimate, config, stage + label,
+                             ESTIMATES[stage], nominal, priors, history, quiet)
+        return estimate
+
+    estimate = run_stages(estimate, priors)
+    final = timed("final fit and marginals", final_fit, data, estimate, config, estimated, nominal, priors)
     unobservable = final.uncertainty.unobservable()
-    if unobservable:  # hold them at nominal and solve again: they must not drag the others
+    if unobservable:  # hold them at nominal and run the stages again: they must not drag the others
         priors = holding(priors, unobservable)
-        estimate = hold_at_nominal(solve_stage(data, hold_at_nominal(estimate, priors, nominal), config,
-                                               "unobservable held", estimated, nominal, priors, history, quiet),
+        # stage by stage still: successive modes must not turn joint here
+        estimate = hold_at_nominal(run_stages(hold_at_nominal(estimate, priors, nominal), priors, ", unobservable held"),
                                    priors, nominal)
-        final = final_fit(data, estimate, config, estimated, nominal, priors)
+        final = timed("final fit and marginals, unobservable held", final_fit, data, estimate, config, estimated,
+                      nominal, priors)
+    if estimated[0]:
+        check_fibres_apart(data.sensor.elevation_deg, estimate.offsets[:, 2], recording)
     if estimated[2]:
         unobservable += list(TRAJECTORY_GAUGE[:2 if config.pose_corrections else 1])
     calibration = Calibration(data.sensor.model, data.sensor.reference_fibre, estimate, data.control_times_s,
                               tuple(unobservable))
     return CalibrationResult(calibration, final.uncertainty, estimated, history.rows, data.rows[final.pairs.index_p],
-                             final.residual_m, final.pairs.weight, config, time.perf_counter() - started)
+                             final.residual_m, final.pairs.weight, config, time.perf_counter() - started, timings)
+
+
+# calibrated elevations spread over less than this fraction of the nominal ones: the fibres collapsed
+COLLAPSE_RATIO = 0.5
+
+
+def check_fibres_apart(elevation_deg: np.ndarray, d_elevation_rad: np.ndarray, recording: Recording) -> None:
+    """Raise CalibrationError when the fibres' calibrated elevations have collapsed together.
+
+    The self-consistency energy has a trivial minimum: fibres that sweep one cone see the same
+    points, and every point-to-plane distance between them vanishes. A run that starts far from
+    the truth, or stops early, can slide towards it (J falls while the cloud gets worse); no
+    real sensor has its beams' spread halved, so such a result is refused, not returned."""
+    calibrated = elevation_deg + np.degrees(d_elevation_rad)
+    nominal_spread, spread = float(np.std(elevation_deg)), float(np.std(calibrated))
+    if spread < COLLAPSE_RATIO * nominal_spread:
+        raise CalibrationError(
+            f"{recording.path or recording.name}: the fibres' calibrated elevations collapsed together (spread "
+            f"{spread:.2f} deg against {nominal_spread:.2f} deg nominal): a degenerate minimum where neighbouring "
+            "fibres coincide, not a calibration; start closer to the truth (smaller offsets), allow more outer "
+            "iterations (max_outer_iterations), or tighten the angle prior (intrinsic_sigma_angle_deg)")
 
 
 class FinalFit:

@@ -27,19 +27,22 @@ def apply_calibration(calibration: Calibration, recording: Recording) -> np.ndar
     """World coordinates [m, the recording's projected CRS] of every return with the
     calibration's offsets, extrinsic and trajectory corrections (interpolated at each return's
     time; held at the first/last control outside their span). Shape (N, 3), recording order."""
-    return _world(calibration, _returns_for(calibration, recording))
+    return world_of(calibration, returns_for(calibration, recording))
 
 
-def _returns_for(calibration: Calibration, recording: Recording) -> ReturnData:
-    """Every return of the recording, placed between the calibration's control times."""
+def returns_for(calibration: Calibration, recording: Recording, max_points: int | None = None,
+                seed: int = 0) -> ReturnData:
+    """Every return of the recording (or the random subset of max_points that calibrate draws
+    with this seed), placed between the calibration's control times."""
     if calibration.sensor_model != recording.sensor.model:
         raise GraphcalError(f"calibration is for a {calibration.sensor_model}, the recording has a "
                             f"{recording.sensor.model}")
     corrected = len(calibration.control_times_s) >= 2
-    return prepare(recording, np.inf, control_times_s=calibration.control_times_s if corrected else None)
+    return prepare(recording, np.inf, max_points, np.random.default_rng(seed),
+                   control_times_s=calibration.control_times_s if corrected else None)
 
 
-def _world(calibration: Calibration, data: ReturnData, rows: np.ndarray | None = None) -> np.ndarray:
+def world_of(calibration: Calibration, data: ReturnData, rows: np.ndarray | None = None) -> np.ndarray:
     """World coordinates [m] of the given rows (all if None) with the calibration; identity
     corrections at data's control times when it has none."""
     estimate = calibration.estimate
@@ -58,13 +61,14 @@ def nominal_calibration(recording: Recording) -> Calibration:
 @dataclass(frozen=True)
 class Evaluation:
     """A calibration against truth/: eq. 4.6 RMS of the intrinsic offsets (cm, deg, deg, cm) over
-    the fibres but the reference, before (nominal) and after; extrinsic errors (lever arm m,
-    rotation deg) before/after; cloud-to-cloud distance to the true cloud before/after; J [cm^2].
-    common_offset_m: mean of (calibrated - true) position over the returns [m, world]; the
-    trajectory's common translation (and, with pose corrections, common rotation) is a gauge no
-    self-consistency energy observes (the result names it unobservable): cloud_after_gauge_free
-    is the distance once that rigid motion, fitted to truth, is removed (the plain after
-    distance when the result has no such gauge)."""
+    the fibres but the reference, before (nominal) and after; extrinsic errors (lever arm m over
+    the axes the result does not name unobservable, rotation deg) before/after; cloud-to-cloud
+    distance to the true cloud before/after; J [cm^2]. common_offset_m: mean of (calibrated -
+    true) position over the returns [m, world]; the trajectory's common translation (and, with
+    pose corrections, common rotation) is a gauge no self-consistency energy observes, and so is
+    an unobservable extrinsic axis (the result names them): cloud_after_gauge_free is the
+    distance once that rigid motion, fitted to truth, is removed (the plain after distance when
+    the result has no such gauge)."""
 
     intrinsic_rms_before: np.ndarray
     intrinsic_rms_after: np.ndarray
@@ -81,14 +85,32 @@ class Evaluation:
         lines = [f"{'':18}{'before':>12}{'after':>12}"]
         lines += [f"{n:18}{b:12.3g}{a:12.3g}" for n, b, a in zip(names, self.intrinsic_rms_before,
                                                                  self.intrinsic_rms_after)]
-        lines.append(f"{'lever arm m':18}{self.lever_arm_error_m[0]:12.3g}{self.lever_arm_error_m[1]:12.3g}")
+        lines.append(f"{'lever arm m *':18}{self.lever_arm_error_m[0]:12.3g}{self.lever_arm_error_m[1]:12.3g}")
         lines.append(f"{'rotation deg':18}{self.rotation_error_deg[0]:12.3g}{self.rotation_error_deg[1]:12.3g}")
         lines.append(f"{'c2c mean cm':18}{self.cloud_before.mean * 100:12.3g}{self.cloud_after.mean * 100:12.3g}")
         lines.append(f"{'c2c median cm':18}{self.cloud_before.median * 100:12.3g}{self.cloud_after.median * 100:12.3g}")
         lines.append(f"{'c2c p95 cm':18}{self.cloud_before.p95 * 100:12.3g}{self.cloud_after.p95 * 100:12.3g}")
         lines.append(f"{'c2c mean* cm':18}{'':>12}{self.cloud_after_gauge_free.mean * 100:12.3g}")
         lines.append(f"{'J cm2':18}{self.energy_cm2[0]:12.3g}{self.energy_cm2[1]:12.3g}")
+        lines.append("* lever arm: over its observable axes; c2c mean*: once the rigid motion of the unobservable "
+                     "parameters is removed")
         return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        """Plain numbers for evaluation.yaml (lengths m, angles deg; intrinsic RMS in cm, deg, deg,
+        cm), and the table as printed."""
+        def stats(d: DistanceStats) -> dict:
+            return {"mean": d.mean, "median": d.median, "p95": d.p95, "max": d.max}
+
+        names = ("d_range_cm", "d_azimuth_deg", "d_elevation_deg", "h_z_cm")
+        return {"intrinsic_rms": {"before": dict(zip(names, map(float, self.intrinsic_rms_before))),
+                                  "after": dict(zip(names, map(float, self.intrinsic_rms_after)))},
+                "lever_arm_error_m": list(map(float, self.lever_arm_error_m)),
+                "rotation_error_deg": list(map(float, self.rotation_error_deg)),
+                "cloud_to_cloud_m": {"before": stats(self.cloud_before), "after": stats(self.cloud_after),
+                                     "after_gauge_free": stats(self.cloud_after_gauge_free)},
+                "common_offset_m": [float(v) for v in self.common_offset_m],
+                "energy_cm2": [float(v) for v in self.energy_cm2], "table": self.table()}
 
 
 def intrinsic_rms(offsets: np.ndarray, truth: np.ndarray, reference_fibre: int) -> np.ndarray:
@@ -97,20 +119,22 @@ def intrinsic_rms(offsets: np.ndarray, truth: np.ndarray, reference_fibre: int) 
     return offsets_to_file_units(np.sqrt(np.mean(error ** 2, axis=0))) * [100.0, 1.0, 1.0, 100.0]  # m -> cm
 
 
-def evaluate(result: CalibrationResult, recording: Recording, max_points: int = 500_000,
+def evaluate(result: CalibrationResult | Calibration, recording: Recording, max_points: int = 500_000,
              seed: int = 0) -> Evaluation:
     """Compare with truth/ (simulated recordings only). Cloud distances on a random subset of
-    max_points returns (seeded) against the whole true cloud."""
+    max_points returns (seeded) against the whole true cloud. A Calibration alone (read from
+    calibration.yaml) has no J: energy_cm2 is then NaN."""
     truth = recording.truth
     if truth is None:
         raise GraphcalError(f"{recording.path or recording.name}: no truth/ folder, nothing to evaluate against")
-    cal = result.calibration
+    cal = result if isinstance(result, Calibration) else result.calibration
+    energy = (np.nan, np.nan) if isinstance(result, Calibration) else result.energy_cm2
     sensor = recording.sensor
     reference_cloud = truth.world_points()
     rows = np.random.default_rng(seed).choice(len(reference_cloud), min(max_points, len(reference_cloud)), replace=False)
-    data = _returns_for(cal, recording)  # read once, georeferenced only at the sampled rows
-    nominal_cloud = _world(nominal_calibration(recording), data, rows)
-    after_cloud = _world(cal, data, rows)
+    data = returns_for(cal, recording)  # read once, georeferenced only at the sampled rows
+    nominal_cloud = world_of(nominal_calibration(recording), data, rows)
+    after_cloud = world_of(cal, data, rows)
     true_R, true_t = truth.extrinsic.R_body_lidar, np.asarray(truth.extrinsic.lever_arm_m)
     ext = cal.estimate.extrinsic
     nominal = recording.extrinsic
@@ -118,28 +142,35 @@ def evaluate(result: CalibrationResult, recording: Recording, max_points: int = 
     def rotation_error(R):
         return float(np.degrees(Rotation.from_matrix(R.T @ true_R).magnitude()))
 
+    def lever_arm_error(t):  # over the axes the data observe: an unobservable one keeps its start error
+        seen = [f"extrinsic.lever_arm_{axis}_m" not in result.unobservable for axis in "xyz"]
+        return float(np.linalg.norm((np.asarray(t) - true_t)[seen]))
+
     offset = np.mean(after_cloud - reference_cloud[rows], axis=0)
-    gauge_free = remove_gauge(after_cloud, reference_cloud[rows], result.unobservable)
+    gauge_free = remove_gauge(after_cloud, reference_cloud[rows], cal.unobservable)
     return Evaluation(
         intrinsic_rms(np.zeros_like(truth.intrinsics), truth.intrinsics, sensor.reference_fibre),
         intrinsic_rms(cal.estimate.offsets, truth.intrinsics, sensor.reference_fibre),
-        (float(np.linalg.norm(np.asarray(nominal.lever_arm_m) - true_t)), float(np.linalg.norm(ext.translation() - true_t))),
+        (lever_arm_error(nominal.lever_arm_m), lever_arm_error(ext.translation())),
         (rotation_error(nominal.R_body_lidar), rotation_error(ext.rotation().matrix())),
         DistanceStats.of(cloud_to_cloud(nominal_cloud, reference_cloud)),
         DistanceStats.of(cloud_to_cloud(after_cloud, reference_cloud)),
-        result.energy_cm2, offset,
+        energy, offset,
         DistanceStats.of(cloud_to_cloud(gauge_free, reference_cloud)))
 
 
 def remove_gauge(points_m: np.ndarray, truth_m: np.ndarray, unobservable) -> np.ndarray:
     """points (N,3) [m, world] moved by the rigid motion, fitted to their true positions (N,3),
-    that the unobservable names allow: translation for trajectory.common_translation, rotation
-    about the centroid too for trajectory.common_rotation (Kabsch, scipy)."""
+    that the unobservable names allow: a translation for trajectory.common_translation or an
+    unobservable lever-arm axis (which moves the cloud rigidly: that is why no energy sees it),
+    a rotation about the centroid too for trajectory.common_rotation or an unobservable boresight
+    angle (Kabsch, scipy)."""
     translation, rotation = TRAJECTORY_GAUGE
-    if translation not in unobservable:
+    names = set(unobservable)
+    if translation not in names and not names & {f"extrinsic.lever_arm_{axis}_m" for axis in "xyz"}:
         return points_m
     centre, true_centre = points_m.mean(axis=0), truth_m.mean(axis=0)
     moved = points_m - centre
-    if rotation in unobservable:
+    if rotation in names or names & {f"extrinsic.{angle}_deg" for angle in ("roll", "pitch", "yaw")}:
         moved = Rotation.align_vectors(truth_m - true_centre, moved)[0].apply(moved)
     return moved + true_centre

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import csv
 import datetime
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import gtsam
@@ -103,8 +103,9 @@ class CalibrationResult:
     """graphcal.calibrate's answer: the calibration, 1-sigmas (file units, see Uncertainty),
     which parameter groups were estimated, the history (one dict per outer iteration: J [cm^2]
     before/after the solve, weight sum, pairs, gate, step), and the final per-point residuals
-    (row of the return p in the recording, signed point-to-plane distance [m], weight); effects: the
-    extra physics modelled (graphcal.diagnose's findings, calibration.yaml's `effects`)."""
+    (row of the return p in the recording, signed point-to-plane distance [m], weight), the
+    total seconds and the seconds of each step (prepare, solve <stage>, final fit and marginals ...);
+    effects: the extra physics modelled (graphcal.diagnose's findings, calibration.yaml's `effects`)."""
 
     calibration: Calibration
     uncertainty: Uncertainty
@@ -115,6 +116,7 @@ class CalibrationResult:
     residual_weight: np.ndarray
     config: CalibrationConfig
     seconds: float
+    timings_s: dict[str, float] = field(default_factory=dict)
     effects: tuple[dict, ...] = ()
 
     @property

@@ -8,6 +8,7 @@ control: the balance of data and rigidity does not depend on how many pairs are 
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field, replace
 
 import gtsam
@@ -172,7 +173,7 @@ def block_rows(fibre_p: np.ndarray, window: np.ndarray, max_rows: int = MAX_BLOC
     group = fibre_p.astype(np.int64) * (int(window.max()) + 1) + window
     order = np.argsort(group, kind="stable")
     bounds = np.flatnonzero(np.r_[True, np.diff(group[order]) != 0, True])
-    return [chunk for start, stop in zip(bounds[:-1], bounds[1:])
+    return [chunk for start, stop in itertools.pairwise(bounds)
             for chunk in np.array_split(order[start:stop], -(-(stop - start) // max_rows))]
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +25,6 @@ from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.diagnosis.fit import Fit, baseline, refit
 from graphcal.diagnosis.locate import locate
-from graphcal.diagnosis.rerun_views import log_residual_field
 from graphcal.diagnosis.score import (
     ALPHA,
     CandidateTest,
@@ -108,17 +107,15 @@ class Diagnosis:
                 "locations": self.locations, "locations_baseline": self.locations_baseline, "candidates": self.candidates, "concealed": self.concealed,
                 "energy_cm2": self.energy_cm2, "seconds": round(self.seconds, 2)}
 
-    def save(self, directory: str | Path) -> Path:
-        """diagnosis.json, and when there are, the re-solved calibration (calibration/calibration.yaml, its
-        effects listed) and the rerun views of the final residual field (residuals.rrd)."""
+    def save(self, directory: str | Path, command: str = "graphcal.diagnose") -> Path:
+        """diagnosis.json, and when there is one, the re-solved calibration (calibration/calibration.yaml,
+        its effects listed). The viewer file is the run's (graphcal.runs.diagnosis_run)."""
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         with atomic_path(directory / "diagnosis.json") as tmp:
             tmp.write_text(json.dumps(_finite(self.to_json()), indent=1, default=_plain, allow_nan=False))
         if self.calibration is not None:
-            self.calibration.save(directory / "calibration", command="graphcal diagnose")
-        if self.fit is not None:
-            log_residual_field(self.fit, directory / "residuals.rrd")
+            self.calibration.save(directory / "calibration", command=command)
         return directory / "diagnosis.json"
 
     def summary(self) -> str:
@@ -287,8 +284,7 @@ def _calibration(result: CalibrationResult, fit: Fit, findings: list[dict]) -> C
                               calibration.control_times_s, calibration.unobservable)
     effects = tuple({k: f[k] for k in ("effect", "magnitude", "sigma", "unit", "parameters", "statement")}
                     for f in findings)
-    return CalibrationResult(calibration, result.uncertainty, result.estimated, result.history, result.residual_rows,
-                             result.residual_m, result.residual_weight, result.config, result.seconds, effects)
+    return replace(result, calibration=calibration, effects=effects)
 
 
 __all__ = ["ALPHA", "Diagnosis", "diagnose"]

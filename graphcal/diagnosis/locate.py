@@ -50,24 +50,30 @@ def oriented_residual_m(fit) -> np.ndarray:
     return away * np.einsum("ni,ni->n", n, fit.points_m[p] - fit.points_m[m])
 
 
-def _edges(values: np.ndarray, name: str) -> np.ndarray:
+def centred_residual_cm(fit) -> np.ndarray:
+    """The oriented residuals [cm] less their trimmed mean: structure, not a common offset (K,)."""
+    residual = oriented_residual_m(fit) * 100.0
+    return residual - stats.trim_mean(residual, 0.1)
+
+
+def bins(values: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """A regressor's bin edges (one bin per fibre, else N_BINS quantile bins) and each value's bin."""
     if name == "fibre":
-        return np.arange(values.min(), values.max() + 2) - 0.5
-    edges = np.unique(np.quantile(values, np.linspace(0, 1, N_BINS + 1)))
-    edges[-1] = np.nextafter(edges[-1], np.inf)
-    return edges
+        edges = np.arange(values.min(), values.max() + 2) - 0.5
+    else:
+        edges = np.unique(np.quantile(values, np.linspace(0, 1, N_BINS + 1)))
+        edges[-1] = np.nextafter(edges[-1], np.inf)
+    return edges, np.digitize(values, edges) - 1
 
 
 def locate(fit, top: int = 10) -> list[dict]:
     """The significant bins (q < Q_LEVEL after BH, |effect| >= MIN_EFFECT_CM), largest |effect| first, then the whiteness
     tests; each a dict of diagnosis.json's `locations`."""
-    residual = oriented_residual_m(fit) * 100.0  # cm
-    residual = residual - stats.trim_mean(residual, 0.1)
+    residual = centred_residual_cm(fit)
     cluster, _ = fit.clusters()
     rows = []
     for name, values in regressors(fit).items():
-        edges = _edges(values, name)
-        index = np.digitize(values, edges) - 1
+        edges, index = bins(values, name)
         for b in range(len(edges) - 1):
             inside = index == b
             clusters = np.unique(cluster[inside], return_inverse=True)[1]

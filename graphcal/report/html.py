@@ -1,0 +1,183 @@
+"""report.html of a calibration run folder: one self-contained file (figures as base64 PNG).
+
+It is built from the folder's files alone (calibration.yaml, history.csv, pairs_nominal.parquet and
+pairs_calibrated.parquet, evaluation.yaml, run.yaml), plus the recording's truth/ when run.yaml names a recording that has
+one (true offsets and INS errors drawn next to the estimates)."""
+
+from __future__ import annotations
+
+import base64
+import csv
+import html
+from pathlib import Path
+
+import numpy as np
+
+from graphcal.atomic import atomic_path
+from graphcal.calibration.before_after import FILES as PAIRS_FILES
+from graphcal.calibration.before_after import BeforeAfter
+from graphcal.errors import RecordingError
+from graphcal.report import figures
+from graphcal.report.tables import (
+    INTRINSIC_COLUMNS,
+    intrinsics_estimated,
+    parameter_rows,
+)
+from graphcal.run_folder import MANIFEST
+from graphcal.yamlfile import read_yaml
+
+REPORT = "report.html"
+EVALUATION = "evaluation.yaml"
+_STYLE = """body{font-family:system-ui,sans-serif;max-width:1150px;margin:2em auto;color:#222;line-height:1.4}
+h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.6em}
+table{border-collapse:collapse;margin:.6em 0;font-size:.9em}td,th{border:1px solid #ccc;padding:.2em .6em;text-align:right}
+th{background:#f2f2f2}td:first-child{text-align:left}img{max-width:100%}pre{background:#f6f6f6;padding:.6em}
+.unobservable{color:#888;font-style:italic}.note{color:#555;font-size:.92em}"""
+
+
+def write_report(folder: Path) -> Path:
+    """Write folder/report.html from the run folder's files; returns its path."""
+    folder = Path(folder)
+    calibration_path = folder / "calibration.yaml"
+    if not calibration_path.is_file():
+        raise RecordingError(folder, "no calibration.yaml", expected="a calibration run folder (graphcal calibrate)")
+    calibration = read_yaml(calibration_path)
+    manifest = read_yaml(folder / MANIFEST) if (folder / MANIFEST).is_file() else {}
+    history = _read_history(folder / "history.csv")
+    recording = _recording(manifest)
+    sections = [_header(folder, calibration, manifest, history),
+                _section("Energy J per outer iteration", _image(figures.energy_png(history)),
+                         "J = Σ w (n·(p−m))² / Σ w over the pairs of each outer iteration (eq. 4.4); it is not "
+                         "monotonic when the pairs change (the gate opens, the fine phase starts)."),
+                _residuals(folder), _truth(folder), _parameters(calibration, recording), _timings(manifest)]
+    page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>graphcal report: {html.escape(folder.name)}"
+            f"</title><style>{_STYLE}</style></head><body>{''.join(sections)}</body></html>")
+    with atomic_path(folder / REPORT) as tmp:
+        tmp.write_text(page, encoding="utf-8")
+    return folder / REPORT
+
+
+def _read_history(path: Path) -> list[dict]:
+    if not path.is_file():
+        raise RecordingError(path, "file not found", expected="the history graphcal calibrate writes")
+    with path.open(newline="") as stream:
+        return list(csv.DictReader(stream))
+
+
+def _recording(manifest: dict):
+    """The run's recording when run.yaml names one that is still there, else None."""
+    from graphcal.recording import Recording
+
+    path = manifest.get("recording")
+    if not path or not Path(path, "recording.yaml").is_file():
+        return None
+    return Recording.load(path, validate=False)
+
+
+def _image(png: bytes, alt: str = "figure") -> str:
+    return f"<img alt='{alt}' src='data:image/png;base64,{base64.b64encode(png).decode('ascii')}'>"
+
+
+def _section(title: str, body: str, note: str = "") -> str:
+    return f"<h2>{html.escape(title)}</h2>" + (f"<p class='note'>{html.escape(note)}</p>" if note else "") + body
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td class='unobservable'>{html.escape(c)}</td>" if c == "unobservable"
+                                    else f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in rows)
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def _header(folder: Path, calibration: dict, manifest: dict, history: list[dict]) -> str:
+    energy = calibration.get("energy_cm2", {})
+    provenance = calibration.get("provenance", {})
+    rows = [["run folder", str(folder)], ["recording", str(manifest.get("recording", "not recorded"))],
+            ["command", " ".join(manifest.get("argv", [])) or provenance.get("command", "")],
+            ["created (UTC)", str(manifest.get("created", provenance.get("created", "")))],
+            ["graphcal / gtsam", f"{provenance.get('graphcal', '?')} / {provenance.get('gtsam', '?')}"],
+            ["sensor", f"{calibration['sensor']['model']}, reference fibre {calibration['sensor']['reference_fibre']}"],
+            ["stages", ", ".join(dict.fromkeys(row["mode"] for row in history))],
+            ["outer iterations", str(len(history))],
+            ["J before → after [cm²]", f"{energy.get('before', float('nan')):.4g} → {energy.get('after', float('nan')):.4g}"],
+            ["unobservable (held at nominal)", ", ".join(calibration.get("unobservable") or []) or "none"]]
+    return f"<h1>graphcal calibration report: {html.escape(folder.name)}</h1>" + _table(["", ""], rows)
+
+
+def _residuals(folder: Path) -> str:
+    if not all((folder / name).is_file() for name in PAIRS_FILES.values()):
+        return _section("Residuals before and after", "<p>not computed for this run (no pairs_*.parquet)</p>")
+    residuals = BeforeAfter.load(folder)
+    before, after = residuals.before, residuals.after
+    return _section("Residuals before and after", _image(figures.residuals_png(before.residual_m, after.residual_m)),
+                    "Signed point-to-plane residuals of the returns the calibration used, paired in the nominal "
+                    "cloud (before) and again in the calibrated cloud (after) as the first outer iteration pairs them "
+                    "(coarse settings: nothing cut on the distance to the plane, so some pairs across edges remain "
+                    f"even in a perfect cloud). Before: {len(before.row_p):,} pairs, J {before.energy_cm2():.4g} cm²; "
+                    f"after: {len(after.row_p):,} pairs, J {after.energy_cm2():.4g} cm².")
+
+
+def _truth(folder: Path) -> str:
+    if not (folder / EVALUATION).is_file():
+        return _section("Errors against truth", "<p>no truth for this recording (real data), or not evaluated: "
+                                                "<code>graphcal evaluate RUN_DIR RECORDING</code></p>")
+    evaluation = read_yaml(folder / EVALUATION)
+    return _section("Errors against truth", f"<pre>{html.escape(evaluation['table'])}</pre>",
+                    "Intrinsics: RMS over the fibres but the reference of (estimate − truth), eq. 4.6. c2c: distance "
+                    "from each calibrated return to the nearest true return; c2c mean* once the rigid motion that "
+                    "no self-calibration observes (the trajectory's common translation/rotation) is removed.")
+
+
+def _parameters(calibration: dict, recording) -> str:
+    truth = recording.truth if recording is not None else None
+    parts = []
+    if intrinsics_estimated(calibration):
+        parts.append(_image(_intrinsics_figure(calibration, truth)))
+    corrections = calibration.get("trajectory_corrections") or []
+    if corrections:
+        parts.append(_image(_corrections_figure(corrections, recording)))
+    for title, header, rows in parameter_rows(calibration):
+        parts.append(f"<h3>{html.escape(title)}</h3>" + _table(header, rows))
+    return _section("Parameters with 1-sigma", "".join(parts),
+                    "1-sigma from the marginal covariances of the final graph (σ0 the nominal point noise). "
+                    "'unobservable': the data carry less than a third of the information about it; it is held at "
+                    "its nominal value and is not a measurement.")
+
+
+def _intrinsics_figure(calibration: dict, truth) -> bytes:
+    from graphcal.intrinsics import offsets_to_file_units
+
+    rows = calibration["intrinsics"]
+    keys = [key for key, _, _ in INTRINSIC_COLUMNS]
+    factor = np.array([f for _, _, f in INTRINSIC_COLUMNS])
+    values = np.array([[np.nan if row[k] is None else row[k] for k in keys] for row in rows]) * factor
+    sigma = np.array([[np.nan if not row.get("sigma") or row["sigma"][k] is None else row["sigma"][k] for k in keys]
+                      for row in rows]) * factor
+    true = offsets_to_file_units(truth.intrinsics) * factor if truth is not None else None
+    return figures.intrinsics_png(values, sigma, true, np.isnan(values), [name for _, name, _ in INTRINSIC_COLUMNS],
+                                  calibration["sensor"]["reference_fibre"])
+
+
+def _corrections_figure(corrections: list[dict], recording) -> bytes:
+    time = np.array([row["time"] for row in corrections])
+    values = np.array([row["d_position_m"] for row in corrections]) * 100.0
+    sigma = np.array([[np.nan if row["sigma"][f"{a}_m"] is None else row["sigma"][f"{a}_m"] for a in "xyz"]
+                      for row in corrections]) * 100.0
+    truth = None
+    if recording is not None and recording.truth is not None:
+        from graphcal.geodesy import to_world
+
+        recorded, true = recording.world.poses, to_world(recording.truth.trajectory, recording.crs).poses
+        inside = (time >= max(recorded.span[0], true.span[0])) & (time <= min(recorded.span[1], true.span[1]))
+        truth = np.full_like(values, np.nan)
+        truth[inside] = (true.interpolate(time[inside])[0] - recorded.interpolate(time[inside])[0]) * 100.0
+    return figures.corrections_png(time, values, sigma, truth)
+
+
+def _timings(manifest: dict) -> str:
+    timings = manifest.get("timings_s") or {}
+    if not timings:
+        return _section("Time per stage", "<p>not recorded (no run.yaml)</p>")
+    rows = [[name, f"{seconds:.2f}"] for name, seconds in timings.items()]
+    return _section("Time per stage", _image(figures.timings_png(timings)) + _table(["stage", "seconds"], rows),
+                    "Wall-clock seconds of each stage of the run (the report itself is timed after it is written).")

@@ -1,0 +1,62 @@
+"""Parameter tables (estimate ± 1-sigma, 'unobservable' where held at nominal) from a
+calibration.yaml mapping: shared by the HTML report and the viewer's parameters table."""
+
+from __future__ import annotations
+
+UNOBSERVABLE = "unobservable"
+# calibration.yaml intrinsic field -> (shown name, factor from the file unit)
+INTRINSIC_COLUMNS = (("d_range_m", "d_range [cm]", 100.0), ("d_azimuth_deg", "d_azimuth [deg]", 1.0),
+                     ("d_elevation_deg", "d_elevation [deg]", 1.0), ("h_z_m", "Hz [cm]", 100.0))
+EXTRINSIC_ROWS = (("roll [deg]", "boresight_deg", 0, 1.0), ("pitch [deg]", "boresight_deg", 1, 1.0),
+                  ("yaw [deg]", "boresight_deg", 2, 1.0), ("lever arm x [cm]", "lever_arm_m", 0, 100.0),
+                  ("lever arm y [cm]", "lever_arm_m", 1, 100.0), ("lever arm z [cm]", "lever_arm_m", 2, 100.0))
+
+
+def with_sigma(value: float | None, sigma: float | None, factor: float = 1.0) -> str:
+    """'1.234 ± 0.012' in the display unit (value and sigma times factor); 'unobservable' for a
+    parameter held at nominal (None); the value alone when it has no sigma."""
+    if value is None:
+        return UNOBSERVABLE
+    text = f"{value * factor:.4g}"
+    return text if sigma is None else f"{text} ± {sigma * factor:.2g}"
+
+
+def intrinsics_estimated(calibration: dict) -> bool:
+    return any(row.get("sigma") for row in calibration.get("intrinsics") or [])
+
+
+def parameter_rows(calibration: dict) -> list[tuple[str, list[str], list[list[str]]]]:
+    """(title, header, rows of cells) per table: extrinsic, intrinsics per fibre (when estimated),
+    trajectory corrections per control (when estimated)."""
+    tables = []
+    extrinsic = calibration["extrinsic"]
+    sigma = extrinsic.get("sigma")
+    rows = [[name, with_sigma(extrinsic[key][k] if sigma is None or sigma[key][k] is not None else None,
+                              None if sigma is None else sigma[key][k], factor)]
+            for name, key, k, factor in EXTRINSIC_ROWS]
+    title = "Extrinsic T_body_lidar" + ("" if sigma else " (not estimated: the nominal of extrinsic.yaml)")
+    tables.append((title, ["parameter", "estimate"], rows))
+    if intrinsics_estimated(calibration):
+        rows = []
+        for row in calibration["intrinsics"]:
+            sigmas = row.get("sigma")
+            cells = ["0 (reference)" if sigmas is None else with_sigma(row[key], sigmas[key], factor)
+                     for key, _, factor in INTRINSIC_COLUMNS]
+            rows.append([str(row["fibre"])] + cells)
+        tables.append(("Intrinsic offsets per fibre (from the nominal model)",
+                       ["fibre"] + [name for _, name, _ in INTRINSIC_COLUMNS], rows))
+    corrections = calibration.get("trajectory_corrections") or []
+    if corrections:
+        rotations = any(row["sigma"].get("rotation_x_deg") is not None for row in corrections)
+        header = ["control", "time [s]", "dx [cm]", "dy [cm]", "dz [cm]"]
+        header += ["rx [deg]", "ry [deg]", "rz [deg]"] if rotations else []
+        rows = []
+        for c, row in enumerate(corrections):
+            cells = [str(c), f"{row['time']:.3f}"]
+            cells += [with_sigma(v, row["sigma"][f"{axis}_m"], 100.0) for v, axis in zip(row["d_position_m"], "xyz")]
+            if rotations:
+                cells += [with_sigma(v, row["sigma"][f"rotation_{axis}_deg"])
+                          for v, axis in zip(row["d_rotation_deg"], "xyz")]
+            rows.append(cells)
+        tables.append(("Trajectory corrections per control time (world axes)", header, rows))
+    return tables

@@ -1,0 +1,263 @@
+"""Run folders of the command line: calibrate (results, run.rrd read back with rerun's own reader,
+report.html), evaluate, apply (LAS/LAZ/PLY), report, view, deskew's run.rrd.
+
+One small calibration (sim6_turn at size 0.02, 3 outer iterations) is shared by the module."""
+
+import base64
+import csv
+import re
+import shutil
+
+import laspy
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+import yaml
+from rerun.chunk import RrdReader
+from rrd_read import chunks as _chunks
+from rrd_read import column as _column
+from typer.testing import CliRunner
+
+import graphcal
+from graphcal.calibration.before_after import BeforeAfter
+from graphcal.cli import app
+from graphcal.recording import Recording
+from graphcal.sim.script import load_scenario_builder
+
+SIM6 = load_scenario_builder("sim6_turn")
+VIEWER_POINTS = 5000
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory):
+    root = tmp_path_factory.mktemp("runs")
+    recording = graphcal.simulate(SIM6(size=0.02, seed=1), quiet=True).save(root / "rec")
+    settings = root / "settings.yaml"
+    settings.write_text("max_outer_iterations: 3\nmax_points: 20000\n")
+    result = CliRunner().invoke(app, ["calibrate", str(recording), "--mode", "trajectory", "--config", str(settings),
+                                      "--out", str(root / "run"), "--viewer-points", str(VIEWER_POINTS), "-q"])
+    assert result.exit_code == 0, result.output
+    return recording, root / "run"
+
+
+def _history(folder):
+    with (folder / "history.csv").open(newline="") as stream:
+        return list(csv.DictReader(stream))
+
+
+def test_calibrate_writes_a_complete_run_folder(calibrated):
+    recording, folder = calibrated
+    for name in ("calibration.yaml", "config.yaml", "history.csv", "residuals.parquet", "pairs_nominal.parquet",
+                 "pairs_calibrated.parquet",
+                 "evaluation.yaml", "run.rrd", "report.html", "run.yaml"):
+        assert (folder / name).is_file(), name
+    manifest = yaml.safe_load((folder / "run.yaml").read_text())
+    assert manifest["format"] == "graphcal-run/1" and manifest["recording"] == str(recording.resolve())
+    stages = manifest["timings_s"]
+    for stage in ("load and validate the recording", "calibrate: prepare", "calibrate: solve trajectory",
+                  "calibrate: final fit and marginals", "residuals before/after", "evaluate against truth", "viewer file",
+                  "report"):
+        assert stages[stage] >= 0.0, stage
+    assert not list(folder.glob(".*.tmp")), "a temporary file was left behind"
+
+
+def test_rrd_holds_the_run_read_back_with_rerun(calibrated):
+    recording, folder = calibrated
+    reader = RrdReader(folder / "run.rrd")
+    assert len(reader.blueprints()) == 1  # the layout travels with the file
+    paths = set(reader.store().schema().entity_paths())
+    expected = {"/summary", "/parameters/table", "/residuals/before", "/residuals/after",
+                "/world/trajectory/before", "/world/trajectory/after", "/world/trajectory/truth",
+                "/world/trajectory/corrections", "/metrics/weight_sum", "/metrics/J_cm2/before_solve",
+                "/metrics/log10_J_cm2/after_solve", "/parameters/corrections/x_cm/estimate",
+                "/parameters/corrections/z_cm/plus_1sigma"}
+    expected |= {f"/world/cloud/{which}/by_{colour}" for which in ("before", "after")
+                 for colour in ("fibre", "time", "residual")}
+    assert expected <= paths, expected - paths
+    chunks = _chunks(folder / "run.rrd")
+    history = _history(folder)
+    J = [v[0] for v in _column(chunks["/metrics/J_cm2/before_solve"], "Scalars:scalars")]
+    np.testing.assert_allclose(J, [float(row["energy_cm2"]) for row in history], rtol=1e-12)
+    assert _column(chunks["/metrics/J_cm2/before_solve"], "iteration") == list(range(len(history)))
+    # the clouds: VIEWER_POINTS returns each, coloured by fibre through class ids
+    (fibre,) = _column(chunks["/world/cloud/after/by_fibre"], "Points3D:class_ids")
+    (positions,) = _column(chunks["/world/cloud/after/by_fibre"], "Points3D:positions")
+    assert len(fibre) == len(positions) == VIEWER_POINTS and max(fibre) < recording_fibres(recording)
+    # positions are relative to a local origin (float32): the INS trajectory minus a whole-metre offset
+    ((strip,),) = _column(chunks["/world/trajectory/before"], "LineStrips3D:strips")
+    poses = Recording.load(recording, validate=False).world.poses.position_m
+    offset = poses[: len(strip)] - np.array(strip, dtype=np.float64)
+    np.testing.assert_allclose(offset - offset[0], 0.0, atol=1e-3)
+    np.testing.assert_allclose(offset[0], np.round(offset[0]), atol=1e-3)
+    assert np.abs(np.array(positions)).max() < 200.0
+    # the residual colouring shows returns paired in each cloud, at their p (at most VIEWER_POINTS of them)
+    from scipy.spatial import cKDTree
+
+    residuals = BeforeAfter.load(folder)
+    for which in ("before", "after"):
+        (points,) = _column(chunks[f"/world/cloud/{which}/by_residual"], "Points3D:positions")
+        p_m = getattr(residuals, which).p_m
+        assert len(points) == min(len(p_m), VIEWER_POINTS)
+        distance, _ = cKDTree(p_m).query(np.array(points) + offset[0])
+        assert distance.max() < 2e-3
+    ((summary,),) = _column(chunks["/summary"], "TextDocument:text")
+    assert "trajectory.common_translation" in summary and "local origin" in summary
+
+
+def recording_fibres(path):
+    return Recording.load(path, validate=False).sensor.n_fibres
+
+
+def test_residuals_before_are_the_first_iteration_and_shrink_after(calibrated):
+    """In the nominal cloud the pairs are the first outer iteration's: their J and weight sum are
+    the history's first; paired again the same way in the calibrated cloud, J is much lower."""
+    recording, folder = calibrated
+    residuals = BeforeAfter.load(folder)
+    first = _history(folder)[0]
+    assert len(residuals.before.row_p) == int(first["pairs"])
+    assert residuals.before.energy_cm2() == pytest.approx(float(first["energy_cm2"]), rel=1e-5)
+    assert float(residuals.before.weight.sum()) == pytest.approx(float(first["weight_sum"]), rel=1e-5)
+    assert residuals.after.energy_cm2() < 0.2 * residuals.before.energy_cm2()
+    # the residual is n.(p - m) with p and m where the calibration puts them (independent: apply_calibration)
+    rec = Recording.load(recording, validate=False)
+    world = graphcal.apply_calibration(graphcal.Calibration.load(folder, rec.sensor), rec)
+    after = residuals.after
+    np.testing.assert_allclose(world[after.row_p], after.p_m, atol=1e-6)
+    distance = np.linalg.norm(world[after.row_p] - world[after.row_m], axis=1)
+    assert np.all(np.abs(after.residual_m) <= distance + 1e-6)
+
+
+def test_report_is_self_contained_and_complete(calibrated):
+    _, folder = calibrated
+    page = (folder / "report.html").read_text()
+    assert not re.search(r"(src|href)=['\"](?!data:)", page), "the report links to something outside itself"
+    images = re.findall(r"src='data:image/png;base64,([A-Za-z0-9+/=]+)'", page)
+    assert len(images) == 4  # J curve, residuals, corrections, timings
+    for image in images:
+        assert base64.b64decode(image)[:8] == b"\x89PNG\r\n\x1a\n"
+    for text in ("Energy J per outer iteration", "Residuals before and after", "Errors against truth",
+                 "c2c mean", "Trajectory corrections per control time", "trajectory.common_translation",
+                 "Time per stage", "calibrate: solve trajectory"):
+        assert text in page, text
+    evaluation = yaml.safe_load((folder / "evaluation.yaml").read_text())
+    assert f"{evaluation['cloud_to_cloud_m']['before']['mean'] * 100:12.3g}".strip() in page
+
+
+def test_report_command_rewrites_the_report_and_rejects_other_folders(calibrated, tmp_path):
+    _, folder = calibrated
+    copy = shutil.copytree(folder, tmp_path / "copy")
+    (copy / "report.html").unlink()
+    result = CliRunner().invoke(app, ["report", str(copy)])
+    assert result.exit_code == 0 and (copy / "report.html").is_file(), result.output
+    result = CliRunner().invoke(app, ["report", str(tmp_path)])
+    assert result.exit_code == 2 and result.output.count("\n") == 1 and "no calibration.yaml" in result.output
+
+
+def test_evaluate_command_matches_the_run_and_needs_truth(calibrated, tmp_path):
+    recording, folder = calibrated
+    copy = shutil.copytree(folder, tmp_path / "copy")
+    (copy / "evaluation.yaml").unlink()
+    result = CliRunner().invoke(app, ["evaluate", str(copy / "calibration.yaml"), str(recording), "-q"])
+    assert result.exit_code == 0, result.output
+    again, first = (yaml.safe_load((f / "evaluation.yaml").read_text()) for f in (copy, folder))
+    for which in ("before", "after", "after_gauge_free"):
+        assert again["cloud_to_cloud_m"][which] == pytest.approx(first["cloud_to_cloud_m"][which], rel=1e-9)
+    assert again["energy_cm2"] == pytest.approx(first["energy_cm2"]) and "c2c mean cm" in result.output
+    real = shutil.copytree(recording, tmp_path / "real", ignore=shutil.ignore_patterns("truth"))
+    result = CliRunner().invoke(app, ["evaluate", str(folder), str(real)])
+    assert result.exit_code == 2 and result.output.count("\n") == 1
+    assert f"{real / 'truth'}: not found" in result.output
+
+
+@pytest.mark.parametrize("suffix", [".laz", ".ply"])
+def test_apply_writes_the_corrected_cloud_georeferenced(calibrated, tmp_path, monkeypatch, suffix):
+    recording_path, folder = calibrated
+    monkeypatch.setattr("graphcal.corrected_cloud.BATCH_ROWS", 30_000)  # in several batches
+    out = tmp_path / f"cloud{suffix}"
+    result = CliRunner().invoke(app, ["apply", str(folder), str(recording_path), "--out", str(out), "-q"])
+    assert result.exit_code == 0, result.output
+    recording = Recording.load(recording_path)
+    expected = graphcal.apply_calibration(graphcal.Calibration.load(folder, recording.sensor), recording)
+    columns = recording.points.read(["time", "fibre"])
+    residuals = pq.read_table(folder / "residuals.parquet")
+    if suffix == ".laz":
+        las = laspy.read(out)
+        assert las.header.parse_crs() == recording.world.crs
+        np.testing.assert_allclose(np.column_stack([las.x, las.y, las.z]), expected, atol=5.1e-5)
+        np.testing.assert_array_equal(las.gps_time, columns["time"])
+        np.testing.assert_array_equal(las.fibre, columns["fibre"])
+        residual = np.asarray(las.residual_m)
+    else:
+        import open3d as o3d
+
+        header = out.read_bytes()[:400].decode("ascii", "replace")
+        assert f"comment crs {recording.world.crs.to_string()}" in header
+        cloud = o3d.t.io.read_point_cloud(str(out))
+        np.testing.assert_allclose(cloud.point.positions.numpy(), expected, atol=1e-6)  # batches: other origins
+        residual = cloud.point["residual_m"].numpy().ravel()
+    rows, values = residuals.column("row").to_numpy(), residuals.column("residual_m").to_numpy()
+    assert np.isfinite(residual).sum() == len(np.unique(rows))
+    for row in rows[:50]:  # RMS over the pairs the return is p of
+        assert residual[row] == pytest.approx(np.sqrt(np.mean(values[rows == row].astype(float) ** 2)), rel=1e-6)
+
+
+def test_view_without_a_display_says_what_to_do(calibrated, monkeypatch):
+    _, folder = calibrated
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    result = CliRunner().invoke(app, ["view", str(folder)])
+    assert result.exit_code == 2 and result.output.count("\n") == 1
+    assert "no display" in result.output and "--web" in result.output
+    result = CliRunner().invoke(app, ["view", str(folder / "missing.rrd")])
+    assert result.exit_code == 2 and "file not found" in result.output
+
+
+def test_deskew_run_rrd_shows_raw_and_deskewed_revolutions(tmp_path):
+    recording = graphcal.simulate(load_scenario_builder("deskew_rotation")(size=0.005), quiet=True)
+    path = recording.save(tmp_path / "rec")
+    result = CliRunner().invoke(app, ["deskew", str(path), "--out", str(tmp_path / "run"), "--viewer-points", "2000",
+                                      "-q"])
+    assert result.exit_code == 0, result.output
+    scans = yaml.safe_load((tmp_path / "run" / "deskew.yaml").read_text())["scans"]
+    chunks = _chunks(tmp_path / "run" / "run.rrd")
+    for name in ("raw", "deskewed"):
+        assert sorted(set(_column(chunks[f"/deskew/{name}"], "scan"))) == list(range(scans))
+        (world,) = _column(chunks[f"/world/deskew/{name}"], "Points3D:positions")
+        assert 1000 <= len(world) <= 2 * 2000
+    assert "timings_s" in yaml.safe_load((tmp_path / "run" / "run.yaml").read_text())
+
+
+def test_spawn_without_a_display_warns_and_writes_the_file_whole(tmp_path, monkeypatch, capsys):
+    from graphcal.viz.log import log_summary
+    from graphcal.viz.stream import recording_stream
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with recording_stream(tmp_path / "run.rrd", "test", spawn=True) as stream:
+        log_summary(stream, "# a run")
+    assert "no live viewer, no display" in capsys.readouterr().err
+    assert "/summary" in RrdReader(tmp_path / "run.rrd").store().schema().entity_paths()
+    with pytest.raises(RuntimeError), recording_stream(tmp_path / "failed.rrd", "test") as stream:
+        log_summary(stream, "# half a run")
+        raise RuntimeError("the run fails half way")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.rrd"]  # no file, no temporary left
+
+
+def test_run_folder_names_times_and_links_the_latest(tmp_path):
+    from graphcal.errors import RecordingError
+    from graphcal.run_folder import RunFolder, read_manifest
+
+    first = RunFolder.create(None, "sim6_turn", "calibrate", root=tmp_path)
+    assert re.fullmatch(r"sim6_turn-calibrate-\d{8}T\d{6}Z", first.path.name)
+    with first.stage("solve"):
+        pass
+    with first.stage("solve"):  # a stage run twice adds up
+        pass
+    first.finish(recording="/data/rec")
+    manifest = read_manifest(first.path)
+    assert manifest["recording"] == "/data/rec" and list(manifest["timings_s"]) == ["solve"]
+    second = RunFolder.create(tmp_path / "second", "sim6_turn", "deskew-ins", root=tmp_path)
+    assert (tmp_path / "latest").resolve() == first.path.resolve()  # an explicit --out is not "latest"
+    assert second.path == tmp_path / "second"
+    with pytest.raises(RecordingError, match="not a graphcal run manifest|file not found"):
+        read_manifest(second.path)
