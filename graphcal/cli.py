@@ -142,6 +142,8 @@ def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory
              mode: Annotated[str, typer.Option(help="calibration mode of the nominal model (see calibrate)")] = "joint",
              config: Annotated[Path | None, typer.Option(help="YAML file of CalibrationConfig settings")] = None,
              max_effects: Annotated[int, typer.Option(help="most effects added")] = 3,
+             refit_iterations: Annotated[int, typer.Option(help="outer iterations of each re-solve with an effect "
+                                                                "added", min=1)] = 4,
              out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-diagnose-<UTC time>)")] = None,
              spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, quiet: Quiet = False) -> None:
     """Find where the model and the recording disagree, name the physics left out, model it, show the
@@ -155,7 +157,7 @@ def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory
     from graphcal.runs import diagnosis_run
 
     run = diagnosis_run(recording, calibration_config(mode, config), simulation, rescan, max_effects, out, spawn,
-                        viewer_points, quiet)
+                        viewer_points, refit_iterations, quiet)
     if not quiet:
         typer.echo(run.diagnosis.summary())
         typer.echo(f"wrote {run.folder}: diagnosis.json, run.rrd in {run.diagnosis.seconds:.1f} s; "

@@ -103,11 +103,12 @@ class DiagnosisRun:
 
 def diagnosis_run(recording_path: Path, config: CalibrationConfig, simulation: Path | None = None,
                   rescan: bool = False, max_effects: int = 3, out: Path | None = None, spawn: bool = False,
-                  viewer_points: int | None = None, quiet: bool = False) -> DiagnosisRun:
+                  viewer_points: int | None = None, refit_iterations: int = 4, quiet: bool = False) -> DiagnosisRun:
     """Diagnose the recording against graphcal's model calibrated with config (graphcal.diagnose),
     or against a simulation of the same drive, or (rescan) against its own returns raycast on a
     mesh of its calibrated cloud; save diagnosis.json (and the re-solved calibration in
-    calibration/) and run.rrd into the run folder."""
+    calibration/) and run.rrd into the run folder. refit_iterations: outer iterations of each
+    re-solve with an effect added."""
     from graphcal.diagnosis.compare import compare
     from graphcal.viz.diagnosis import log_diagnosis
     from graphcal.viz.log import VIEWER_POINTS
@@ -137,7 +138,8 @@ def diagnosis_run(recording_path: Path, config: CalibrationConfig, simulation: P
         from graphcal.diagnosis.diagnose import diagnose
 
         with run.stage("diagnose"):
-            diagnosis = diagnose(recording, config, max_effects=max_effects, quiet=quiet)
+            diagnosis = diagnose(recording, config, max_effects=max_effects, refit_iterations=refit_iterations,
+                                 quiet=quiet)
     with run.stage("save results"):
         diagnosis.save(run.path, command=" ".join(["graphcal"] + sys.argv[1:]))
     with (run.stage("viewer file"), status(f"writing {run.path / RRD}", quiet),

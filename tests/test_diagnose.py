@@ -2,10 +2,12 @@
 gets no finding, a recording with two left-out effects gets both, named and sized against the
 simulator's truth; a recording against a simulation of the same drive names the effect between them.
 
-Small sizes (about 80 k returns, 40 k used): each effect here is several sigma at this size. The
+Small sizes (about 80 k returns, 40 k used, 2 outer iterations, 2 per refit: about 35 s in all on
+an idle machine): each effect here is several sigma at this size. The angle prior is
+concealed.ANGLE_PRIOR_DEG (with the default, the joint baseline collapses and is refused). The
 per-effect figures at larger sizes, for every candidate, are in benchmarks/bench_diagnose.py; the
 per-effect tests below use its settings and run with GRAPHCAL_SLOW_TESTS=1 (2-5 min each), the
-measured failures marked as such.
+failures measured before the angle prior marked as such.
 """
 
 import json
@@ -32,8 +34,8 @@ SIZE = 0.02
 VIEWER_POINTS = 5000
 
 
-def config(mode: str = "joint", max_points: int = 40_000) -> CalibrationConfig:
-    return CalibrationConfig(mode=mode, max_outer_iterations=3, max_points=max_points, tolerance_m=1e-3,
+def config(mode: str = "joint", max_points: int = 40_000, iterations: int = 2) -> CalibrationConfig:
+    return CalibrationConfig(mode=mode, max_outer_iterations=iterations, max_points=max_points, tolerance_m=1e-3,
                              intrinsic_sigma_angle_deg=ANGLE_PRIOR_DEG)
 
 
@@ -52,7 +54,7 @@ def two_effects(tmp_path_factory):
     """The two-effect recording diagnosed as `graphcal diagnose` does, into a run folder."""
     rec = recording(tmp_path_factory, "two", effect="time_offset", effects=("azimuth_eccentricity",))
     run = diagnosis_run(rec.path, config(), max_effects=2, out=tmp_path_factory.mktemp("runs") / "run",
-                        viewer_points=VIEWER_POINTS, quiet=True)
+                        viewer_points=VIEWER_POINTS, refit_iterations=2, quiet=True)
     return rec, run
 
 
@@ -70,6 +72,8 @@ def test_two_concealed_effects_are_both_found_and_sized(two_effects):
     truth = rec.truth.effects
     found = {f["effect"]: f for f in diagnosis.findings}
     assert set(found) == {"time_offset", "azimuth_eccentricity"}, diagnosis.summary()
+    # named first: the time offset, though the range offsets absorbed much of it (concealed)
+    assert diagnosis.findings[0]["effect"] == "time_offset" and diagnosis.findings[0]["concealment_r2"] > 0.3
     assert found["time_offset"]["magnitude"] == pytest.approx(truth["time_offset"]["magnitude"], rel=0.2)
     assert found["azimuth_eccentricity"]["magnitude"] == pytest.approx(truth["azimuth_eccentricity"]["magnitude"],
                                                                        rel=0.2)
@@ -151,7 +155,7 @@ def test_each_concealed_effect_is_named_first_and_sized(effect, tmp_path_factory
 @pytest.mark.skipif(not os.environ.get("GRAPHCAL_SLOW_TESTS"), reason="about 5 min: GRAPHCAL_SLOW_TESTS=1")
 def test_heading_bias_is_reported_concealed_by_the_boresight_yaw(tmp_path_factory):
     rec = graphcal.simulate(CONCEALED_SCENARIO(size=0.04, seed=1, effect="heading_bias"), quiet=True)
-    diagnosis = graphcal.diagnose(rec, config(max_points=80_000), max_effects=1, quiet=True)
+    diagnosis = graphcal.diagnose(rec, config(max_points=80_000, iterations=3), max_effects=1, quiet=True)
     concealed = {c["effect"]: c for c in diagnosis.concealed}
     assert "heading_bias" in concealed and concealed["heading_bias"]["absorbed_by"][0] == "extrinsic.yaw_deg"
     assert "heading_bias" not in [f["effect"] for f in diagnosis.findings]
