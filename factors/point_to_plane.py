@@ -21,6 +21,10 @@ control intervals (few, large blocks: each Python callback costs ~23 us, each Nu
 the factor's keys are the distinct keys of its rows, and a key held by several slots of a row
 (p and m in the same control interval) gets the slots' Jacobians summed.
 
+A block may also estimate candidate left-out effects (factors/effects.py): one Vector key per
+candidate, shared by every row, perturbing p's and m's raw values and poses (m's only when m is a
+return of the same recording, not a fixed map point).
+
 A block may return its residual compressed: with R^T R = A^T A (A the block's Jacobian) and
 R^T z = A^T r, the factor returns [z; (||r||^2 - ||z||^2)^1/2] and Jacobian [R; 0] (as Q^T r
 and R of a QR of A would be): the cost is exact and the linear system small. Compression mixes rows, so robust losses use the stacked form with ReweightScheme.Scalar.
@@ -34,6 +38,7 @@ from functools import cached_property, partial
 import gtsam
 import numpy as np
 
+from factors.effects import Basis, Channels, Motion, channel_jacobians, perturbed
 from factors.world_point import Corrections, Returns, Turn, world_normals, world_points
 
 ROW_SLOTS = ("intrinsic_p", "intrinsic_m", "p_lo", "p_hi", "m_lo", "m_hi")
@@ -104,6 +109,19 @@ class FixedValues:
 
 
 @dataclass(frozen=True)
+class EffectTerms:
+    """Candidate effects a block estimates: one Vector key per candidate (shared by all rows), the
+    candidates' bases over p's and m's returns (m_bases None: m is a fixed map point the effects do
+    not move) and the INS motion at p's and m's times."""
+
+    keys: tuple[int, ...]
+    p_bases: tuple[Basis, ...]
+    p_motion: Motion
+    m_bases: tuple[Basis, ...] | None = None
+    m_motion: Motion | None = None
+
+
+@dataclass(frozen=True)
 class Block:
     """Correspondences of one block: returns p and m (N each), unit normal at p in p's lidar
     frame (N,3), weight (N,)."""
@@ -116,6 +134,7 @@ class Block:
     pose_corrections: bool = False
     fixed: FixedValues = field(default_factory=FixedValues)
     sigma0_m: float = 0.01
+    effects: EffectTerms | None = None
 
     def __len__(self) -> int:
         return len(self.weight)
@@ -125,8 +144,11 @@ class Block:
         """Tangent dimension of each distinct key: Vector4 intrinsics 4, Pose3 6, Point3 3."""
         intrinsics = set(np.r_[self.keys.intrinsic_p, self.keys.intrinsic_m].tolist())
         control = 6 if self.pose_corrections else 3
-        return {key: 4 if key in intrinsics else 6 if key == self.keys.extrinsic else control
-                for key in self.keys.unique}
+        widths = {key: 4 if key in intrinsics else 6 if key == self.keys.extrinsic else control
+                  for key in self.keys.unique}
+        if self.effects is not None:
+            widths.update({key: basis.dim for key, basis in zip(self.effects.keys, self.effects.p_bases)})
+        return widths
 
     @cached_property
     def offsets(self) -> dict[int, int]:
@@ -167,10 +189,13 @@ def residuals(block: Block, values: gtsam.Values, jacobians: bool = True):
     R_E, t_E = E.rotation().matrix(), E.translation()
     at_p = _corrections(values, keys, "p_lo", "p_hi", pose)
     at_m = _corrections(values, keys, "m_lo", "m_hi", pose)
-    turn_p = Turn.of(at_p, block.p.alpha, jacobians)  # p's point and normal turn alike
-    p_w, J_p = world_points(block.p, offsets_p, R_E, t_E, at_p, jacobians, turn_p)
-    m_w, J_m = world_points(block.m, offsets_m, R_E, t_E, at_m, jacobians)
-    n_w, J_n = world_normals(block.p, R_E, at_p, block.normal, jacobians, turn_p)
+    effects = _Effects.of(block, values)
+    p, m = effects.returns(block.p, "p"), effects.returns(block.m, "m")
+    turn_p = Turn.of(at_p, p.alpha, jacobians)  # p's point and normal turn alike
+    turn_m = Turn.of(at_m, m.alpha, jacobians)
+    p_w, J_p = world_points(p, offsets_p, R_E, t_E + effects.body("p"), at_p, jacobians, turn_p)
+    m_w, J_m = world_points(m, offsets_m, R_E, t_E + effects.body("m"), at_m, jacobians, turn_m)
+    n_w, J_n = world_normals(p, R_E, at_p, block.normal, jacobians, turn_p)
     scale = np.sqrt(block.weight) / block.sigma0_m
     r = scale * np.einsum("ni,ni->n", n_w, p_w - m_w)
     if not jacobians:
@@ -188,6 +213,9 @@ def residuals(block: Block, values: gtsam.Values, jacobians: bool = True):
     A = np.zeros((n, sum(block.widths.values())))
     if keys.extrinsic is not None:
         A[:, block.offsets[keys.extrinsic]:block.offsets[keys.extrinsic] + 6] = extrinsic
+    for key, J in effects.jacobians(p, m, offsets_p, offsets_m, at_p, at_m, turn_p, turn_m, R_E, p_w, m_w, J_p, J_m,
+                                    n_w, sn, sd):
+        A[:, block.offsets[key]:block.offsets[key] + J.shape[1]] = J
     rows = np.arange(n)
     for slot, J in terms:
         start = keys.column(slot, block.offsets)
@@ -195,6 +223,55 @@ def residuals(block: Block, values: gtsam.Values, jacobians: bool = True):
         if has.any():  # one key per row and slot: no (row, column) repeats within one assignment
             A[rows[has, None], start[has, None] + np.arange(J.shape[1])] += J[has]
     return r, A
+
+
+@dataclass(frozen=True)
+class _Effects:
+    """A block's candidate effects at given values: channel values of p and m (None: not moved)."""
+
+    terms: EffectTerms | None
+    channels: dict
+
+    @classmethod
+    def of(cls, block: Block, values: gtsam.Values) -> _Effects:
+        terms = block.effects
+        if terms is None:
+            return cls(None, {})
+        thetas = [values.atVector(int(key)) for key in terms.keys]
+        channels = {"p": Channels.of(terms.p_bases, thetas, len(block))}
+        if terms.m_bases is not None:
+            channels["m"] = Channels.of(terms.m_bases, thetas, len(block))
+        return cls(terms, channels)
+
+    def _motion(self, side: str) -> Motion:
+        return self.terms.p_motion if side == "p" else self.terms.m_motion
+
+    def returns(self, returns: Returns, side: str) -> Returns:
+        return returns if side not in self.channels else perturbed(returns, self._motion(side), self.channels[side])
+
+    def body(self, side: str):
+        return self.channels[side].body if side in self.channels else 0.0
+
+    def jacobians(self, p, m, offsets_p, offsets_m, at_p, at_m, turn_p, turn_m, R_E, p_w, m_w, J_p, J_m, n_w, sn, sd):
+        """(key, d r / d theta (N, dim)) of each candidate: s n . (dp - dm) + s (p - m) . dn."""
+        if self.terms is None:
+            return []
+        at = {"p": channel_jacobians(p, offsets_p, self._motion("p"), self.channels["p"], at_p, turn_p, R_E, p_w, J_p,
+                                     n_w)}
+        if "m" in self.channels:
+            at["m"] = channel_jacobians(m, offsets_m, self._motion("m"), self.channels["m"], at_m, turn_m, R_E, m_w,
+                                        J_m)
+        out = []
+        for index, key in enumerate(self.terms.keys):
+            basis_p = self.terms.p_bases[index]
+            J = np.einsum("ni,nij->nj", sn, at["p"].of_candidate(basis_p))
+            turned = at["p"].normal_of_candidate(basis_p)
+            if turned is not None:
+                J = J + np.einsum("ni,nij->nj", sd, turned)
+            if "m" in at:
+                J = J - np.einsum("ni,nij->nj", sn, at["m"].of_candidate(self.terms.m_bases[index]))
+            out.append((key, J))
+        return out
 
 
 def jacobian_by_key(block: Block, A: np.ndarray) -> dict[int, np.ndarray]:

@@ -5,6 +5,7 @@ from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.evaluate import Evaluation, apply_calibration, evaluate
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.deskewing import deskew
+from graphcal.diagnosis.diagnose import Diagnosis, diagnose
 from graphcal.errors import CalibrationError, ConfigError, GraphcalError, RecordingError
 from graphcal.recording import Recording
 from graphcal.sensor import SensorModel, sensor_from_catalog
@@ -14,10 +15,11 @@ from graphcal.sim.simulator import simulate
 __version__ = "0.1.0"
 __all__ = [
            "Calibration",
-           "CalibrationError",
            "CalibrationConfig",
+           "CalibrationError",
            "CalibrationResult",
            "ConfigError",
+           "Diagnosis",
            "Evaluation",
            "GraphcalError",
            "Recording",
@@ -28,6 +30,7 @@ __all__ = [
            "apply_calibration",
            "calibrate",
            "deskew",
+           "diagnose",
            "evaluate",
            "sensor_from_catalog",
            "simulate",

@@ -134,6 +134,38 @@ def _print_calibration(run) -> None:
 
 @app.command()
 @_clear_errors
+def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory")],
+             simulation: Annotated[Path | None, typer.Option(help="a simulation of the same drive with nominal "
+                                                                   "physics: name the effect explaining the difference")] = None,
+             rescan: Annotated[bool, typer.Option(help="no scene model: simulate the drive on a mesh of the "
+                                                       "calibrated cloud, then compare with it")] = False,
+             mode: Annotated[str, typer.Option(help="calibration mode of the nominal model (see calibrate)")] = "joint",
+             config: Annotated[Path | None, typer.Option(help="YAML file of CalibrationConfig settings")] = None,
+             max_effects: Annotated[int, typer.Option(help="most effects added")] = 3,
+             refit_iterations: Annotated[int, typer.Option(help="outer iterations of each re-solve with an effect "
+                                                                "added", min=1)] = 4,
+             out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-diagnose-<UTC time>)")] = None,
+             spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, quiet: Quiet = False) -> None:
+    """Find where the model and the recording disagree, name the physics left out, model it, show the
+    fit improve (docs/diagnose.md).
+
+    The run folder gets diagnosis.json, the re-solved calibration in calibration/ (its effects
+    listed), run.rrd (the residual field) and run.yaml (seconds per stage).
+
+    Example: graphcal diagnose out/concealed --mode joint
+    """
+    from graphcal.runs import diagnosis_run
+
+    run = diagnosis_run(recording, calibration_config(mode, config), simulation, rescan, max_effects, out, spawn,
+                        viewer_points, refit_iterations, quiet)
+    if not quiet:
+        typer.echo(run.diagnosis.summary())
+        typer.echo(f"wrote {run.folder}: diagnosis.json, run.rrd in {run.diagnosis.seconds:.1f} s; "
+                   f"graphcal view {run.folder}")
+
+
+@app.command()
+@_clear_errors
 def deskew(recording: Annotated[Path, typer.Argument(help="recording directory")],
            source: Annotated[str, typer.Option(help="motion during the sweep: ins, odometry, or none (raw scans)")] = "ins",
            cloud_format: Annotated[str, typer.Option("--format", help="ply, las, laz, or uos (3DTK .3d)")] = "ply",

@@ -5,7 +5,9 @@ Each effect is a named, documented, switchable component with validated paramete
 simulator applies the switched-on effects through the hooks below (identity by default); the
 mismatch finder reasons about the same names (RECORDING.md, diagnosis.json `effect` names).
 
-Hooks, in the order the simulator calls them for every return:
+Hooks, in the order the simulator calls them (once for the head, then for every return):
+  spin_hz(rotation_hz)               true spin rate of the head for the nominal one [Hz]
+  factory_terms(factory, fibre)      true per-fibre factory terms for the nominal ones
   pose_time(t_pose, t_fire, t_rev)   time at which the sensor pose is taken [s]
   beam_azimuth(encoder_rad)          true beam azimuth for an encoder reading [rad]
   measured_range(range_m, cos_inc)   raw range reported for an ideal raw range [m]
@@ -13,15 +15,22 @@ Hooks, in the order the simulator calls them for every return:
   max_stamp_shift_s()                the most it moves a stamp off the firing time [s]
 and once for the recorded INS trajectory:
   ins_rpy(elapsed_s, rpy_deg)        attitude written to trajectory.csv [deg]
+  ins_position(elapsed_s, xyz_m)     position written to trajectory.csv [m, local frame]
+
+The extrinsic's lever-arm error is not an effect here: it is ExtrinsicSpec.error_lever_arm_m (the
+true extrinsic), and the mismatch finder's `lever_arm` candidate stands for it when the model holds
+the extrinsic fixed.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import ClassVar, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from factors.spherical import FactoryTerms
 from graphcal.errors import ConfigError
 
 REGISTRY: dict[str, type[Effect]] = {}
@@ -44,6 +53,12 @@ class Effect(BaseModel):
         """Headline magnitude in `unit` (as reported in diagnosis.json)."""
         raise NotImplementedError
 
+    def spin_hz(self, rotation_hz: float) -> float:
+        return rotation_hz
+
+    def factory_terms(self, factory: FactoryTerms, fibre: np.ndarray) -> FactoryTerms:
+        return factory
+
     def pose_time(self, t_pose, t_fire, t_rev):
         return t_pose
 
@@ -63,6 +78,9 @@ class Effect(BaseModel):
 
     def ins_rpy(self, elapsed_s, rpy_deg):
         return rpy_deg
+
+    def ins_position(self, elapsed_s, xyz_m):
+        return xyz_m
 
 
 @register
@@ -191,6 +209,72 @@ class HeadingDrift(Effect):
 
     def ins_rpy(self, elapsed_s, rpy_deg):
         return _add_yaw(rpy_deg, self.rate_deg_s * np.asarray(elapsed_s))
+
+
+@register
+class ProjectionScale(Effect):
+    """Recorded INS positions = first position + (1 + scale) x (true displacement): the grid of a
+    map projection is larger than the ground by its scale factor k = 1 + scale, and the lidar's
+    metric vectors are placed in it unscaled (graphcal ignores k, docs/frames.md)."""
+
+    name: ClassVar[str] = "projection_scale"
+    physics: ClassVar[str] = ("the trajectory is in a map grid whose scale factor differs from 1, while the lidar "
+                              "measures true metres")
+    unit: ClassVar[str] = "1"
+    scale: float
+
+    def magnitude(self) -> float:
+        return self.scale
+
+    def ins_position(self, elapsed_s, xyz_m):
+        xyz_m = np.asarray(xyz_m, dtype=np.float64)
+        return xyz_m[0] + (1.0 + self.scale) * (xyz_m - xyz_m[0])
+
+
+@register
+class SpinRate(Effect):
+    """The head spins at rotation_hz x (1 + error) while the time of each return inside its
+    revolution is derived from its azimuth at the nominal rate (as importers without per-firing
+    times do): stamp = revolution start + azimuth / (2 pi nominal rate)."""
+
+    name: ClassVar[str] = "spin_rate"
+    physics: ClassVar[str] = ("the head spins faster or slower than its nominal rate, and times derived from the "
+                              "azimuth at the nominal rate drift within each revolution")
+    unit: ClassVar[str] = "1"
+    error: float = Field(gt=-0.5, lt=0.5)
+
+    def magnitude(self) -> float:
+        return self.error
+
+    def spin_hz(self, rotation_hz: float) -> float:
+        return rotation_hz * (1.0 + self.error)
+
+    def recorded_time(self, t_rec, t_fire, t_rev):
+        # t_rev + azimuth / (2 pi f_nominal) = t_rev + (t_fire - t_rev) f_true / f_nominal
+        return t_rec + self.error * (t_fire - t_rev)
+
+    def max_stamp_shift_s(self) -> float:
+        return abs(self.error)  # x one revolution, which lasts less than 1 s
+
+
+@register
+class FibreHorizontalOffset(Effect):
+    """Each laser sits beside the spin axis (HDL-64E model, H_i of eq. 4.2's factory terms): true
+    horizontal offset = nominal + offset_m for even fibres, - offset_m for odd ones (the two sides of
+    the head); sensor.yaml keeps the nominal values."""
+
+    name: ClassVar[str] = "fibre_horizontal_offset"
+    physics: ClassVar[str] = ("each laser is offset sideways from the spin axis, shifting its returns across the "
+                              "beam by a constant length")
+    unit: ClassVar[str] = "m"
+    offset_m: float
+
+    def magnitude(self) -> float:
+        return abs(self.offset_m)
+
+    def factory_terms(self, factory: FactoryTerms, fibre: np.ndarray) -> FactoryTerms:
+        side = np.where(np.asarray(fibre) % 2 == 0, 1.0, -1.0)
+        return replace(factory, horizontal_offset_m=factory.horizontal_offset_m + self.offset_m * side)
 
 
 ON_BY_DEFAULT = ("intra_sweep_motion",)

@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from graphcal.calibration.before_after import BeforeAfter
     from graphcal.calibration.evaluate import Evaluation
     from graphcal.calibration.result import CalibrationResult
+    from graphcal.diagnosis.diagnose import Diagnosis
 
 
 @dataclass(frozen=True)
@@ -90,6 +91,63 @@ def deskew_run(recording_path: Path, source: str, cloud_format: str, out: Path |
         log_summary(rec, deskew_summary(recording, source, scans, shown, origin, run.path))
     run.finish(recording=str(Path(recording_path).resolve()))
     return run.path, scans
+
+
+@dataclass(frozen=True)
+class DiagnosisRun:
+    """A finished diagnosis run: its folder and what graphcal.diagnose (or the comparison) found."""
+
+    folder: Path
+    diagnosis: Diagnosis
+
+
+def diagnosis_run(recording_path: Path, config: CalibrationConfig, simulation: Path | None = None,
+                  rescan: bool = False, max_effects: int = 3, out: Path | None = None, spawn: bool = False,
+                  viewer_points: int | None = None, refit_iterations: int = 4, quiet: bool = False) -> DiagnosisRun:
+    """Diagnose the recording against graphcal's model calibrated with config (graphcal.diagnose),
+    or against a simulation of the same drive, or (rescan) against its own returns raycast on a
+    mesh of its calibrated cloud; save diagnosis.json (and the re-solved calibration in
+    calibration/) and run.rrd into the run folder. refit_iterations: outer iterations of each
+    re-solve with an effect added."""
+    from graphcal.diagnosis.compare import compare
+    from graphcal.viz.diagnosis import log_diagnosis
+    from graphcal.viz.log import VIEWER_POINTS
+
+    loaded = []
+
+    def load_simulation(_recording: Recording) -> None:  # a bad simulation path fails before the folder is made
+        if simulation is not None:
+            loaded.append(Recording.load(simulation))
+
+    run, recording = start_run(recording_path, out, "diagnose", quiet, check=load_simulation)
+    if simulation is not None:
+        with run.stage("compare with the simulation"), status("comparing with the simulation", quiet):
+            diagnosis = compare(recording, loaded[0], max_points=config.max_points)
+    elif rescan:
+        from graphcal.calibration.calibrate import calibrate
+        from graphcal.diagnosis.rescan import rescan as simulate_on_mesh
+
+        result = calibrate(recording, config, quiet=quiet)
+        run.timings_s.update({f"calibrate: {name}": seconds for name, seconds in result.timings_s.items()})
+        estimate = result.calibration.estimate
+        with run.stage("rescan on a mesh of the cloud"), status("raycasting the returns on the mesh", quiet):
+            simulated = simulate_on_mesh(recording, estimate, config.max_points)
+        with run.stage("compare with the rescan"), status("comparing with the rescan", quiet):
+            diagnosis = compare(recording, simulated, max_points=config.max_points, estimate=estimate)
+    else:
+        from graphcal.diagnosis.diagnose import diagnose
+
+        with run.stage("diagnose"):
+            diagnosis = diagnose(recording, config, max_effects=max_effects, refit_iterations=refit_iterations,
+                                 quiet=quiet)
+    with run.stage("save results"):
+        diagnosis.save(run.path, command=" ".join(["graphcal"] + sys.argv[1:]))
+    with (run.stage("viewer file"), status(f"writing {run.path / RRD}", quiet),
+          recording_stream(run.path / RRD, recording.name, spawn) as rec):
+        log_diagnosis(rec, recording, diagnosis, run.path, viewer_points or VIEWER_POINTS)
+    references = {"simulation": str(Path(simulation).resolve())} if simulation is not None else {}
+    run.finish(recording=str(Path(recording_path).resolve()), **references)
+    return DiagnosisRun(run.path, diagnosis)
 
 
 def evaluation_run(calibration_path: Path, recording_path: Path, quiet: bool = False) -> tuple[Evaluation, Path]:

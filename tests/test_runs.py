@@ -14,6 +14,8 @@ import pyarrow.parquet as pq
 import pytest
 import yaml
 from rerun.chunk import RrdReader
+from rrd_read import chunks as _chunks
+from rrd_read import column as _column
 from typer.testing import CliRunner
 
 import graphcal
@@ -41,18 +43,6 @@ def calibrated(tmp_path_factory):
 def _history(folder):
     with (folder / "history.csv").open(newline="") as stream:
         return list(csv.DictReader(stream))
-
-
-def _chunks(path):
-    """{entity path: [record batches]} of the first recording in an .rrd (rerun's own reader)."""
-    chunks = {}
-    for chunk in RrdReader(path).stream().to_chunks():
-        chunks.setdefault(chunk.entity_path, []).append(chunk.to_record_batch())
-    return chunks
-
-
-def _column(batches, name):
-    return [value for batch in batches if name in batch.schema.names for value in batch.column(name).to_pylist()]
 
 
 def test_calibrate_writes_a_complete_run_folder(calibrated):

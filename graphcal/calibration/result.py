@@ -104,7 +104,8 @@ class CalibrationResult:
     which parameter groups were estimated, the history (one dict per outer iteration: J [cm^2]
     before/after the solve, weight sum, pairs, gate, step), and the final per-point residuals
     (row of the return p in the recording, signed point-to-plane distance [m], weight), the
-    total seconds and the seconds of each step (prepare, solve <stage>, final fit and marginals ...)."""
+    total seconds and the seconds of each step (prepare, solve <stage>, final fit and marginals ...);
+    effects: the extra physics modelled (graphcal.diagnose's findings, calibration.yaml's `effects`)."""
 
     calibration: Calibration
     uncertainty: Uncertainty
@@ -116,6 +117,7 @@ class CalibrationResult:
     config: CalibrationConfig
     seconds: float
     timings_s: dict[str, float] = field(default_factory=dict)
+    effects: tuple[dict, ...] = ()
 
     @property
     def energy_cm2(self) -> tuple[float, float]:
@@ -173,7 +175,7 @@ class CalibrationResult:
         from graphcal import __version__
         return {"format": FORMAT, "sensor": {"model": cal.sensor_model, "reference_fibre": cal.reference_fibre},
                 "intrinsics": rows, "extrinsic": extrinsic, "trajectory_corrections": corrections,
-                "effects": [], "unobservable": sorted(unobservable),
+                "effects": list(self.effects), "unobservable": sorted(unobservable),
                 "energy_cm2": {"before": float(before), "after": float(after)},
                 "provenance": {"command": command, "graphcal": __version__, "gtsam": _gtsam_version(),
                                "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),

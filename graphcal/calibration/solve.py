@@ -81,30 +81,44 @@ def energy_cm2(p_m: np.ndarray, m_m: np.ndarray, pairs: Correspondences) -> tupl
 
 def build_graph(data: ReturnData, estimate: Estimate, pairs: Correspondences, config: CalibrationConfig,
                 estimates: tuple[bool, bool, bool], nominal_extrinsic: gtsam.Pose3, priors: Priors,
-                damped: bool = True):
+                damped: bool = True, effects=None):
     """One graph: a block factor per fibre of p and window of config.block_controls control
     intervals of p (per window only when the intrinsics are not estimated), plus priors.
 
     damped adds a prior at the current estimate on every key (sigmas step_sigma_m/deg): one outer
     iteration cannot run far along directions the current pairs barely see. It leaves the fixed
     point unchanged (at convergence the estimate stops moving) and is left out when sigmas are
-    computed."""
-    est_int, est_ext, est_traj = estimates
-    pose = config.pose_corrections
-    ref = data.sensor.reference_fibre
+    computed. effects (graphcal.diagnosis): candidate effect keys added to every block, with their
+    values and priors."""
     robust = None
     if config.robust != "none":
         scheme = gtsam.noiseModel.mEstimator.Base.ReweightScheme.Scalar
         create = {"huber": gtsam.noiseModel.mEstimator.Huber, "cauchy": gtsam.noiseModel.mEstimator.Cauchy}
         robust = create[config.robust].Create(config.robust_k, scheme)
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for _, block in make_blocks(data, estimate, pairs, config, estimates, effects):
+        graph.add(make_factor(block, compressed=robust is None, robust=robust))
+    if effects is not None:
+        effects.add_to(graph, values)
+    _add_priors(graph, values, data, estimate, config, estimates, nominal_extrinsic, priors, damped,
+                float(pairs.weight.sum()))
+    return graph, values
 
+
+def make_blocks(data: ReturnData, estimate: Estimate, pairs: Correspondences, config: CalibrationConfig,
+                estimates: tuple[bool, bool, bool], effects=None) -> list[tuple[np.ndarray, Block]]:
+    """The block factors' data (see build_graph), each with its rows in pairs; effects.terms(p_rows,
+    m_rows) gives each block's candidate effects (None: none)."""
+    est_int, est_ext, est_traj = estimates
+    pose = config.pose_corrections
+    ref = data.sensor.reference_fibre
     normal_lidar = normals_to_lidar(data.returns(pairs.index_p), estimate.extrinsic.rotation().matrix(),
                                     corrections_at(estimate, data.control[pairs.index_p], pose), pairs.normal)
     fi, fj = data.fibre[pairs.index_p], data.fibre[pairs.index_m]
     cp, cm = data.control[pairs.index_p], data.control[pairs.index_m]
     intrinsic_key = np.array([NO_KEY if f == ref else I(f) for f in range(data.sensor.n_fibres)], np.int64)
     control_key = np.array([X(c) for c in range(len(data.control_times_s))], np.int64)
-    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    blocks = []
     for rows in block_rows(fi if est_int else np.zeros_like(fi), cp // config.block_controls if est_traj else 0 * cp):
         p, m = pairs.index_p[rows], pairs.index_m[rows]
         keys = BlockKeys.of(len(rows), extrinsic=E(0) if est_ext else None,
@@ -114,15 +128,22 @@ def build_graph(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
                             p_hi=control_key[cp[rows] + 1] if est_traj else None,
                             m_lo=control_key[cm[rows]] if est_traj else None,
                             m_hi=control_key[cm[rows] + 1] if est_traj else None)
-        if not keys.unique:
+        if not keys.unique and effects is None:
             continue
         block = Block(p=data.returns(p), m=data.returns(m), normal=normal_lidar[rows], weight=pairs.weight[rows],
                       keys=keys, pose_corrections=pose,
                       fixed=FixedValues(estimate.offsets[data.fibre[p]], estimate.offsets[data.fibre[m]],
                                         estimate.extrinsic),
-                      sigma0_m=config.sigma0_m)
-        graph.add(make_factor(block, compressed=robust is None, robust=robust))
+                      sigma0_m=config.sigma0_m, effects=None if effects is None else effects.terms(p, m))
+        blocks.append((rows, block))
+    return blocks
 
+
+def _add_priors(graph, values, data: ReturnData, estimate: Estimate, config: CalibrationConfig, estimates,
+                nominal_extrinsic: gtsam.Pose3, priors: Priors, damped: bool, weight_sum: float) -> None:
+    """Values and priors of the estimated keys (and the damping priors, see build_graph)."""
+    est_int, est_ext, est_traj = estimates
+    ref = data.sensor.reference_fibre
     step_m, step_rad = config.step_sigma_m, np.radians(config.step_sigma_deg)
     if est_int:
         for fibre in range(data.sensor.n_fibres):
@@ -141,9 +162,7 @@ def build_graph(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
             graph.add(gtsam.PriorFactorPose3(E(0), estimate.extrinsic, gtsam.noiseModel.Diagonal.Sigmas(
                 np.r_[np.full(3, step_rad), np.full(3, step_m)])))
     if est_traj:
-        _add_trajectory(graph, values, estimate, config, control_prior_sigma(config, float(pairs.weight.sum())),
-                        priors, damped)
-    return graph, values
+        _add_trajectory(graph, values, estimate, config, control_prior_sigma(config, weight_sum), priors, damped)
 
 
 def block_rows(fibre_p: np.ndarray, window: np.ndarray, max_rows: int = MAX_BLOCK_ROWS) -> list[np.ndarray]:

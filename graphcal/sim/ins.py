@@ -32,7 +32,7 @@ def true_poses(drive: Drive, start_time_s: float, duration_s: float, rate_hz: fl
 def recorded_poses(truth: PoseTrack, errors: InsErrors, effects: list[Effect],
                    rng: np.random.Generator) -> PoseTrack:
     """What the GNSS/INS writes: truth resampled at errors.rate_hz, plus a piecewise-linear
-    position error, white noise and the switched-on INS effects (e.g. heading drift)."""
+    position error, white noise and the switched-on INS effects (e.g. heading drift, projection scale)."""
     t0, t1 = truth.span
     time = sample_times(t0, t1, errors.rate_hz)
     ins = truth.resample(time)
@@ -45,6 +45,7 @@ def recorded_poses(truth: PoseTrack, errors: InsErrors, effects: list[Effect],
     rpy = unwrap_deg_columns(ins.rpy_deg) + rng.normal(0.0, errors.attitude_noise_deg, position.shape)
     for effect in effects:
         rpy = effect.ins_rpy(time - t0, rpy)
+        position = effect.ins_position(time - t0, position)
     return PoseTrack.from_rpy(time, position, rpy)
 
 

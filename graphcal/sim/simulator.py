@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from pyproj import CRS
 
-from factors.spherical import beam_rays
+from factors.spherical import FactoryTerms, beam_rays, from_xyz
 from graphcal.effects import Effect, build_effects, describe
 from graphcal.extrinsic import Extrinsic
 from graphcal.points import PointTable
@@ -104,16 +104,19 @@ def _cast_chunk(cycle_start, lidar_start, scenario, rig: _Rig, scene, rng):
     sensor, n = rig.sensor, rig.sensor.n_fibres
     fibre = np.tile(np.arange(n, dtype=np.int16), len(cycle_start))
     t_fire = (cycle_start[:, None] + sensor.timing.laser_spacing_s * np.arange(n)[None, :]).ravel()
-    turns = sensor.rotation_hz * (t_fire - lidar_start)
+    spin_hz = sensor.rotation_hz
+    for effect in rig.effects:
+        spin_hz = effect.spin_hz(spin_hz)
+    turns = spin_hz * (t_fire - lidar_start)
     revolution = np.floor(turns)
-    t_rev = lidar_start + revolution / sensor.rotation_hz
+    t_rev = lidar_start + revolution / spin_hz
     encoder = 2 * np.pi * (turns - revolution)
 
     t_pose, beam_azimuth = t_rev, encoder
     for effect in rig.effects:
         t_pose = effect.pose_time(t_pose, t_fire, t_rev)
         beam_azimuth = effect.beam_azimuth(beam_azimuth)
-    factory = sensor.factory_terms(fibre)
+    factory = _true_factory_terms(sensor, fibre, rig.effects)
     origin_lidar, direction_lidar = beam_rays(beam_azimuth, factory, rig.offsets[fibre])
     position, rotation = rig.poses.interpolate(t_pose)
     origin = rotation.apply(rig.extrinsic.lidar_to_body(origin_lidar)) + position
@@ -124,7 +127,7 @@ def _cast_chunk(cycle_start, lidar_start, scenario, rig: _Rig, scene, rng):
     fibre, encoder, t_fire, t_rev = fibre[hit], encoder[hit], t_fire[hit], t_rev[hit]
     # the raw range a perfect sensor reports, by the inverse of eq. 4.2 with the true offsets
     p_lidar = origin_lidar[hit] + distance[hit, None] * direction_lidar[hit]
-    ideal_range, _, _ = sensor.from_xyz(fibre, p_lidar, rig.offsets)
+    ideal_range, _, _ = from_xyz(p_lidar, _true_factory_terms(sensor, fibre, rig.effects), rig.offsets[fibre])
     cos_incidence = np.abs(np.sum(normal[hit] * direction[hit], axis=1))
     range_m, t_rec = ideal_range, t_fire
     for effect in rig.effects:
@@ -136,3 +139,11 @@ def _cast_chunk(cycle_start, lidar_start, scenario, rig: _Rig, scene, rng):
                "scan": revolution[hit].astype(np.int32)}
     world = origin[hit] + distance[hit, None] * direction[hit]
     return columns, world
+
+
+def _true_factory_terms(sensor: SensorModel, fibre: np.ndarray, effects: list[Effect]) -> FactoryTerms:
+    """The factory terms of the returns' fibres as the effects make them (nominal by default)."""
+    factory = sensor.factory_terms(fibre)
+    for effect in effects:
+        factory = effect.factory_terms(factory, fibre)
+    return factory

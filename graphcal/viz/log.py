@@ -34,13 +34,17 @@ def log_cloud(stream: rr.RecordingStream, path: str, xyz_local_m: np.ndarray, *,
         stream.log(f"{path}/by_fibre", rr.Points3D(xyz, class_ids=np.asarray(fibre, dtype=np.uint16),
                                                    radii=POINT_RADIUS_UI), static=True)
     if time_s is not None:
-        values, first, last = time_s
-        stream.log(f"{path}/by_time", rr.Points3D(xyz, colors=value_colors(values, first, last),
-                                                  radii=POINT_RADIUS_UI), static=True)
+        log_coloured(stream, f"{path}/by_time", xyz, *time_s)
     if residual_m is not None:
         values, scale = residual_m
-        stream.log(f"{path}/by_residual", rr.Points3D(xyz, colors=value_colors(values, -scale, scale, "RdBu_r"),
-                                                      radii=POINT_RADIUS_UI), static=True)
+        log_coloured(stream, f"{path}/by_residual", xyz, values, -scale, scale, "RdBu_r")
+
+
+def log_coloured(stream: rr.RecordingStream, path: str, xyz_local_m: np.ndarray, values: np.ndarray, low: float,
+                 high: float, cmap: str = "viridis") -> None:
+    """Points [m, local] coloured by values through a matplotlib colour map over [low, high], static."""
+    stream.log(path, rr.Points3D(np.asarray(xyz_local_m, dtype=np.float32), colors=value_colors(values, low, high, cmap),
+                                 radii=POINT_RADIUS_UI), static=True)
 
 
 def log_line(stream: rr.RecordingStream, path: str, xyz_local_m: np.ndarray, color, label: str) -> None:

@@ -1,0 +1,111 @@
+"""What the candidate effects need to know about every return besides the calibration's data: time
+within the revolution, time since the first pose, incidence angle, and the INS motion."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from factors.effects import CANDIDATES, Channels, Context, Motion, perturbed
+from factors.point_to_plane import EffectTerms
+from factors.world_point import world_points
+from graphcal.association import Features
+from graphcal.calibration.problem import Estimate, ReturnData, corrections_at, world_at
+from graphcal.poses import PoseTrack
+
+K = gtsam.symbol_shorthand.K  # candidate effect parameters, Vector
+
+
+def ins_motion(poses: PoseTrack, time_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """INS velocity [m/s] and angular rate [rad/s], world axes, at times (M,): those of the pose
+    interval each time falls in (the derivative of the linear / SLERP interpolation)."""
+    dt = np.diff(poses.time)
+    velocity = np.diff(poses.position_m, axis=0) / dt[:, None]
+    omega = (poses.rotation[1:] * poses.rotation[:-1].inv()).as_rotvec() / dt[:, None]
+    index = np.clip(np.searchsorted(poses.time, time_s, side="right") - 1, 0, len(dt) - 1)
+    return velocity[index], omega[index]
+
+
+@dataclass(frozen=True)
+class ReturnContext:
+    """Per-return arrays (N, the rows of a ReturnData) for the candidates' bases and motion."""
+
+    data: ReturnData
+    sweep_s: np.ndarray
+    elapsed_s: np.ndarray
+    cos_incidence: np.ndarray
+    velocity: np.ndarray
+    omega: np.ndarray
+
+    @classmethod
+    def of(cls, data: ReturnData, poses: PoseTrack, points_m: np.ndarray, features: Features,
+           t_E: np.ndarray) -> ReturnContext:
+        """points_m: world points (N,3) minus data.origin_m at the current estimate, features their local
+        normals; t_E the lever arm [m] (the beam starts at X_nav + R_nav t_E)."""
+        velocity, omega = ins_motion(poses, data.time_s)
+        beam = points_m - data.X_nav - np.einsum("nij,j->ni", data.R_nav, t_E)
+        beam /= np.maximum(np.linalg.norm(beam, axis=1, keepdims=True), 1e-9)
+        cos_incidence = np.clip(np.abs(np.einsum("ni,ni->n", beam, features.normal)), 0.0, 1.0)
+        return cls(data, data.azimuth_rad / (2 * np.pi * data.sensor.rotation_hz), data.time_s - poses.span[0],
+                   cos_incidence, velocity, omega)
+
+    def context(self, rows: np.ndarray) -> Context:
+        d = self.data
+        return Context(d.range_m[rows], d.azimuth_rad[rows], d.fibre[rows], d.sensor.n_fibres, self.sweep_s[rows],
+                       self.elapsed_s[rows], self.cos_incidence[rows], d.X_nav[rows])
+
+    def motion(self, rows: np.ndarray) -> Motion:
+        return Motion(self.velocity[rows], self.omega[rows])
+
+
+@dataclass(frozen=True)
+class EffectModel:
+    """Candidate effects in a graph (graphcal.calibration.solve.build_graph's `effects`): their names
+    (key K(i) for the i-th), current values, and prior sigmas (None: no prior, e.g. for a score test
+    that only linearises)."""
+
+    names: tuple[str, ...]
+    values: dict
+    context: ReturnContext
+    prior_sigma: dict | None = None
+
+    @property
+    def keys(self) -> tuple[int, ...]:
+        return tuple(K(i) for i in range(len(self.names)))
+
+    def dim(self, name: str) -> int:
+        return CANDIDATES[name].dim(self.context.data.sensor.n_fibres)
+
+    def terms(self, p_rows: np.ndarray, m_rows: np.ndarray) -> EffectTerms:
+        cp, cm = self.context.context(p_rows), self.context.context(m_rows)
+        return EffectTerms(self.keys, tuple(CANDIDATES[n].basis(cp) for n in self.names), self.context.motion(p_rows),
+                           tuple(CANDIDATES[n].basis(cm) for n in self.names), self.context.motion(m_rows))
+
+    def add_to(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
+        for key, name in zip(self.keys, self.names):
+            value = np.asarray(self.values.get(name, np.zeros(self.dim(name))), dtype=np.float64)
+            values.insert(key, value)
+            if self.prior_sigma is not None:
+                graph.add(gtsam.PriorFactorVector(key, np.zeros(len(value)),
+                                                  gtsam.noiseModel.Isotropic.Sigma(len(value), self.prior_sigma[name])))
+
+    def read(self, values: gtsam.Values) -> dict:
+        """The effects' values held in solved values."""
+        return {name: np.array(values.atVector(key)) for key, name in zip(self.keys, self.names)}
+
+
+def world_with_effects(data: ReturnData, estimate: Estimate, pose: bool, model: EffectModel | None,
+                       rows: np.ndarray | None = None) -> np.ndarray:
+    """world_at (graphcal.calibration.problem) with the model's effects at their current values."""
+    if model is None or not model.names:
+        return world_at(data, estimate, pose, rows)
+    rows = np.arange(len(data.time_s)) if rows is None else rows
+    bases = [CANDIDATES[name].basis(model.context.context(rows)) for name in model.names]
+    channels = Channels.of(tuple(bases), [model.values[name] for name in model.names], len(rows))
+    returns = perturbed(data.returns(rows), model.context.motion(rows), channels)
+    R_E, t_E = estimate.extrinsic.rotation().matrix(), estimate.extrinsic.translation()
+    p, _ = world_points(returns, estimate.offsets[data.fibre[rows]], R_E, t_E + channels.body,
+                        corrections_at(estimate, data.control[rows], pose), jacobians=False)
+    return p

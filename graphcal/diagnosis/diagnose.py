@@ -1,0 +1,290 @@
+"""graphcal.diagnose: find where the model and a recording disagree, name the physics left out,
+model it, show the fit improve; repeat until no candidate is significant (DIA: detection,
+identification, adaptation).
+
+1. baseline fit of the current model (graphcal.calibrate);
+2. score test of every candidate effect (graphcal.diagnosis.score), significant ones confirmed on
+   held-out time blocks, ranked by BIC gain; candidates the data cannot tell apart reported together;
+3. the winner is added to the graph (an effect key in every block) and everything re-solved;
+4. back to 2 with the winner in the model, until nothing is significant. Then the residual field is
+   located (graphcal.diagnosis.locate).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from factors.effects import CANDIDATES
+from graphcal.atomic import atomic_path
+from graphcal.calibration.config import CalibrationConfig
+from graphcal.calibration.result import Calibration, CalibrationResult
+from graphcal.diagnosis.fit import Fit, baseline, refit
+from graphcal.diagnosis.locate import locate
+from graphcal.diagnosis.score import (
+    ALPHA,
+    CandidateTest,
+    linearise,
+    score_candidate,
+    separation,
+)
+from graphcal.progress import progress
+from graphcal.recording import Recording
+
+FORMAT = "graphcal-diagnosis/1"
+NOT_SEPARABLE_CORRELATION = 0.95
+# what would tell two candidates apart (either order); the default names the usual remedies
+SEPARATING_DATA = {
+    frozenset({"intra_sweep_motion", "spin_rate"}): "the same signature (a time error growing over the revolution): "
+    "a revolution stamp shows as a full period (1 revolution), a spin-rate error as a few per cent; the sensor's "
+    "reported spin rate would settle it",
+    frozenset({"range_scale", "projection_scale"}): "the same signature (lidar lengths against trajectory lengths): "
+    "only the projection's known scale factor tells them apart; a recording in a local metric frame, or ranges to "
+    "a surveyed target, would separate them",
+    frozenset({"time_offset", "lever_arm"}): "a speed change, or passes in both directions",
+    frozenset({"heading_bias", "heading_drift"}): "a longer drive (the drift grows, the bias does not)",
+}
+# the largest size each candidate can physically have (its unit): beyond, the estimate is a degenerate fit
+PHYSICAL_BOUND = {"time_offset": 0.5, "spin_rate": 0.3, "range_scale": 0.01, "incidence_range_bias": 0.5,
+                  "azimuth_eccentricity": 2.0, "heading_bias": 5.0, "heading_drift": 1.0, "lever_arm": 2.0,
+                  "fibre_horizontal_offset": 0.2}
+UNEXPLAINED_CM = 0.5
+UNEXPLAINED_Q = 1e-6
+DEFAULT_SEPARATING_DATA = "a turn, a speed change, or a second pass in the opposite direction"
+UNIT_DISPLAY = {"s": (1e3, "ms"), "m": (1e2, "cm"), "1": (1e6, "ppm"), "deg": (1.0, "deg"),
+                "deg/s": (1.0, "deg/s"), "revolution": (1.0, "revolution")}
+
+
+def expected_magnitude(name: str, recording: Recording) -> float | None:
+    """A candidate whose size physics fixes: revolution stamps miss a whole revolution, and a map
+    projection's scale factor is known (pyproj, at the recording's fixes)."""
+    if name == "intra_sweep_motion":
+        return 1.0
+    if name == "projection_scale":
+        return float(np.mean(recording.world.scale_factor) - 1.0)
+    return None
+
+
+def plausible(test: CandidateTest, recording: Recording) -> bool:
+    """Whether an estimate fits its candidate's physics: a fixed-size candidate within 3 sigma (plus 20 %)
+    of its known size; the others within PHYSICAL_BOUND (a range scale of 100 % collapses the cloud,
+    which a self-consistency energy rewards on a static recording)."""
+    expected = expected_magnitude(test.name, recording)
+    if expected is not None:
+        return abs(test.magnitude - expected) < 3 * test.sigma + 0.2 * abs(expected)
+    return abs(test.magnitude) < PHYSICAL_BOUND[test.name]
+
+
+def display(name: str, value: float) -> str:
+    scale, unit = UNIT_DISPLAY[CANDIDATES[name].unit]
+    return f"{value * scale:.3g} {unit}"
+
+
+@dataclass
+class Diagnosis:
+    """What graphcal.diagnose found: findings (strongest first; diagnosis.json of RECORDING.md),
+    candidates the data could not tell apart, the residual field's top locations, every candidate's
+    first-round test, the candidates the model already mimics entirely, and J before/after [cm^2].
+    locations are those of the final fit, locations_baseline those of the fit without any effect."""
+
+    findings: list[dict]
+    not_separable: list[dict]
+    locations: list[dict]
+    locations_baseline: list[dict]
+    candidates: list[dict]
+    concealed: list[dict]
+    energy_cm2: dict
+    seconds: float
+    calibration: CalibrationResult | None = field(default=None, repr=False)
+    fit: Fit | None = field(default=None, repr=False)
+
+    def to_json(self) -> dict:
+        return {"format": FORMAT, "findings": self.findings, "not_separable": self.not_separable,
+                "locations": self.locations, "locations_baseline": self.locations_baseline, "candidates": self.candidates, "concealed": self.concealed,
+                "energy_cm2": self.energy_cm2, "seconds": round(self.seconds, 2)}
+
+    def save(self, directory: str | Path, command: str = "graphcal.diagnose") -> Path:
+        """diagnosis.json, and when there is one, the re-solved calibration (calibration/calibration.yaml,
+        its effects listed). The viewer file is the run's (graphcal.runs.diagnosis_run)."""
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        with atomic_path(directory / "diagnosis.json") as tmp:
+            tmp.write_text(json.dumps(_finite(self.to_json()), indent=1, default=_plain, allow_nan=False))
+        if self.calibration is not None:
+            self.calibration.save(directory / "calibration", command=command)
+        return directory / "diagnosis.json"
+
+    def summary(self) -> str:
+        if self.findings:
+            return "\n".join(f["statement"] for f in self.findings)
+        rejected = [c for c in self.candidates if c["significant"] and not c["plausible"]]
+        tested = [c for c in self.candidates if np.isfinite(c["mdb"]) and not _blind(c) and c not in rejected]
+        blind = [c["effect"] for c in self.candidates if not np.isfinite(c["mdb"]) or _blind(c)]
+        return ("no left-out effect is significant: " + ("; ".join(
+            f"{c['effect']} < {display(c['effect'], c['mdb'])} (MDB)" for c in tested) or "no candidate could be tested")
+            + "".join(f"; {c['effect']} significant but its estimate {display(c['effect'], c['magnitude'])} is beyond "
+                      "its physical size (a degenerate fit, not a finding)" for c in rejected)
+            + (f"; not observable in this recording: {', '.join(blind)}" if blind else ""))
+
+
+def _blind(row: dict) -> bool:
+    """A candidate whose minimal detectable size is beyond any physical size: the data cannot see it."""
+    bound = PHYSICAL_BOUND.get(row["effect"], 1.0)
+    return row["mdb"] > bound
+
+
+def _finite(value):
+    """NaN and infinities as null (JSON has neither)."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    if isinstance(value, float | np.floating) and not np.isfinite(value):
+        return None
+    return value
+
+
+def _plain(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"{type(value)} is not JSON serialisable")
+
+
+def _row(test: CandidateTest, recording: Recording, n: int) -> dict:
+    return {"effect": test.name, "magnitude": test.magnitude, "sigma": test.sigma, "mdb": test.mdb,
+            "unit": CANDIDATES[test.name].unit, "statistic": test.statistic, "dof": test.dof, "p_value": test.p_value,
+            "bic_gain": test.bic_gain,
+            "concealment_r2": test.concealment_r2, "absorbed_by": [a for a, _ in test.absorbed_by],
+            "held_out_cm2": list(test.held_out_cm2), "significant": test.significant(n),
+            "plausible": plausible(test, recording) if test.identifiable else False}
+
+
+def candidate_names(fit: Fit, candidates: list[str] | None) -> list[str]:
+    """The candidates to test: all by default, less those the model already estimates (the lever arm
+    when the extrinsic is estimated) or has added."""
+    names = list(candidates or CANDIDATES)
+    unknown = sorted(set(names) - set(CANDIDATES))
+    if unknown:
+        from graphcal.errors import ConfigError
+        raise ConfigError(f"unknown candidate effect(s) {unknown}; known: {', '.join(CANDIDATES)}")
+    return [n for n in names if n not in fit.model.names and not (n == "lever_arm" and fit.estimated[1])]
+
+
+def score_all(fit: Fit, names: list[str]) -> tuple[dict, object]:
+    """Every candidate's score test at a fit (the modelled effects in the base), and the linearisation."""
+    cluster, half = fit.clusters()
+    lin = linearise(fit.data, fit.estimate, fit.pairs, fit.config, fit.estimated, fit.nominal, fit.priors,
+                    fit.with_candidates(names), cluster, half)
+    return {n: score_candidate(lin, n, names) for n in names}, lin
+
+
+def diagnose(recording: Recording, config: CalibrationConfig | None = None, candidates: list[str] | None = None,
+             max_effects: int = 3, refit_iterations: int = 4, quiet: bool = False) -> Diagnosis:
+    """Diagnose a recording against graphcal's model calibrated with config (default: joint
+    intrinsics + extrinsic). candidates: effect names to test (default: every one of
+    factors.effects.CANDIDATES). At most max_effects are added, each re-solved with
+    refit_iterations outer iterations."""
+    started = time.perf_counter()
+    config = config or CalibrationConfig(mode="joint")
+    fit, result = baseline(recording, config, quiet=quiet)
+    energy, located = {"before": fit.energy_cm2}, locate(fit)
+    findings, not_separable, first_round, concealed, added = [], [], None, [], None
+    for _ in progress(range(max_effects + 1), "diagnosing", total=max_effects + 1, quiet=quiet):
+        names = candidate_names(fit, candidates)
+        tests, lin = score_all(fit, names)
+        if added is not None:  # the effect added last, with its sigma at the refit
+            winner, before = added
+            sigma = score_candidate(lin, winner.name, names + [winner.name]).sigma
+            findings.append(_finding(winner, fit, before, sigma))
+            added = None
+        if first_round is None:
+            first_round = [_row(t, recording, len(names)) for t in sorted(tests.values(), key=lambda t: t.log10_p)]
+            concealed = [{"effect": t.name, "concealment_r2": t.concealment_r2,
+                          "absorbed_by": [a for a, _ in t.absorbed_by]} for t in tests.values() if not t.identifiable]
+        significant = [t for t in tests.values() if t.identifiable and t.significant(len(names))]
+        eligible = sorted((t for t in significant if plausible(t, recording)), key=lambda t: -t.bic_gain)
+        if not eligible or len(findings) == max_effects:
+            break
+        winner = eligible[0]
+        twins = [(other, separation(lin, winner.name, other.name, names)) for other in significant
+                 if other.name != winner.name]
+        twins = [(other, rho) for other, rho in twins if rho > NOT_SEPARABLE_CORRELATION]
+        for other, _ in twins:  # the data cannot choose: a candidate whose known size fits is the better name
+            if (expected_magnitude(winner.name, recording) is None and other in eligible
+                    and expected_magnitude(other.name, recording) is not None):
+                winner = other
+        for other, rho in twins:
+            names_pair = sorted({winner.name, other.name}) if other.name != winner.name else None
+            if names_pair:
+                not_separable.append({"effects": names_pair, "correlation": rho, "named": winner.name,
+                                      "would_separate": SEPARATING_DATA.get(frozenset(names_pair),
+                                                                            DEFAULT_SEPARATING_DATA)})
+        before = fit.energy_cm2
+        active = fit.model.names + (winner.name,)
+        prior = {n: float(max(10 * np.abs(fit.model.values.get(n, winner.theta)).max(), 10 * np.sqrt(
+            np.max(np.diag(winner.covariance))))) for n in active}
+        fit = refit(fit, active, prior, refit_iterations)
+        added = (winner, before)
+    energy["after"] = fit.energy_cm2
+    calibration = _calibration(result, fit, findings)
+    final = locate(fit) if findings else located
+    findings += unexplained(final)
+    return Diagnosis(findings, not_separable, final, located, first_round, concealed, energy,
+                     time.perf_counter() - started, calibration, fit)
+
+
+def unexplained(locations: list[dict]) -> list[dict]:
+    """Structure left once the candidates are modelled: the located bin with the largest |effect|,
+    if it is at least UNEXPLAINED_CM and q < UNEXPLAINED_Q (diagnosis.json's `unexplained`)."""
+    strong = [row for row in locations if "bin" in row and abs(row["effect_cm"]) >= UNEXPLAINED_CM
+              and row["q_value"] < UNEXPLAINED_Q]
+    if not strong:
+        return []
+    row = max(strong, key=lambda r: abs(r["effect_cm"]))
+    statement = (f"structure no candidate explains: residuals of {row['effect_cm']:+.2g} cm against "
+                 f"{row['regressor']} in [{row['bin'][0]:.3g}, {row['bin'][1]:.3g}] (q = {row['q_value']:.1e}, "
+                 f"{row['n_pairs']} pairs)")
+    return [{"effect": "unexplained", "magnitude": row["effect_cm"] / 100, "sigma": None, "unit": "m",
+             "statement": statement, "absorbed_by": [], "location": row,
+             "evidence": {"statistic": None, "p_value": row["p_value"], "q_value": row["q_value"]}}]
+
+
+def _finding(test: CandidateTest, fit: Fit, energy_before: float, sigma: float) -> dict:
+    """The finding of an effect added: its size at the refit (fit) with sigma, what absorbed it and the
+    held-out J from its test at the fit before (test)."""
+    value = fit.model.values[test.name]
+    magnitude = CANDIDATES[test.name].magnitude(value)
+    absorbed = test.absorbed_by[0]
+    held_before, held_after = test.held_out_cm2
+    statement = (f"the recording shows {CANDIDATES[test.name].physics} ({test.name}: {display(test.name, magnitude)} "
+                 f"± {display(test.name, sigma)}), which the model left out; it was absorbed by {absorbed[0]} "
+                 f"(correlation {absorbed[1]:+.2f}, concealment R² {test.concealment_r2:.2f}); adding it lowers "
+                 f"held-out J from {held_before:.3g} to {held_after:.3g} cm² and J from {energy_before:.3g} to "
+                 f"{fit.energy_cm2:.3g} cm²")
+    return {"effect": test.name, "magnitude": magnitude, "sigma": sigma, "unit": CANDIDATES[test.name].unit,
+            "parameters": np.asarray(value).tolist(), "statement": statement,
+            "absorbed_by": [a for a, _ in test.absorbed_by], "mdb": test.mdb, "concealment_r2": test.concealment_r2,
+            "evidence": {"statistic": test.statistic, "dof": test.dof, "p_value": test.p_value,
+                         "log10_p": test.log10_p, "bic_gain": test.bic_gain, "naive_statistic": test.naive_statistic},
+            "energy_cm2": {"before": energy_before, "after": fit.energy_cm2, "held_out_before": held_before,
+                           "held_out_after": held_after}}
+
+
+def _calibration(result: CalibrationResult, fit: Fit, findings: list[dict]) -> CalibrationResult:
+    """The baseline's result with the re-solved estimate and the effects it carries (sigmas: the
+    baseline's)."""
+    calibration = result.calibration
+    calibration = Calibration(calibration.sensor_model, calibration.reference_fibre, fit.estimate,
+                              calibration.control_times_s, calibration.unobservable)
+    effects = tuple({k: f[k] for k in ("effect", "magnitude", "sigma", "unit", "parameters", "statement")}
+                    for f in findings)
+    return replace(result, calibration=calibration, effects=effects)
+
+
+__all__ = ["ALPHA", "Diagnosis", "diagnose"]

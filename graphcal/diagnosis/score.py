@@ -1,0 +1,333 @@
+"""Score (Rao / Lagrange-multiplier) tests of candidate effects at a fit, after Baarda and Teunissen's
+DIA: each candidate's Jacobian is projected off the estimated parameters, its score tested with a
+cluster-robust variance, its size estimated with a sigma and a minimal detectable bias (MDB), and
+the parameter that was absorbing it named.
+
+Notation: the graph linearised at the fit, in named coordinates (extrinsic in body axes), gives the
+information L and vector eta (a Gauss-Newton step solves L d = eta). For base parameters b and a
+candidate k (parameters theta_k = 0 at the fit):
+
+    S = L_kk - L_kb L_bb^-1 L_bk          information on theta_k left once b is estimated
+    u = eta_k - L_kb L_bb^-1 eta_b        score of theta_k projected off b
+    theta_hat = S^-1 u,   T = u^T V^-1 u ~ chi2(d_k) under "no effect"
+
+T = u^T S^-1 u / f, with f = tr(S^-1 V) / d_k the variance factor of the projected score: V is its
+cluster-robust variance, the sum over clusters c (blocks of space and time) of u_c u_c^T with u_c
+the projected score of the pairs in c, once the candidate is fitted (its own signal out). Residuals of neighbouring pairs share points and surfaces,
+and sigma0 is a nominal noise: f takes both into account where u^T S^-1 u (the textbook statistic)
+counts 10^5 correlated pairs as independent and flags everything. (f rather than the full V^-1:
+V is poorly conditioned for a candidate of 32 parameters seen by a few hundred clusters.)
+Concealment R^2 = 1 - S / L_kk: the share of the candidate's signature the base parameters mimic.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+from scipy import optimize, stats
+
+from factors.effects import CANDIDATES
+from factors.point_to_plane import jacobian_by_key, residuals
+from graphcal.association import Correspondences
+from graphcal.calibration.config import CalibrationConfig
+from graphcal.calibration.observability import (
+    CONTROL_NAMES,
+    EXTRINSIC_NAMES,
+    INTRINSIC_NAMES,
+    tangent_to_axes,
+)
+from graphcal.calibration.problem import Estimate, ReturnData
+from graphcal.calibration.solve import E, Priors, build_graph, make_blocks
+from graphcal.diagnosis.context import EffectModel
+
+ALPHA = 1e-3  # family-wise false-alarm rate over the candidates
+POWER = 0.8
+IDENTIFIABLE_R2 = 0.995  # above this concealment the candidate is not tested: the model already has it
+BLIND_INFORMATION = 1e-12  # a candidate's information below this share of the median parameter's: the data are blind
+
+
+@functools.lru_cache(maxsize=64)
+def noncentrality(dof: int, alpha: float = ALPHA, power: float = POWER) -> float:
+    """lambda0 of the MDB: the non-centrality at which a chi2(dof) test of size alpha has the power
+    asked (17.07 for one parameter at alpha 0.1 %, power 80 %)."""
+    threshold = stats.chi2.isf(alpha, dof)
+    return float(optimize.brentq(lambda lam: stats.ncx2.sf(threshold, dof, lam) - power, 1e-6, 1e4))
+
+
+@dataclass(frozen=True)
+class Linearisation:
+    """The graph at a fit, in named coordinates: information (n,n) and vector (n,) of the whole graph
+    (data and priors), the parameter name of each column, the columns of each effect, the data's rows
+    in blocks (cluster id (N,), Jacobian (N, w), whitened residual (N,), global columns (w,)), the
+    number of clusters, and per half of the drive (interleaved time blocks) the data's information,
+    vector, cost sum r^2 and weight sum."""
+
+    information: np.ndarray
+    vector: np.ndarray
+    names: list[str]
+    effect_columns: dict
+    rows: list
+    n_clusters: int
+    half_information: np.ndarray
+    half_vector: np.ndarray
+    half_cost: np.ndarray
+    half_weight: np.ndarray
+    sigma0_m: float
+
+    @property
+    def prior_information(self) -> np.ndarray:
+        return self.information - self.half_information.sum(axis=0)
+
+    @property
+    def prior_vector(self) -> np.ndarray:
+        return self.vector - self.half_vector.sum(axis=0)
+
+    def energy_cm2(self, half: int, step: np.ndarray) -> float:
+        """J [cm^2] of a half's pairs after the linear step (named coordinates)."""
+        cost = self.half_cost[half] - 2 * self.half_vector[half] @ step + step @ self.half_information[half] @ step
+        return float(cost * self.sigma0_m ** 2 / self.half_weight[half] * 1e4)
+
+
+def linearisation_of_rows(r: np.ndarray, A: np.ndarray, names: list[str], effect_columns: dict,
+                          cluster: np.ndarray, half: np.ndarray, sigma0_m: float) -> Linearisation:
+    """The Linearisation of a stacked least-squares problem without priors: whitened residuals (K,),
+    their Jacobian (K, n), each column's name, the effects' columns, and per row its cluster and half
+    (0/1). Every row counts with weight 1 in J."""
+    g = -A * r[:, None]
+    info = np.stack([A[half == h].T @ A[half == h] for h in (0, 1)])
+    vector = np.stack([g[half == h].sum(axis=0) for h in (0, 1)])
+    cost = np.array([float(r[half == h] @ r[half == h]) for h in (0, 1)])
+    weight = np.array([float(np.sum(half == h)) for h in (0, 1)])
+    return Linearisation(info.sum(axis=0), vector.sum(axis=0), names, effect_columns,
+                         [(cluster, A, r, np.arange(A.shape[1]))], int(cluster.max()) + 1, info, vector, cost,
+                         weight, sigma0_m)
+
+
+def _key_names(key: int, width: int, model: EffectModel, pose: bool) -> list[str]:
+    symbol = gtsam.Symbol(key)
+    char, index = chr(symbol.chr()).upper(), symbol.index()
+    if char == "I":
+        return [f"fibre_{index}.{n}" for n in INTRINSIC_NAMES]
+    if char == "E":
+        return [f"extrinsic.{n}" for n in EXTRINSIC_NAMES]
+    if char == "X":
+        return [f"control_{index}.{n}" for n in (CONTROL_NAMES if pose else CONTROL_NAMES[3:])]
+    name = model.names[index]
+    return [name] if width == 1 else [f"{name}[{j}]" for j in range(width)]
+
+
+def linearise(data: ReturnData, estimate: Estimate, pairs: Correspondences, config: CalibrationConfig,
+              estimated: tuple[bool, bool, bool], nominal: gtsam.Pose3, priors: Priors, model: EffectModel,
+              cluster: np.ndarray, half: np.ndarray) -> Linearisation:
+    """Linearise the undamped graph with the model's effects (candidates at zero, no prior on them) at
+    the estimate; cluster (K,) and half (K,) label each pair."""
+    graph, values = build_graph(data, estimate, pairs, config, estimated, nominal, priors, damped=False,
+                                effects=model)
+    keys = list(values.keys())
+    zero = values.zeroVectors()
+    widths = [len(zero.at(k)) for k in keys]
+    starts = np.r_[0, np.cumsum(widths)]
+    column = {k: s for k, s in zip(keys, starts[:-1])}
+    n = int(starts[-1])
+    information, vector = graph.linearize(values).hessian(gtsam.Ordering(keys))
+    # tangent -> named coordinates: the extrinsic's tangent turned into body axes (orthogonal)
+    to_named = np.eye(n)
+    if E(0) in column:
+        s = column[E(0)]
+        to_named[s:s + 6, s:s + 6] = tangent_to_axes(estimate.extrinsic.rotation().matrix())
+    names = [name for k, w in zip(keys, widths) for name in _key_names(k, w, model, config.pose_corrections)]
+    n_clusters = int(cluster.max()) + 1 if len(cluster) else 0
+    blocks = []
+    half_information, half_vector = np.zeros((2, n, n)), np.zeros((2, n))
+    half_cost, half_weight = np.zeros(2), np.zeros(2)
+    for rows, block in make_blocks(data, estimate, pairs, config, estimated, model):
+        r, A = residuals(block, values)
+        cols = np.concatenate([np.arange(column[k], column[k] + J.shape[1])
+                               for k, J in jacobian_by_key(block, A).items()])
+        A = A @ to_named[np.ix_(cols, cols)].T  # block-diagonal: the block's own columns stay its own
+        blocks.append((cluster[rows], A, r, cols))
+        g = -A * r[:, None]  # each pair's contribution to eta
+        for h in (0, 1):
+            of = half[rows] == h
+            half_information[h][np.ix_(cols, cols)] += A[of].T @ A[of]
+            half_vector[h, cols] += g[of].sum(axis=0)
+            half_cost[h] += float(r[of] @ r[of])
+            half_weight[h] += float(pairs.weight[rows][of].sum())
+    effect_columns = {name: np.arange(column[k], column[k] + model.dim(name)) for k, name in zip(model.keys, model.names)}
+    return Linearisation(to_named @ information @ to_named.T, to_named @ vector, names, effect_columns, blocks,
+                         n_clusters, half_information, half_vector, half_cost, half_weight, config.sigma0_m)
+
+
+def _solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """L^-1 B for a symmetric positive semi-definite L spanning many orders of magnitude (held
+    parameters next to loose ones): scaled to a unit diagonal, then a pseudo-inverse by eigenvalues."""
+    if L.size == 0:
+        return np.zeros(B.shape)
+    scale = 1.0 / np.sqrt(np.maximum(np.diag(L), 1e-300))
+    w, V = np.linalg.eigh(L * np.outer(scale, scale))
+    kept = w > w.max() * 1e-12
+    inverse = (V[:, kept] / w[kept]) @ V[:, kept].T
+    return scale[:, None] * (inverse @ (scale[:, None] * B)) if B.ndim == 2 else scale * (inverse @ (scale * B))
+
+
+@dataclass(frozen=True)
+class CandidateTest:
+    """One candidate's test at a fit. theta (d,) and its robust covariance in the candidate's SI
+    parameters; magnitude, sigma and mdb in its headline unit; statistic ~ chi2(dof) robust, with
+    naive_statistic the textbook u^T S^-1 u (statistic x the variance factor); concealment R^2; absorbed_by: (parameter, correlation)
+    of the base parameters most correlated with the estimate; held-out J [cm^2] without and with it
+    (fit on one half of the drive's time blocks, evaluated on the other, both ways, averaged)."""
+
+    name: str
+    dof: int
+    statistic: float
+    p_value: float
+    naive_statistic: float
+    theta: np.ndarray
+    covariance: np.ndarray
+    magnitude: float
+    sigma: float
+    mdb: float
+    concealment_r2: float
+    absorbed_by: list
+    held_out_cm2: tuple[float, float]
+    n_clusters: int = 0
+
+    def significant(self, n_candidates: int, alpha: float = ALPHA) -> bool:
+        """Bonferroni over the candidates, a positive BIC gain, and confirmed on held-out data (lower
+        held-out J)."""
+        return bool(self.p_value < alpha / max(n_candidates, 1) and self.bic_gain > 0
+                    and self.held_out_cm2[1] < self.held_out_cm2[0])
+
+    @property
+    def bic_gain(self) -> float:
+        """T - d ln(C): the fit's gain less BIC's price of d parameters, C the number of independent
+        clusters; ranks candidates of different sizes (a 32-parameter candidate soaks up part of
+        any signal and its p-value alone would rank it too high)."""
+        return float(self.statistic - self.dof * np.log(max(self.n_clusters, 2)))
+
+    @property
+    def identifiable(self) -> bool:
+        return self.concealment_r2 <= IDENTIFIABLE_R2
+
+    @property
+    def log10_p(self) -> float:
+        """log10 of the p-value, finite where the p-value underflows (the ranking key)."""
+        return float(stats.chi2.logsf(self.statistic, self.dof) / np.log(10.0))
+
+
+def _headline_sigma(name: str, theta: np.ndarray, covariance: np.ndarray) -> tuple[float, float]:
+    """(sigma, mdb) of the headline magnitude: delta method along the estimate's direction."""
+    magnitude = CANDIDATES[name].magnitude
+    d = len(theta)
+    norm = np.linalg.norm(theta)
+    direction = theta / norm if norm > 0 else np.eye(d)[0]
+    sigma_along = float(np.sqrt(max(direction @ covariance @ direction, 0.0)))
+    step = direction * sigma_along
+    sigma = abs(magnitude(step) - magnitude(np.zeros(d))) if d > 1 else abs(magnitude(step))
+    mdb = abs(magnitude(direction * sigma_along * np.sqrt(noncentrality(d))))
+    return float(sigma), float(mdb)
+
+
+def score_candidate(lin: Linearisation, name: str, candidates: list[str]) -> CandidateTest:
+    """The score test of one candidate against a base of every parameter but the candidates'."""
+    k = lin.effect_columns[name]
+    others = np.concatenate([lin.effect_columns[c] for c in candidates]) if candidates else np.zeros(0, int)
+    base = np.setdiff1d(np.arange(len(lin.names)), others)
+    L, eta = lin.information, lin.vector
+    Xs = _solve(L[np.ix_(base, base)], L[np.ix_(base, k)])
+    S = L[np.ix_(k, k)] - L[np.ix_(k, base)] @ Xs
+    u = eta[k] - Xs.T @ eta[base]
+    r2 = float(np.mean(1.0 - np.diag(S) / np.maximum(np.diag(L[np.ix_(k, k)]), 1e-300)))
+    blind = np.diag(L[np.ix_(k, k)]).max() <= BLIND_INFORMATION * np.median(np.diag(L))
+    if blind:  # no information at all (a time offset seen from a static sensor): absorbed by nothing
+        nan = np.full(len(k), np.nan)
+        return CandidateTest(name, len(k), 0.0, 1.0, 0.0, nan, np.full((len(k), len(k)), np.nan), np.nan, np.nan,
+                             np.inf, 1.0, [], (np.nan, np.nan), lin.n_clusters)
+    if r2 > IDENTIFIABLE_R2:  # the base parameters mimic it entirely: nothing left to test
+        nan = np.full(len(k), np.nan)
+        return CandidateTest(name, len(k), 0.0, 1.0, 0.0, nan, np.full((len(k), len(k)), np.nan), np.nan, np.nan,
+                             np.inf, r2, _absorbing(L, base, k, Xs, np.linalg.pinv(S), np.ones(len(k)), lin.names),
+                             (np.nan, np.nan), lin.n_clusters)
+    S_inv = np.linalg.pinv(S)
+    theta = S_inv @ u
+    V = _cluster_variance(lin, base, k, Xs, theta)
+    factor = max(float(np.trace(S_inv @ V)) / len(k), 1e-12)
+    statistic = float(u @ S_inv @ u) / factor
+    covariance = S_inv * factor
+    sigma, mdb = _headline_sigma(name, theta, covariance)
+    return CandidateTest(name, len(k), statistic, float(stats.chi2.sf(statistic, len(k))), float(u @ S_inv @ u),
+                         theta, covariance, CANDIDATES[name].magnitude(theta), sigma, mdb, r2,
+                         _absorbing(L, base, k, Xs, S_inv, theta, lin.names), _held_out(lin, base, k),
+                         lin.n_clusters)
+
+
+def _cluster_variance(lin: Linearisation, base: np.ndarray, k: np.ndarray, Xs: np.ndarray,
+                      theta: np.ndarray) -> np.ndarray:
+    """Cluster-robust variance (d, d) of the candidate's projected score, with the candidate fitted
+    (theta): sum over clusters of u_c u_c^T, u_c = -J~_c^T (r_c + J~_c theta), J~ = J_k - J_b Xs the
+    candidate's Jacobian projected off the base. At theta the candidate's own signal is out of the
+    scores: their spread is the noise's, correlated within clusters, not the effect's."""
+    position = np.full(len(lin.names), -1)
+    position[base] = np.arange(len(base))
+    where_k = {c: j for j, c in enumerate(k)}
+    scores = np.zeros((lin.n_clusters, len(k)))
+    for cluster, A, r, cols in lin.rows:
+        in_base = position[cols] >= 0
+        in_k = np.array([c in where_k for c in cols])
+        order = np.array([where_k[c] for c in cols[in_k]])
+        J = np.zeros((len(r), len(k)))
+        J[:, order] = A[:, in_k]
+        J -= A[:, in_base] @ Xs[position[cols[in_base]]]
+        np.add.at(scores, cluster, -J * (r + J @ theta)[:, None])
+    return scores.T @ scores
+
+
+def _absorbing(L, base, k, Xs, S_inv, theta, names, top: int = 3) -> list:
+    """Base parameters most correlated with the candidate (along its estimate) in the joint covariance."""
+    direction = theta / np.linalg.norm(theta) if np.linalg.norm(theta) > 0 else np.eye(len(k))[0]
+    cross = -(direction @ S_inv) @ Xs.T  # Cov(direction . theta, x_b)
+    var_theta = direction @ S_inv @ direction
+    var_base = np.diag(_solve(L[np.ix_(base, base)], np.eye(len(base)))) + np.einsum("ij,jk,ik->i", Xs, S_inv, Xs)
+    if not len(base):
+        return []
+    correlation = cross / np.sqrt(np.maximum(var_theta * var_base, 1e-300))
+    order = np.argsort(-np.abs(correlation))[:top]
+    return [(names[base[j]], float(correlation[j])) for j in order]
+
+
+def _held_out(lin: Linearisation, base: np.ndarray, k: np.ndarray) -> tuple[float, float]:
+    """Held-out J [cm^2] of the base model and of base + candidate: fitted (one linear step) on one
+    half's pairs and the priors, evaluated on the other half; both ways, averaged."""
+    both = np.r_[base, k]
+    out = np.zeros(2)
+    for fit in (0, 1):
+        L = lin.half_information[fit] + lin.prior_information
+        eta = lin.half_vector[fit] + lin.prior_vector
+        for m, columns in enumerate((base, both)):
+            step = np.zeros(len(lin.names))
+            step[columns] = _solve(L[np.ix_(columns, columns)], eta[columns])
+            out[m] += lin.energy_cm2(1 - fit, step) / 2
+    return float(out[0]), float(out[1])
+
+
+def separation(lin: Linearisation, a: str, b: str, candidates: list[str]) -> float:
+    """Largest canonical correlation of two candidates' signatures once the base is projected off:
+    near 1, the data cannot tell them apart."""
+    ka, kb = lin.effect_columns[a], lin.effect_columns[b]
+    others = np.concatenate([lin.effect_columns[c] for c in candidates])
+    base = np.setdiff1d(np.arange(len(lin.names)), others)
+    both = np.r_[ka, kb]
+    L = lin.information
+    S = L[np.ix_(both, both)] - L[np.ix_(both, base)] @ _solve(L[np.ix_(base, base)], L[np.ix_(base, both)])
+    na = len(ka)
+
+    def inv_sqrt(M):
+        w, V = np.linalg.eigh(M)
+        return (V / np.sqrt(np.maximum(w, w.max() * 1e-15))) @ V.T
+
+    cross = inv_sqrt(S[:na, :na]) @ S[:na, na:] @ inv_sqrt(S[na:, na:])
+    return float(np.linalg.svd(cross, compute_uv=False).max())

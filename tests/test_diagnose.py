@@ -1,0 +1,161 @@
+"""graphcal.diagnose end to end on concealed scenarios (scenarios/concealed.py): a clean recording
+gets no finding, a recording with two left-out effects gets both, named and sized against the
+simulator's truth; a recording against a simulation of the same drive names the effect between them.
+
+Small sizes (about 80 k returns, 40 k used, 2 outer iterations, 2 per refit: about 35 s in all on
+an idle machine): each effect here is several sigma at this size. The angle prior is
+concealed.ANGLE_PRIOR_DEG (with the default, the joint baseline collapses and is refused). The
+per-effect figures at larger sizes, for every candidate, are in benchmarks/bench_diagnose.py; the
+per-effect tests below use its settings and run with GRAPHCAL_SLOW_TESTS=1 (2-5 min each), the
+failures measured before the angle prior marked as such.
+"""
+
+import json
+import os
+
+import numpy as np
+import pytest
+import yaml
+from rerun.chunk import RrdReader
+from rrd_read import chunks, column
+from scipy.spatial import cKDTree
+from typer.testing import CliRunner
+
+import graphcal
+from graphcal.calibration.config import CalibrationConfig
+from graphcal.cli import app
+from graphcal.runs import diagnosis_run
+from graphcal.sim.script import load_scenario_builder
+
+CONCEALED_SCENARIO = load_scenario_builder("concealed")
+CONCEALED = CONCEALED_SCENARIO.__globals__["CONCEALED"]
+ANGLE_PRIOR_DEG = CONCEALED_SCENARIO.__globals__["ANGLE_PRIOR_DEG"]
+SIZE = 0.02
+VIEWER_POINTS = 5000
+
+
+def config(mode: str = "joint", max_points: int = 40_000, iterations: int = 2) -> CalibrationConfig:
+    return CalibrationConfig(mode=mode, max_outer_iterations=iterations, max_points=max_points, tolerance_m=1e-3,
+                             intrinsic_sigma_angle_deg=ANGLE_PRIOR_DEG)
+
+
+def recording(tmp_path_factory, name: str, **kwargs):
+    rec = graphcal.simulate(CONCEALED_SCENARIO(size=SIZE, seed=0, **kwargs), quiet=True)
+    return graphcal.Recording.load(rec.save(tmp_path_factory.mktemp("sim") / name))
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory):
+    return recording(tmp_path_factory, "clean", effect=None)
+
+
+@pytest.fixture(scope="module")
+def two_effects(tmp_path_factory):
+    """The two-effect recording diagnosed as `graphcal diagnose` does, into a run folder."""
+    rec = recording(tmp_path_factory, "two", effect="time_offset", effects=("azimuth_eccentricity",))
+    run = diagnosis_run(rec.path, config(), max_effects=2, out=tmp_path_factory.mktemp("runs") / "run",
+                        viewer_points=VIEWER_POINTS, refit_iterations=2, quiet=True)
+    return rec, run
+
+
+def test_clean_recording_gets_no_false_alarm(clean):
+    diagnosis = graphcal.diagnose(clean, config(), max_effects=1, quiet=True)
+    assert diagnosis.findings == []
+    assert len(diagnosis.candidates) >= 9  # every identifiable candidate was tested, with its MDB
+    assert all(not c["significant"] for c in diagnosis.candidates)
+    assert "no left-out effect is significant" in diagnosis.summary()
+
+
+def test_two_concealed_effects_are_both_found_and_sized(two_effects):
+    rec, run = two_effects
+    diagnosis = run.diagnosis
+    truth = rec.truth.effects
+    found = {f["effect"]: f for f in diagnosis.findings}
+    assert set(found) == {"time_offset", "azimuth_eccentricity"}, diagnosis.summary()
+    # named first: the time offset, though the range offsets absorbed much of it (concealed)
+    assert diagnosis.findings[0]["effect"] == "time_offset" and diagnosis.findings[0]["concealment_r2"] > 0.3
+    assert found["time_offset"]["magnitude"] == pytest.approx(truth["time_offset"]["magnitude"], rel=0.2)
+    assert found["azimuth_eccentricity"]["magnitude"] == pytest.approx(truth["azimuth_eccentricity"]["magnitude"],
+                                                                       rel=0.2)
+    for finding in diagnosis.findings:
+        assert finding["energy_cm2"]["held_out_after"] < finding["energy_cm2"]["held_out_before"]
+        assert finding["evidence"]["p_value"] < 1e-4 and np.isfinite(finding["sigma"]) and finding["sigma"] > 0
+    assert diagnosis.energy_cm2["after"] < diagnosis.energy_cm2["before"]
+
+
+def test_diagnosis_run_folder(two_effects):
+    """diagnosis.json, the re-solved calibration with its effects, run.yaml's stages, and run.rrd read
+    back with rerun's reader: the residual field of the final fit (at most VIEWER_POINTS pairs, local
+    coordinates) and the binned effects."""
+    rec, run = two_effects
+    diagnosis, folder = run.diagnosis, run.folder
+    saved = json.loads((folder / "diagnosis.json").read_text())
+    assert saved["format"] == "graphcal-diagnosis/1"
+    assert [f["effect"] for f in saved["findings"]] == [f["effect"] for f in diagnosis.findings]
+    assert "ms" in saved["findings"][0]["statement"] or "deg" in saved["findings"][0]["statement"]
+    calibration = (folder / "calibration" / "calibration.yaml").read_text()
+    assert "time_offset" in calibration and "azimuth_eccentricity" in calibration
+    manifest = yaml.safe_load((folder / "run.yaml").read_text())
+    assert manifest["command"] == "diagnose" and manifest["recording"] == str(rec.path.resolve())
+    for stage in ("load and validate the recording", "diagnose", "save results", "viewer file"):
+        assert manifest["timings_s"][stage] >= 0.0, stage
+    assert len(RrdReader(folder / "run.rrd").blueprints()) == 1
+    found = chunks(folder / "run.rrd")
+    expected = {"/summary", "/world/residual/by_residual", "/world/residual/by_time_s", "/binned/fibre",
+                "/binned/azimuth_deg"}
+    assert expected <= set(found), expected - set(found)
+    (positions,) = column(found["/world/residual/by_residual"], "Points3D:positions")
+    fit = diagnosis.fit
+    paired = fit.points_m[fit.pairs.index_p]
+    assert len(positions) == min(len(paired), VIEWER_POINTS)
+    distance, _ = cKDTree(paired).query(np.array(positions))
+    assert distance.max() < 1e-3  # the final fit's points p, local coordinates (float32)
+    ((summary,),) = column(found["/summary"], "TextDocument:text")
+    assert diagnosis.findings[0]["statement"] in summary and "local origin" in summary
+
+
+def test_recording_against_a_simulation_of_the_same_drive(clean, tmp_path_factory, tmp_path):
+    rec = recording(tmp_path_factory, "offset", effect="time_offset")
+    result = CliRunner().invoke(app, ["diagnose", str(rec.path), "--simulation", str(clean.path), "--out",
+                                      str(tmp_path / "run"), "-q"])
+    assert result.exit_code == 0, result.output
+    manifest = yaml.safe_load((tmp_path / "run" / "run.yaml").read_text())
+    assert manifest["simulation"] == str(clean.path.resolve()) and (tmp_path / "run" / "run.rrd").is_file()
+    saved = json.loads((tmp_path / "run" / "diagnosis.json").read_text())
+    assert saved["findings"][0]["effect"] == "time_offset"
+    assert saved["findings"][0]["magnitude"] == pytest.approx(CONCEALED["time_offset"].magnitude, rel=0.2)
+
+
+def test_bad_mode_is_a_clear_error(clean, tmp_path):
+    result = CliRunner().invoke(app, ["diagnose", str(clean.path), "--mode", "sideways", "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "mode" in result.output
+
+
+# measured failures (benchmarks/bench_diagnose.py, the same settings): see docs/diagnose.md
+KNOWN_FAILURES = {"intra_sweep_motion": "the linear test at the distorted fit names spin_rate",
+                  "projection_scale": "absorbed once the baseline converges (R2 0.94)",
+                  "fibre_horizontal_offset": "32 parameters, R2 0.91: not significant by self-consistency",
+                  "range_scale": "named, but the refit overshoots (+65 %)",
+                  "incidence_range_bias": "named, but the refit undershoots (-25 %)"}
+
+
+@pytest.mark.skipif(not os.environ.get("GRAPHCAL_SLOW_TESTS"), reason="2-5 min per effect: GRAPHCAL_SLOW_TESTS=1")
+@pytest.mark.parametrize("effect", [pytest.param(e, marks=pytest.mark.xfail(reason=KNOWN_FAILURES[e], strict=False))
+                                    if e in KNOWN_FAILURES else e for e in sorted(set(CONCEALED) - {"heading_bias"})])
+def test_each_concealed_effect_is_named_first_and_sized(effect, tmp_path_factory):
+    rec = graphcal.Recording.load(graphcal.simulate(CONCEALED_SCENARIO(size=0.04, seed=1, effect=effect), quiet=True)
+                                  .save(tmp_path_factory.mktemp("sim") / effect))
+    settings = CalibrationConfig(mode=CONCEALED[effect].mode, max_outer_iterations=6, max_points=80_000,
+                                 tolerance_m=1e-4, intrinsic_sigma_angle_deg=ANGLE_PRIOR_DEG)
+    diagnosis = graphcal.diagnose(rec, settings, max_effects=1, quiet=True)
+    assert diagnosis.findings and diagnosis.findings[0]["effect"] == effect, diagnosis.summary()
+    assert diagnosis.findings[0]["magnitude"] == pytest.approx(CONCEALED[effect].magnitude, rel=0.2)
+
+
+@pytest.mark.skipif(not os.environ.get("GRAPHCAL_SLOW_TESTS"), reason="about 5 min: GRAPHCAL_SLOW_TESTS=1")
+def test_heading_bias_is_reported_concealed_by_the_boresight_yaw(tmp_path_factory):
+    rec = graphcal.simulate(CONCEALED_SCENARIO(size=0.04, seed=1, effect="heading_bias"), quiet=True)
+    diagnosis = graphcal.diagnose(rec, config(max_points=80_000, iterations=3), max_effects=1, quiet=True)
+    concealed = {c["effect"]: c for c in diagnosis.concealed}
+    assert "heading_bias" in concealed and concealed["heading_bias"]["absorbed_by"][0] == "extrinsic.yaw_deg"
+    assert "heading_bias" not in [f["effect"] for f in diagnosis.findings]

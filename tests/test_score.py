@@ -1,0 +1,54 @@
+"""Score tests of candidate effects (graphcal.diagnosis.score) on linear problems whose answer is
+known: estimate, false-alarm rate under correlated noise, MDB, concealment and the absorbing
+parameter against independent least squares."""
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from graphcal.diagnosis.score import (
+    linearisation_of_rows,
+    noncentrality,
+    score_candidate,
+)
+
+K_ROWS, CLUSTERS = 2000, 200
+
+
+def _problem(rng, theta_true: float, shared_sigma: float = 0.0):
+    """Residuals r = -(A0 a + a_k theta) + noise: base columns x0, x1 (x1 correlated with the
+    candidate's column), the candidate k; noise with a part shared by each cluster of 10 rows."""
+    x = rng.normal(size=(K_ROWS, 3))
+    A = np.column_stack([x[:, 0], x[:, 1], 0.8 * x[:, 1] + 0.6 * x[:, 2]])
+    cluster = np.repeat(np.arange(CLUSTERS), K_ROWS // CLUSTERS)
+    noise = rng.normal(size=K_ROWS) + shared_sigma * rng.normal(size=CLUSTERS)[cluster]
+    r = -(A @ np.array([0.3, -0.2, theta_true])) + noise  # at the linearisation point every parameter is 0
+    return linearisation_of_rows(r, A, ["x0", "x1", "range_scale"], {"range_scale": np.array([2])}, cluster, cluster % 2, 0.01), A, r
+
+
+def test_estimate_sigma_concealment_and_absorbing_parameter():
+    rng = np.random.default_rng(0)
+    lin, A, r = _problem(rng, theta_true=0.5)
+    test = score_candidate(lin, "range_scale", ["range_scale"])
+    full, *_ = np.linalg.lstsq(A, -r, rcond=None)  # independent least squares on all three
+    assert test.theta[0] == pytest.approx(full[2], rel=1e-9)
+    residual = A[:, 2] - A[:, :2] @ np.linalg.lstsq(A[:, :2], A[:, 2], rcond=None)[0]
+    assert test.concealment_r2 == pytest.approx(1 - residual @ residual / (A[:, 2] @ A[:, 2]), rel=1e-9)
+    assert test.absorbed_by[0][0] == "x1" and test.absorbed_by[0][1] < -0.5
+    assert abs(test.magnitude - 0.5) < 4 * test.sigma and test.p_value < 1e-10
+    assert test.held_out_cm2[1] < test.held_out_cm2[0]
+
+
+def test_lambda0_is_baardas():
+    assert noncentrality(1) == pytest.approx(17.07, abs=0.01)
+
+
+def test_false_alarms_stay_at_the_nominal_rate_with_correlated_noise():
+    rng = np.random.default_rng(1)
+    robust, naive = [], []
+    for _ in range(300):
+        test = score_candidate(_problem(rng, theta_true=0.0, shared_sigma=2.0)[0], "range_scale", ["range_scale"])
+        robust.append(test.p_value)
+        naive.append(stats.chi2.sf(test.naive_statistic, 1))
+    assert np.mean(np.array(robust) < 0.05) < 0.10  # nominal 5 %
+    assert np.mean(np.array(naive) < 0.05) > 0.3  # the textbook statistic counts correlated rows as independent
