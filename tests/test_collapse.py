@@ -1,10 +1,11 @@
-"""A calibration whose fibres collapsed onto one cone (the energy's trivial minimum) is refused."""
+"""The energy's trivial minimum (fibres collapsed onto one cone): refused, and avoided on a static sensor."""
 
 import numpy as np
 import pytest
 
-from graphcal.calibration.calibrate import check_fibres_apart
-from graphcal.errors import CalibrationError
+from graphcal.calibration.calibrate import check_energy_fell, check_fibres_apart, held_names
+from graphcal.calibration.config import CalibrationConfig
+from graphcal.errors import CalibrationError, ConfigError
 from graphcal.sensor import sensor_from_catalog
 from graphcal.sim.scenario import draw_offsets
 from graphcal.sim.starts import TABLE_4_1_ERRORS
@@ -27,3 +28,30 @@ def test_fibres_pushed_onto_the_reference_are_refused():
     collapsed = np.radians(reference - sensor.elevation_deg) * 0.8  # 80 % of the way onto one cone
     with pytest.raises(CalibrationError, match="collapsed"):
         check_fibres_apart(sensor.elevation_deg, collapsed, _Recording())
+
+
+def test_a_static_sensor_holds_the_elevations_and_features_from_voxels():
+    static, moving = CalibrationConfig().for_sensor(True), CalibrationConfig().for_sensor(False)
+    assert static.feature_voxel_m > 0 and moving.feature_voxel_m == 0
+    assert moving.hold == () and static.hold == ("fibre_*.d_elevation_deg",)
+    held = held_names(static.hold, 32, 15)
+    assert held == [f"fibre_{i}.d_elevation_deg" for i in range(32) if i != 15]
+    chosen = CalibrationConfig(hold=(), feature_voxel_m=0.2).for_sensor(True)  # the user's choice stands
+    assert chosen.hold == () and chosen.feature_voxel_m == 0.2
+
+
+def test_hold_names_parameters_or_says_what_it_expected():
+    assert held_names(("extrinsic.lever_arm_?_m", "fibre_3.h_z_m"), 32, 15) == [
+        "fibre_3.h_z_m", "extrinsic.lever_arm_x_m", "extrinsic.lever_arm_y_m", "extrinsic.lever_arm_z_m"]
+    with pytest.raises(ConfigError, match="'fibre_15.d_range_m' names no parameter"):  # the reference is fixed
+        held_names(("fibre_15.d_range_m",), 32, 15)
+
+
+def test_a_calibration_that_ends_above_its_start_is_refused():
+    falling = [{"energy_cm2": 40.0, "energy_after_cm2": 5.0}, {"energy_cm2": 6.0, "energy_after_cm2": 0.01}]
+    check_energy_fell(falling, _Recording())
+    gate_opened = [{"energy_cm2": 0.674, "energy_after_cm2": 0.6}, {"energy_cm2": 0.9, "energy_after_cm2": 0.866}]
+    check_energy_fell(gate_opened, _Recording())  # started at the truth: more pairs as the gate opens
+    rising = [{"energy_cm2": 11.1, "energy_after_cm2": 5.2}, {"energy_cm2": 104.2, "energy_after_cm2": 103.9}]
+    with pytest.raises(CalibrationError, match=r"diverged \(J 11.1 cm2 at the start, 104 cm2 at the end\)"):
+        check_energy_fell(rising, _Recording())

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import fnmatch
 import time
 from dataclasses import replace
 
@@ -10,12 +11,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from graphcal.association import local_features
-from graphcal.calibration.config import (
-    ESTIMATES,
-    STAGES,
-    STATIC_BELOW_M,
-    CalibrationConfig,
-)
+from graphcal.calibration.config import ESTIMATES, STAGES, CalibrationConfig
 from graphcal.calibration.observability import (
     CONTROL_NAMES,
     EXTRINSIC_NAMES,
@@ -48,7 +44,7 @@ from graphcal.calibration.solve import (
     hold_at_nominal,
     solve_stage,
 )
-from graphcal.errors import CalibrationError
+from graphcal.errors import CalibrationError, ConfigError
 from graphcal.intrinsics import offsets_to_file_units
 from graphcal.recording import Recording
 
@@ -68,12 +64,12 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
     started = time.perf_counter()
     timings = {}  # stage -> seconds
     data = prepare(recording, config.control_interval_s, config.max_points, np.random.default_rng(config.seed))
-    static = bool(np.ptp(data.X_nav, axis=0).max() < STATIC_BELOW_M)
-    config = config.for_sensor(static)
+    config = config.for_sensor(data.static)
     timings["prepare"] = time.perf_counter() - started
     estimate = initial_estimate(recording, data)
     nominal = estimate.extrinsic
-    priors = Priors.of(config, data.sensor.n_fibres, len(data.control_times_s))
+    held = held_names(config.hold, data.sensor.n_fibres, data.sensor.reference_fibre)
+    priors = holding(Priors.of(config, data.sensor.n_fibres, len(data.control_times_s)), held)
     stages = STAGES.get(config.mode, (config.mode,))
     estimated = tuple(any(ESTIMATES[stage][k] for stage in stages) for k in range(3))
     history = History()
@@ -92,7 +88,7 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
 
     estimate = run_stages(estimate, priors)
     final = timed("final fit and marginals", final_fit, data, estimate, config, estimated, nominal, priors)
-    unobservable = final.uncertainty.unobservable()
+    unobservable = [name for name in final.uncertainty.unobservable() if name not in held]
     if unobservable:  # hold them at nominal and run the stages again: they must not drag the others
         priors = holding(priors, unobservable)
         # stage by stage still: successive modes must not turn joint here
@@ -100,11 +96,13 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
                                    priors, nominal)
         final = timed("final fit and marginals, unobservable held", final_fit, data, estimate, config, estimated,
                       nominal, priors)
+    unobservable = held + unobservable
+    check_energy_fell(history.rows, recording)
     if estimated[0]:
         check_fibres_apart(data.sensor.elevation_deg, estimate.offsets[:, 2], recording)
     if estimated[2]:
         unobservable += list(TRAJECTORY_GAUGE[:2 if config.pose_corrections else 1])
-    if static:  # whatever the mode: the whole cloud moves rigidly with the extrinsic and the trajectory
+    if data.static:  # whatever the mode: the whole cloud moves rigidly with the extrinsic and the trajectory
         unobservable += [name for name in (*(f"extrinsic.{n}" for n in EXTRINSIC_NAMES), *TRAJECTORY_GAUGE)
                          if name not in unobservable]
     calibration = Calibration(data.sensor.model, data.sensor.reference_fibre, estimate, data.control_times_s,
@@ -115,6 +113,8 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
 
 # calibrated elevations spread over less than this fraction of the nominal ones: the fibres collapsed
 COLLAPSE_RATIO = 0.5
+# J at the end over J at the start above which a run diverged
+DIVERGED_RATIO = 2.0
 
 
 def check_fibres_apart(elevation_deg: np.ndarray, d_elevation_rad: np.ndarray, recording: Recording) -> None:
@@ -132,6 +132,20 @@ def check_fibres_apart(elevation_deg: np.ndarray, d_elevation_rad: np.ndarray, r
             f"{spread:.2f} deg against {nominal_spread:.2f} deg nominal): a degenerate minimum where neighbouring "
             "fibres coincide, not a calibration; start closer to the truth (smaller offsets), allow more outer "
             "iterations (max_outer_iterations), or tighten the angle prior (intrinsic_sigma_angle_deg)")
+
+
+def check_energy_fell(history: list[dict], recording: Recording) -> None:
+    """Raise CalibrationError when J ends DIVERGED_RATIO times above where it started: the outer
+    loop diverged (its association kept finding worse pairs), and the estimate makes the cloud less
+    consistent than the nominal model did. J's pairs change with the gate and the phase, so a
+    smaller rise (a run started at the truth whose gate opens) is not taken for divergence."""
+    start, end = history[0]["energy_cm2"], history[-1]["energy_after_cm2"]
+    if end > DIVERGED_RATIO * start:
+        raise CalibrationError(
+            f"{recording.path or recording.name}: the calibration diverged (J {start:.3g} cm2 at the start, "
+            f"{end:.3g} cm2 at the end): the nominal model fits this recording better than the estimate; tighten "
+            "the priors (intrinsic_sigma_range_m, intrinsic_sigma_angle_deg), hold what the drive cannot observe "
+            "(hold), or use a recording with more surfaces and motion")
 
 
 class FinalFit:
@@ -184,6 +198,17 @@ def uncertainty(marginals: gtsam.Marginals, data: ReturnData, estimate: Estimate
             prior_rows.append(np.where(held, HELD_SIGMA, control_sigma) * POSE_TO_FILE_UNITS)
         controls, controls_prior = np.array(rows), np.array(prior_rows)
     return Uncertainty(intrinsics, prior_int, extrinsic, extrinsic_prior, controls, controls_prior)
+
+
+def held_names(patterns: tuple[str, ...], n_fibres: int, reference_fibre: int) -> list[str]:
+    """The parameter names matched by patterns (shell wildcards, e.g. 'fibre_*.d_elevation_deg')."""
+    names = [f"fibre_{i}.{name}" for i in range(n_fibres) if i != reference_fibre for name in INTRINSIC_NAMES]
+    names += [f"extrinsic.{name}" for name in EXTRINSIC_NAMES]
+    for pattern in patterns:
+        if not fnmatch.filter(names, pattern):
+            raise ConfigError(f"hold: {pattern!r} names no parameter (expected e.g. 'fibre_3.d_range_m', "
+                              f"'fibre_*.d_elevation_deg', 'extrinsic.lever_arm_z_m')")
+    return [name for name in names if any(fnmatch.fnmatchcase(name, pattern) for pattern in patterns)]
 
 
 def holding(priors: Priors, names: list[str]) -> Priors:

@@ -14,8 +14,9 @@ Mode = Literal["intrinsic", "extrinsic", "trajectory", "joint", "joint_trajector
 ESTIMATES = {"intrinsic": (True, False, False), "extrinsic": (False, True, False),
              "trajectory": (False, False, True), "joint": (True, True, False),
              "joint_trajectory": (True, True, True)}
-STATIC_BELOW_M = 1.0  # a sensor whose positions span less than this is static
 STATIC_FEATURE_VOXEL_M = 0.1  # spans the HDL-32E's rings on walls within ~10 m
+# a static sensor's fibres can all slide onto one cone, where every pair's distance vanishes
+STATIC_HOLD = ("fibre_*.d_elevation_deg",)
 STAGES = {"extrinsic_then_intrinsic": ("extrinsic", "intrinsic"),
           "intrinsic_then_extrinsic": ("intrinsic", "extrinsic")}
 
@@ -38,6 +39,9 @@ class CalibrationConfig(BaseModel):
     feature_voxel_m: float | None = Field(None, ge=0, description=(
         "features from the cloud averaged in voxels of this size (0: from every return); None: "
         f"{STATIC_FEATURE_VOXEL_M} m for a static sensor (it sees the same spots every revolution), else 0"))
+    hold: tuple[str, ...] | None = Field(None, description=(
+        "parameters held at nominal and named unobservable, e.g. 'fibre_*.d_elevation_deg' (shell wildcards); "
+        "None: every fibre's elevation for a static sensor (docs/math.md: its energy's trivial minimum), else none"))
     min_planarity: float = Field(0.3, ge=0, le=1, description="coarse phase: p and m both at least this planar")
     max_normal_angle_deg: float = Field(30.0, gt=0, le=90, description="coarse phase: normals at p and m agree within")
     max_plane_distance_m: float = Field(np.inf, gt=0, description="coarse phase: m this close to the plane at p")
@@ -73,9 +77,9 @@ class CalibrationConfig(BaseModel):
 
     def for_sensor(self, static: bool) -> CalibrationConfig:
         """The settings left to the recording (None) resolved for a static or a moving sensor."""
-        if self.feature_voxel_m is not None:
-            return self
-        return self.model_copy(update={"feature_voxel_m": STATIC_FEATURE_VOXEL_M if static else 0.0})
+        voxel_m = (STATIC_FEATURE_VOXEL_M if static else 0.0) if self.feature_voxel_m is None else self.feature_voxel_m
+        hold = (STATIC_HOLD if static else ()) if self.hold is None else self.hold
+        return self.model_copy(update={"feature_voxel_m": voxel_m, "hold": hold})
 
     def fine(self) -> CalibrationConfig:
         """The settings of the fine phase."""

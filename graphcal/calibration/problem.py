@@ -17,6 +17,8 @@ from graphcal.extrinsic import Extrinsic
 from graphcal.recording import Recording
 from graphcal.sensor import SensorModel
 
+STATIC_BELOW_M = 1.0  # a sensor whose positions span less than this is static
+
 
 @dataclass(frozen=True)
 class ReturnData:
@@ -35,6 +37,11 @@ class ReturnData:
     alpha: np.ndarray
     control_times_s: np.ndarray
     origin_m: np.ndarray
+
+    @property
+    def static(self) -> bool:
+        """The sensor's positions span less than STATIC_BELOW_M (a tripod, a parked car)."""
+        return bool(np.ptp(self.X_nav, axis=0).max() < STATIC_BELOW_M)
 
     def returns(self, rows: np.ndarray) -> Returns:
         """The factor-side view of some rows."""

@@ -66,6 +66,7 @@ class Fit:
 def baseline(recording: Recording, config: CalibrationConfig, quiet: bool = True) -> tuple[Fit, CalibrationResult]:
     """Calibrate with the current model (no effect), then associate strictly at the estimate."""
     result = calibrate(recording, config, quiet=quiet)
+    config = result.config  # with the settings calibrate resolved for the recording
     data = prepare(recording, config.control_interval_s, config.max_points, np.random.default_rng(config.seed))
     stages = STAGES.get(config.mode, (config.mode,))
     estimated = tuple(any(ESTIMATES[stage][k] for stage in stages) for k in range(3))
@@ -80,7 +81,7 @@ def baseline(recording: Recording, config: CalibrationConfig, quiet: bool = True
 def _associated(recording, data, config, estimated, nominal, priors, estimate, model) -> Fit:
     points = world_with_effects(data, estimate, config.pose_corrections, model)
     fine = config.fine()
-    features = local_features(points, config.feature_radius_m, config.feature_neighbours)
+    features = local_features(points, config.feature_radius_m, config.feature_neighbours, config.feature_voxel_m)
     pairs = Association.of(data, fine).pairs(points, data.fibre, features, fine.fine_gate_m, fine)
     if model is None:
         context = ReturnContext.of(data, recording.world.poses, points, features, estimate.extrinsic.translation())
@@ -98,7 +99,7 @@ def refit(fit: Fit, names: tuple[str, ...], prior_sigma: dict, iterations: int =
     association = Association.of(fit.data, fine)
     for _ in range(iterations):
         points = world_with_effects(fit.data, estimate, config.pose_corrections, model)
-        features = local_features(points, config.feature_radius_m, config.feature_neighbours)
+        features = local_features(points, config.feature_radius_m, config.feature_neighbours, config.feature_voxel_m)
         pairs = association.pairs(points, fit.data.fibre, features, fine.fine_gate_m, fine)
         graph, initial = build_graph(fit.data, estimate, pairs, config, fit.estimated, fit.nominal, fit.priors,
                                      effects=model)
