@@ -90,7 +90,8 @@ def calibration_config(mode: str, config: Path | None, overrides: dict | None = 
         return CalibrationConfig(**{"mode": mode, **settings, **(overrides or {})})
     except pydantic.ValidationError as error:
         first = error.errors()[0]
-        raise ConfigError(f"{config or '--mode'}: {'.'.join(map(str, first['loc']))}: {first['msg']}") from None
+        message = first["msg"].removeprefix("Value error, ")  # pydantic's prefix for a validator's ValueError
+        raise ConfigError(f"{config or '--mode'}: {'.'.join(map(str, first['loc']))}: {message}") from None
 
 
 @app.command()

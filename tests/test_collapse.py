@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from graphcal.calibration.calibrate import check_energy_fell, check_fibres_apart, held_names
-from graphcal.calibration.config import CalibrationConfig
+from graphcal.calibration.calibrate import check_energy_fell, check_fibres_apart
+from graphcal.calibration.config import CalibrationConfig, held_names
 from graphcal.errors import CalibrationError, ConfigError
 from graphcal.sensor import sensor_from_catalog
 from graphcal.sim.scenario import draw_offsets
@@ -55,3 +55,12 @@ def test_a_calibration_that_ends_above_its_start_is_refused():
     rising = [{"energy_cm2": 11.1, "energy_after_cm2": 5.2}, {"energy_cm2": 104.2, "energy_after_cm2": 103.9}]
     with pytest.raises(CalibrationError, match=r"diverged \(J 11.1 cm2 at the start, 104 cm2 at the end\)"):
         check_energy_fell(rising, _Recording())
+
+
+def test_a_hold_naming_nothing_is_refused_when_the_settings_are_read(tmp_path):
+    from graphcal.cli import calibration_config
+
+    settings = tmp_path / "settings.yaml"
+    settings.write_text("hold: ['fibre_*.d_elevation']\n")  # the unit is missing
+    with pytest.raises(ConfigError, match=r"settings.yaml: hold: .*'fibre_\*.d_elevation' names no parameter"):
+        calibration_config("intrinsic", settings)

@@ -19,13 +19,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from graphcal.association import local_features
 from graphcal.atomic import atomic_path
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.evaluate import nominal_calibration, returns_for, world_of
 from graphcal.calibration.problem import ReturnData
 from graphcal.calibration.result import Calibration, CalibrationResult
-from graphcal.calibration.solve import Association
+from graphcal.calibration.solve import Association, features_at
 from graphcal.errors import RecordingError
 from graphcal.recording import Recording
 
@@ -97,7 +96,7 @@ def residuals_before_after(recording: Recording, result: CalibrationResult) -> B
 def pairs_in(data: ReturnData, calibration: Calibration, association: Association, config: CalibrationConfig) -> Pairs:
     """The first outer iteration's association in the cloud of `calibration`."""
     points = world_of(calibration, data) - data.origin_m
-    features = local_features(points, config.feature_radius_m, config.feature_neighbours, config.feature_voxel_m)
+    features = features_at(points, config)
     pairs = association.pairs(points, data.fibre, features, config.gate_start_m, config)
     residual = np.einsum("ni,ni->n", pairs.normal, points[pairs.index_p] - points[pairs.index_m])
     return Pairs(data.rows[pairs.index_p], data.rows[pairs.index_m], pairs.weight, residual,

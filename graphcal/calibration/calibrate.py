@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import fnmatch
 import time
 from dataclasses import replace
 
@@ -10,8 +9,7 @@ import gtsam
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from graphcal.association import local_features
-from graphcal.calibration.config import ESTIMATES, STAGES, CalibrationConfig
+from graphcal.calibration.config import ESTIMATES, STAGES, CalibrationConfig, held_names
 from graphcal.calibration.observability import (
     CONTROL_NAMES,
     EXTRINSIC_NAMES,
@@ -41,6 +39,7 @@ from graphcal.calibration.solve import (
     X,
     build_graph,
     control_prior_sigma,
+    features_at,
     hold_at_nominal,
     solve_stage,
 )
@@ -68,7 +67,11 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
     timings["prepare"] = time.perf_counter() - started
     estimate = initial_estimate(recording, data)
     nominal = estimate.extrinsic
-    held = held_names(config.hold, data.sensor.n_fibres, data.sensor.reference_fibre)
+    try:  # the settings allow any head's fibres: this recording's head may have fewer, or fix the one named
+        held = held_names(config.hold, data.sensor.n_fibres, data.sensor.reference_fibre)
+    except ConfigError as error:
+        raise ConfigError(f"{recording.path or recording.name}: hold: {error} (sensor {data.sensor.model}, "
+                          f"{data.sensor.n_fibres} fibres, reference fibre {data.sensor.reference_fibre})") from None
     priors = holding(Priors.of(config, data.sensor.n_fibres, len(data.control_times_s)), held)
     stages = STAGES.get(config.mode, (config.mode,))
     estimated = tuple(any(ESTIMATES[stage][k] for stage in stages) for k in range(3))
@@ -160,7 +163,7 @@ def final_fit(data: ReturnData, estimate: Estimate, config: CalibrationConfig, e
               priors: Priors) -> FinalFit:
     fine = config.fine()
     points = world_at(data, estimate, config.pose_corrections)
-    features = local_features(points, config.feature_radius_m, config.feature_neighbours, config.feature_voxel_m)
+    features = features_at(points, config)
     pairs = Association.of(data, fine).pairs(points, data.fibre, features, fine.fine_gate_m, fine)
     residual = np.einsum("ni,ni->n", pairs.normal, points[pairs.index_p] - points[pairs.index_m])
     graph, values = build_graph(data, estimate, pairs, config, estimated, nominal, priors, damped=False)
@@ -198,17 +201,6 @@ def uncertainty(marginals: gtsam.Marginals, data: ReturnData, estimate: Estimate
             prior_rows.append(np.where(held, HELD_SIGMA, control_sigma) * POSE_TO_FILE_UNITS)
         controls, controls_prior = np.array(rows), np.array(prior_rows)
     return Uncertainty(intrinsics, prior_int, extrinsic, extrinsic_prior, controls, controls_prior)
-
-
-def held_names(patterns: tuple[str, ...], n_fibres: int, reference_fibre: int) -> list[str]:
-    """The parameter names matched by patterns (shell wildcards, e.g. 'fibre_*.d_elevation_deg')."""
-    names = [f"fibre_{i}.{name}" for i in range(n_fibres) if i != reference_fibre for name in INTRINSIC_NAMES]
-    names += [f"extrinsic.{name}" for name in EXTRINSIC_NAMES]
-    for pattern in patterns:
-        if not fnmatch.filter(names, pattern):
-            raise ConfigError(f"hold: {pattern!r} names no parameter (expected e.g. 'fibre_3.d_range_m', "
-                              f"'fibre_*.d_elevation_deg', 'extrinsic.lever_arm_z_m')")
-    return [name for name in names if any(fnmatch.fnmatchcase(name, pattern) for pattern in patterns)]
 
 
 def holding(priors: Priors, names: list[str]) -> Priors:

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import fnmatch
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from graphcal.calibration.observability import EXTRINSIC_NAMES, INTRINSIC_NAMES
+from graphcal.errors import ConfigError
 
 Mode = Literal["intrinsic", "extrinsic", "trajectory", "joint", "joint_trajectory",
                "extrinsic_then_intrinsic", "intrinsic_then_extrinsic"]
@@ -17,6 +21,7 @@ ESTIMATES = {"intrinsic": (True, False, False), "extrinsic": (False, True, False
 STATIC_FEATURE_VOXEL_M = 0.1  # spans the HDL-32E's rings on walls within ~10 m
 # a static sensor's fibres can all slide onto one cone, where every pair's distance vanishes
 STATIC_HOLD = ("fibre_*.d_elevation_deg",)
+MAX_FIBRES = 128  # the most fibres of a supported head: the vocabulary of `hold` before the sensor is known
 STAGES = {"extrinsic_then_intrinsic": ("extrinsic", "intrinsic"),
           "intrinsic_then_extrinsic": ("intrinsic", "extrinsic")}
 
@@ -75,6 +80,13 @@ class CalibrationConfig(BaseModel):
     robust_k: float = Field(2.0, gt=0, description="in units of sigma0")
     seed: int = 0
 
+    @field_validator("hold")
+    @classmethod
+    def _hold_names_parameters(cls, hold: tuple[str, ...] | None) -> tuple[str, ...] | None:
+        if hold is not None:
+            held_names(hold, MAX_FIBRES, None)
+        return hold
+
     def for_sensor(self, static: bool) -> CalibrationConfig:
         """The settings left to the recording (None) resolved for a static or a moving sensor."""
         voxel_m = (STATIC_FEATURE_VOXEL_M if static else 0.0) if self.feature_voxel_m is None else self.feature_voxel_m
@@ -87,3 +99,16 @@ class CalibrationConfig(BaseModel):
                                        "max_normal_angle_deg": self.fine_max_normal_angle_deg,
                                        "max_plane_distance_m": self.fine_max_plane_distance_m,
                                        "gate_start_m": self.fine_gate_m, "gate_max_m": self.fine_gate_m})
+
+
+def held_names(patterns: tuple[str, ...], n_fibres: int, reference_fibre: int | None) -> list[str]:
+    """The parameter names of a sensor with n_fibres (the reference fibre's fixed, none if None)
+    matched by patterns (shell wildcards, e.g. 'fibre_*.d_elevation_deg'); ConfigError for a pattern
+    that names no parameter."""
+    names = [f"fibre_{i}.{name}" for i in range(n_fibres) if i != reference_fibre for name in INTRINSIC_NAMES]
+    names += [f"extrinsic.{name}" for name in EXTRINSIC_NAMES]
+    for pattern in patterns:
+        if not fnmatch.filter(names, pattern):
+            raise ConfigError(f"{pattern!r} names no parameter (expected e.g. 'fibre_3.d_range_m', "
+                              f"'fibre_*.d_elevation_deg', 'extrinsic.lever_arm_z_m')")
+    return [name for name in names if any(fnmatch.fnmatchcase(name, pattern) for pattern in patterns)]

@@ -18,6 +18,7 @@ from factors.point_to_plane import NO_KEY, Block, BlockKeys, FixedValues, make_f
 from factors.world_point import normals_to_lidar
 from graphcal.association import (
     Correspondences,
+    Features,
     associate,
     local_features,
     neighbour_fibres,
@@ -232,6 +233,11 @@ def step_size(a: Estimate, b: Estimate) -> float:
     return float(max(steps))
 
 
+def features_at(points_m: np.ndarray, config: CalibrationConfig) -> Features:
+    """local_features of the points [m] with config's radius, neighbours and voxel size."""
+    return local_features(points_m, config.feature_radius_m, config.feature_neighbours, config.feature_voxel_m)
+
+
 @dataclass(frozen=True)
 class Association:
     """What one association step needs besides the points: fixed across outer iterations."""
@@ -268,8 +274,7 @@ def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
         points = world_at(data, estimate, pose)
         refreshed = since_refresh >= config.refresh_every
         if refreshed:
-            features, since_refresh = local_features(points, config.feature_radius_m, config.feature_neighbours,
-                                                     config.feature_voxel_m), 0
+            features, since_refresh = features_at(points, config), 0
         since_refresh += 1
         pairs = association.pairs(points, data.fibre, features, gate, settings)
         before, weight_sum = energy_cm2(points[pairs.index_p], points[pairs.index_m], pairs)

@@ -19,9 +19,10 @@ from scipy.spatial import cKDTree
 
 from factors.effects import CANDIDATES, Channels, channel_jacobians
 from factors.world_point import Corrections, Turn, world_normals, world_points
-from graphcal.association import Features, local_features
+from graphcal.association import Features
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.problem import Estimate, initial_estimate, prepare, world_at
+from graphcal.calibration.solve import features_at
 from graphcal.diagnosis.context import ReturnContext
 from graphcal.diagnosis.diagnose import (
     DEFAULT_SEPARATING_DATA,
@@ -59,7 +60,7 @@ def compare(recording: Recording, simulation: Recording, max_points: int | None 
     estimate = initial_estimate(recording, data) if estimate is None else estimate
     points = world_at(data, with_controls(estimate, data), pose=False)
     sim_points = world_at(sim, with_controls(estimate, sim), pose=False) + sim.origin_m - data.origin_m
-    features = local_features(sim_points, voxel_m=CalibrationConfig().for_sensor(sim.static).feature_voxel_m)
+    features = features_at(sim_points, CalibrationConfig().for_sensor(sim.static))
     distance, nearest = cKDTree(sim_points).query(points, distance_upper_bound=GATE_M, workers=-1)
     found = np.isfinite(distance)
     nearest = np.where(found, nearest, 0)

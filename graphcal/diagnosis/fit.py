@@ -8,7 +8,7 @@ from dataclasses import dataclass, replace
 import gtsam
 import numpy as np
 
-from graphcal.association import Correspondences, Features, local_features
+from graphcal.association import Correspondences, Features
 from graphcal.calibration.calibrate import calibrate, holding
 from graphcal.calibration.config import ESTIMATES, STAGES, CalibrationConfig
 from graphcal.calibration.observability import TRAJECTORY_GAUGE
@@ -19,6 +19,7 @@ from graphcal.calibration.solve import (
     Priors,
     build_graph,
     energy_cm2,
+    features_at,
     read_back,
 )
 from graphcal.diagnosis.context import EffectModel, ReturnContext, world_with_effects
@@ -81,7 +82,7 @@ def baseline(recording: Recording, config: CalibrationConfig, quiet: bool = True
 def _associated(recording, data, config, estimated, nominal, priors, estimate, model) -> Fit:
     points = world_with_effects(data, estimate, config.pose_corrections, model)
     fine = config.fine()
-    features = local_features(points, config.feature_radius_m, config.feature_neighbours, config.feature_voxel_m)
+    features = features_at(points, config)
     pairs = Association.of(data, fine).pairs(points, data.fibre, features, fine.fine_gate_m, fine)
     if model is None:
         context = ReturnContext.of(data, recording.world.poses, points, features, estimate.extrinsic.translation())
@@ -99,7 +100,7 @@ def refit(fit: Fit, names: tuple[str, ...], prior_sigma: dict, iterations: int =
     association = Association.of(fit.data, fine)
     for _ in range(iterations):
         points = world_with_effects(fit.data, estimate, config.pose_corrections, model)
-        features = local_features(points, config.feature_radius_m, config.feature_neighbours, config.feature_voxel_m)
+        features = features_at(points, config)
         pairs = association.pairs(points, fit.data.fibre, features, fine.fine_gate_m, fine)
         graph, initial = build_graph(fit.data, estimate, pairs, config, fit.estimated, fit.nominal, fit.priors,
                                      effects=model)
