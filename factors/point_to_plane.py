@@ -317,8 +317,8 @@ def _error(block: Block, compressed: bool, this: gtsam.CustomFactor, values: gts
 
 def make_factor(block: Block, compressed: bool = True,
                 robust: gtsam.noiseModel.mEstimator.Base | None = None) -> gtsam.CustomFactor:
-    """The block as one CustomFactor. compressed: QR-compressed residual (needs N >= total key
-    dimension and no robust loss). robust: an mEstimator created with ReweightScheme.Scalar,
+    """The block as one CustomFactor. compressed: the residual compressed to one row per Jacobian
+    column plus one (see compress; needs N >= total key dimension and no robust loss). robust: an mEstimator created with ReweightScheme.Scalar,
     applied row by row to the stacked residual."""
     width = sum(block.widths.values())
     if compressed and robust is not None:

@@ -102,10 +102,10 @@ def las_writer(path: str | Path, offset_m: np.ndarray, *, crs=None) -> Iterator[
     if crs is not None:
         header.add_crs(crs)
     with atomic_path(path) as tmp, open(tmp, "wb") as stream:
-        writer = None
+        writer, written = None, 0
 
         def write(xyz_m: np.ndarray, **columns: np.ndarray) -> None:
-            nonlocal writer
+            nonlocal writer, written
             fields = _columns(xyz_m, columns)
             extra = [name for name in fields if name not in ("x", "y", "z", "time", "intensity")]
             if writer is None:
@@ -113,6 +113,10 @@ def las_writer(path: str | Path, offset_m: np.ndarray, *, crs=None) -> Iterator[
                 writer = laspy.open(stream, mode="w", header=header, do_compress=path.suffix.lower() == ".laz",
                                     closefd=False)
             xyz = np.asarray(xyz_m, dtype=np.float64)
+            finite = np.isfinite(xyz).all(axis=1)
+            if not finite.all():  # laspy would store it as the most negative integer, silently
+                raise ConfigError(f"{path}: point {written + int(np.argmin(finite))} has a coordinate that is not "
+                                  "finite (NaN or inf): expected metres in the output CRS")
             if len(xyz) and np.abs(xyz - header.offsets).max() >= LAS_MAX_SPAN_M:
                 raise ConfigError(f"{path}: points {np.abs(xyz - header.offsets).max() / 1e3:.0f} km from the "
                                   f"LAS offset, more than integers hold at {LAS_SCALE_M} m steps "
@@ -126,6 +130,7 @@ def las_writer(path: str | Path, offset_m: np.ndarray, *, crs=None) -> Iterator[
             for name in extra:
                 points[name] = fields[name]
             writer.write_points(points)
+            written += len(xyz)
 
         yield write
         if writer is None:

@@ -20,7 +20,11 @@ from typer.testing import CliRunner
 
 import graphcal
 from graphcal.calibration.before_after import BeforeAfter
+from graphcal.calibration.evaluate import nominal_calibration
 from graphcal.cli import app
+from graphcal.cloud_io import las_writer
+from graphcal.corrected_cloud import write_corrected_cloud
+from graphcal.errors import ConfigError
 from graphcal.recording import Recording
 from graphcal.sim.script import load_scenario_builder
 
@@ -199,6 +203,26 @@ def test_apply_writes_the_corrected_cloud_georeferenced(calibrated, tmp_path, mo
     assert np.isfinite(residual).sum() == len(np.unique(rows))
     for row in rows[:50]:  # RMS over the pairs the return is p of
         assert residual[row] == pytest.approx(np.sqrt(np.mean(values[rows == row].astype(float) ** 2)), rel=1e-6)
+
+
+def test_apply_of_a_nominal_calibration_with_a_batch_of_one_return(calibrated, tmp_path, monkeypatch):
+    """The nominal calibration has no control times: each batch gets two of its own, which used to
+    be equal (NaN points written as the most negative LAS integer) for a batch of one return."""
+    recording = Recording.load(calibrated[0])
+    nominal = nominal_calibration(recording)
+    monkeypatch.setattr("graphcal.corrected_cloud.BATCH_ROWS", len(recording.points) - 1)
+    las = laspy.read(write_corrected_cloud(tmp_path / "nominal.las", nominal, recording, quiet=True))
+    np.testing.assert_allclose(np.column_stack([las.x, las.y, las.z]), graphcal.apply_calibration(nominal, recording),
+                               atol=5.1e-5)
+
+
+def test_las_refuses_a_point_that_is_not_finite_and_names_it(tmp_path):
+    xyz = np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]])
+    with pytest.raises(ConfigError, match=r"cloud.las: point 3 has a coordinate that is not finite"):
+        with las_writer(tmp_path / "cloud.las", np.zeros(3)) as write:
+            write(xyz)
+            write(np.array([[7.0, 8.0, 9.0], [np.nan, 0.0, 0.0]]))
+    assert not (tmp_path / "cloud.las").exists()  # nothing half written
 
 
 def test_view_without_a_display_says_what_to_do(calibrated, monkeypatch):

@@ -85,9 +85,10 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
 def control_grid(anchor_s: float, first_s: float, last_s: float, interval_s: float) -> np.ndarray:
     """Control times [s] anchor_s + k interval_s (k integer) covering [first_s, last_s]: anchored
     at the trajectory's first pose, so they do not shift with the subset of returns used. An
-    infinite interval gives the two controls [first_s, last_s]."""
+    infinite interval gives the two controls [first_s, last_s] (one second apart when the returns
+    share one time, e.g. a batch of one: interpolating between equal times would give NaN)."""
     if not np.isfinite(interval_s):
-        return np.array([first_s, last_s])
+        return np.array([first_s, last_s if last_s > first_s else first_s + 1.0])
     k_first = np.floor((first_s - anchor_s) / interval_s + 1e-9)
     k_last = max(np.ceil((last_s - anchor_s) / interval_s - 1e-9), k_first + 1)
     return anchor_s + interval_s * np.arange(k_first, k_last + 1)
