@@ -218,10 +218,10 @@ def test_apply_of_a_nominal_calibration_with_a_batch_of_one_return(calibrated, t
 
 def test_las_refuses_a_point_that_is_not_finite_and_names_it(tmp_path):
     xyz = np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]])
-    with pytest.raises(ConfigError, match=r"cloud.las: point 3 has a coordinate that is not finite"):
-        with las_writer(tmp_path / "cloud.las", np.zeros(3)) as write:
-            write(xyz)
-            write(np.array([[7.0, 8.0, 9.0], [np.nan, 0.0, 0.0]]))
+    with (pytest.raises(ConfigError, match=r"cloud.las: point 3 has a coordinate that is not finite"),
+          las_writer(tmp_path / "cloud.las", np.zeros(3)) as write):
+        write(xyz)
+        write(np.array([[7.0, 8.0, 9.0], [np.nan, 0.0, 0.0]]))
     assert not (tmp_path / "cloud.las").exists()  # nothing half written
 
 
