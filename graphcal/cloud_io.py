@@ -151,6 +151,19 @@ def write_uos(path: str | Path, xyz_m: np.ndarray) -> Path:
     return Path(path)
 
 
+STREAMED_SUFFIXES = (".las", ".laz", ".ply")
+
+
+def cloud_writer(path: str | Path, n_points: int, offset_m: np.ndarray, *, crs=None):
+    """las_writer (offset_m: the LAS integer origin) or ply_writer by the file's suffix."""
+    suffix = Path(path).suffix.lower()
+    if suffix == ".ply":
+        return ply_writer(path, n_points, crs=crs)
+    if suffix in (".las", ".laz"):
+        return las_writer(path, offset_m, crs=crs)
+    raise ConfigError(f"{path}: expected a {', '.join(STREAMED_SUFFIXES)} file name")
+
+
 def write_cloud(path: str | Path, xyz_m: np.ndarray, *, crs=None, **columns: np.ndarray) -> Path:
     """Write by the file's suffix: .ply, .las, .laz or .3d (uos, xyz only, no CRS)."""
     suffix = Path(path).suffix.lower()

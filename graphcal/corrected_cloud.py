@@ -18,7 +18,7 @@ import pyarrow.parquet as pq
 
 from graphcal.calibration.evaluate import apply_calibration
 from graphcal.calibration.result import Calibration
-from graphcal.cloud_io import las_writer, ply_writer
+from graphcal.cloud_io import cloud_writer
 from graphcal.errors import RecordingError
 from graphcal.points import PointTable
 from graphcal.progress import progress
@@ -50,11 +50,9 @@ def write_corrected_cloud(path: Path, calibration: Calibration, recording: Recor
     residual = np.full(n_points, np.nan, dtype=np.float32)
     if residuals is not None:
         residual[residuals[0]] = residuals[1]
-    crs = recording.world.crs
-    if Path(path).suffix.lower() == ".ply":
-        writer = ply_writer(path, n_points, crs=crs)
-    else:  # integer coordinates from whole metres near the cloud: the trajectory's lower corner
-        writer = las_writer(path, np.floor(recording.world.poses.position_m.min(axis=0)), crs=crs)
+    # LAS integer coordinates from whole metres near the cloud: the trajectory's lower corner
+    writer = cloud_writer(path, n_points, np.floor(recording.world.poses.position_m.min(axis=0)),
+                          crs=recording.world.crs)
     batches = recording.points.iter_batches(["time", "fibre", "range", "azimuth", "intensity"], BATCH_ROWS)
     start = 0
     with writer as write:

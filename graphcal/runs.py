@@ -179,6 +179,7 @@ def apply_run(calibration_path: Path, recording_path: Path, out: Path | None = N
     """The corrected cloud (graphcal/corrected_cloud.py) at `out` (.las, .laz or .ply), or in a
     run folder as cloud.laz; with the calibration's residuals when it was made from this recording."""
     from graphcal.calibration.result import Calibration
+    from graphcal.cloud_io import STREAMED_SUFFIXES
     from graphcal.corrected_cloud import (
         RESIDUALS,
         read_residuals,
@@ -187,8 +188,8 @@ def apply_run(calibration_path: Path, recording_path: Path, out: Path | None = N
     from graphcal.errors import ConfigError
     from graphcal.run_folder import MANIFEST
 
-    if out is not None and out.suffix.lower() not in (".las", ".laz", ".ply"):
-        raise ConfigError(f"--out {out}: expected a .las, .laz or .ply file name")
+    if out is not None and out.suffix.lower() not in STREAMED_SUFFIXES:  # before any work
+        raise ConfigError(f"--out {out}: expected a {', '.join(STREAMED_SUFFIXES)} file name")
     if out is None:
         run, recording = start_run(recording_path, None, "apply", quiet)
     else:

@@ -216,6 +216,15 @@ def test_apply_of_a_nominal_calibration_with_a_batch_of_one_return(calibrated, t
                                atol=5.1e-5)
 
 
+def test_apply_refuses_a_file_name_it_cannot_write(calibrated, tmp_path):
+    recording = Recording.load(calibrated[0])
+    with pytest.raises(ConfigError, match=r"cloud.xyz: expected a .las, .laz, .ply file name"):
+        write_corrected_cloud(tmp_path / "cloud.xyz", nominal_calibration(recording), recording, quiet=True)
+    result = CliRunner().invoke(app, ["apply", str(calibrated[1]), str(calibrated[0]), "--out", str(tmp_path / "c.xyz")])
+    assert result.exit_code == 2 and "expected a .las, .laz, .ply file name" in result.output
+    assert not list(tmp_path.iterdir())
+
+
 def test_las_refuses_a_point_that_is_not_finite_and_names_it(tmp_path):
     xyz = np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]])
     with (pytest.raises(ConfigError, match=r"cloud.las: point 3 has a coordinate that is not finite"),
