@@ -154,7 +154,7 @@ def evaluation_run(calibration_path: Path, recording_path: Path, quiet: bool = F
     """Evaluate a calibration (run folder or calibration.yaml) against the recording's truth/;
     writes evaluation.yaml next to calibration.yaml and refreshes report.html if there is one."""
     from graphcal.calibration.evaluate import evaluate
-    from graphcal.calibration.result import Calibration
+    from graphcal.calibration.result import Calibration, calibration_file
     from graphcal.errors import RecordingError
     from graphcal.report.html import EVALUATION, REPORT, write_report
 
@@ -163,10 +163,10 @@ def evaluation_run(calibration_path: Path, recording_path: Path, quiet: bool = F
         raise RecordingError(Path(recording_path) / "truth", "not found",
                              expected="a simulated recording's truth/ to evaluate against (real data has none)")
     calibration = Calibration.load(calibration_path, recording.sensor)
-    folder = Path(calibration_path) if Path(calibration_path).is_dir() else Path(calibration_path).parent
+    folder = calibration_file(calibration_path).parent
     with status("comparing with truth/", quiet):
         evaluation = evaluate(calibration, recording)
-    energy = (read_yaml(folder / "calibration.yaml") or {}).get("energy_cm2") or {}
+    energy = (read_yaml(calibration_file(calibration_path)) or {}).get("energy_cm2") or {}
     if "before" in energy:
         evaluation = replace(evaluation, energy_cm2=(energy["before"], energy["after"]))
     write_yaml(folder / EVALUATION, evaluation.to_dict())
@@ -178,7 +178,7 @@ def evaluation_run(calibration_path: Path, recording_path: Path, quiet: bool = F
 def apply_run(calibration_path: Path, recording_path: Path, out: Path | None = None, quiet: bool = False) -> Path:
     """The corrected cloud (graphcal/corrected_cloud.py) at `out` (.las, .laz or .ply), or in a
     run folder as cloud.laz; with the calibration's residuals when it was made from this recording."""
-    from graphcal.calibration.result import Calibration
+    from graphcal.calibration.result import Calibration, calibration_file
     from graphcal.cloud_io import STREAMED_SUFFIXES
     from graphcal.corrected_cloud import (
         RESIDUALS,
@@ -195,7 +195,7 @@ def apply_run(calibration_path: Path, recording_path: Path, out: Path | None = N
     else:
         run, recording = None, Recording.load(recording_path)
     calibration = Calibration.load(calibration_path, recording.sensor)
-    folder = Path(calibration_path) if Path(calibration_path).is_dir() else Path(calibration_path).parent
+    folder = calibration_file(calibration_path).parent
     made_from = (read_yaml(folder / MANIFEST) or {}).get("recording") if (folder / MANIFEST).is_file() else None
     residuals = None
     if made_from and Path(made_from).resolve() == Path(recording_path).resolve() and (folder / RESIDUALS).is_file():

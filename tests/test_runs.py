@@ -167,6 +167,12 @@ def test_evaluate_command_matches_the_run_and_needs_truth(calibrated, tmp_path):
     for which in ("before", "after", "after_gauge_free"):
         assert again["cloud_to_cloud_m"][which] == pytest.approx(first["cloud_to_cloud_m"][which], rel=1e-9)
     assert again["energy_cm2"] == pytest.approx(first["energy_cm2"]) and "c2c mean cm" in result.output
+    renamed = tmp_path / "renamed"  # a calibration file of another name: its own energies, nothing else read
+    renamed.mkdir()
+    shutil.copy(folder / "calibration.yaml", renamed / "mine.yaml")
+    result = CliRunner().invoke(app, ["evaluate", str(renamed / "mine.yaml"), str(recording), "-q"])
+    assert result.exit_code == 0, result.output
+    assert yaml.safe_load((renamed / "evaluation.yaml").read_text())["energy_cm2"] == pytest.approx(first["energy_cm2"])
     real = shutil.copytree(recording, tmp_path / "real", ignore=shutil.ignore_patterns("truth"))
     result = CliRunner().invoke(app, ["evaluate", str(folder), str(real)])
     assert result.exit_code == 2 and result.output.count("\n") == 1

@@ -31,7 +31,14 @@ from graphcal.sensor import SensorModel
 from graphcal.yamlfile import read_yaml, write_yaml
 
 FORMAT = "graphcal-calibration/1"
+CALIBRATION_FILE = "calibration.yaml"
 
+
+
+def calibration_file(path: str | Path) -> Path:
+    """A calibration given as its calibration.yaml or as the folder holding it."""
+    path = Path(path)
+    return path / CALIBRATION_FILE if path.is_dir() else path
 
 @dataclass(frozen=True)
 class Calibration:
@@ -54,8 +61,7 @@ class Calibration:
     @classmethod
     def load(cls, path: str | Path, sensor: SensorModel) -> Calibration:
         """Read calibration.yaml (the file or its folder) for a recording with this sensor."""
-        path = Path(path)
-        path = path / "calibration.yaml" if path.is_dir() else path
+        path = calibration_file(path)
         data = read_yaml(path)
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise RecordingError(path, f"format is {data.get('format') if isinstance(data, dict) else data!r}",
@@ -132,7 +138,7 @@ class CalibrationResult:
         """calibration.yaml, config.yaml, history.csv and residuals.parquet into directory."""
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
-        write_yaml(directory / "calibration.yaml", self.to_yaml_dict(command))
+        write_yaml(directory / CALIBRATION_FILE, self.to_yaml_dict(command))
         write_yaml(directory / "config.yaml", self.config.model_dump())
         with atomic_path(directory / "history.csv") as tmp, tmp.open("w", newline="") as stream:
             writer = csv.DictWriter(stream, fieldnames=list(self.history[0]))
@@ -142,7 +148,7 @@ class CalibrationResult:
                           "weight": self.residual_weight.astype(np.float32)})
         with atomic_path(directory / "residuals.parquet") as tmp:
             pq.write_table(table, tmp)
-        return directory / "calibration.yaml"
+        return directory / CALIBRATION_FILE
 
     def to_yaml_dict(self, command: str) -> dict:
         cal, unc = self.calibration, self.uncertainty

@@ -16,6 +16,7 @@ import numpy as np
 from graphcal.atomic import atomic_path
 from graphcal.calibration.before_after import FILES as PAIRS_FILES
 from graphcal.calibration.before_after import BeforeAfter
+from graphcal.calibration.result import CALIBRATION_FILE
 from graphcal.errors import RecordingError
 from graphcal.report import figures
 from graphcal.report.tables import (
@@ -38,7 +39,7 @@ th{background:#f2f2f2}td:first-child{text-align:left}img{max-width:100%}pre{back
 def write_report(folder: Path) -> Path:
     """Write folder/report.html from the run folder's files; returns its path."""
     folder = Path(folder)
-    calibration_path = folder / "calibration.yaml"
+    calibration_path = folder / CALIBRATION_FILE
     if not calibration_path.is_file():
         raise RecordingError(folder, "no calibration.yaml", expected="a calibration run folder (graphcal calibrate)")
     calibration = read_yaml(calibration_path)
