@@ -1,37 +1,37 @@
-"""graphcal: target-free joint self-calibration of mobile-mapping lidar with a GTSAM factor graph."""
+"""graphcal: target-free joint self-calibration of mobile-mapping lidar with a GTSAM factor graph.
 
-from graphcal.calibration.calibrate import calibrate
-from graphcal.calibration.config import CalibrationConfig
-from graphcal.calibration.evaluate import Evaluation, apply_calibration, evaluate
-from graphcal.calibration.result import Calibration, CalibrationResult
-from graphcal.deskewing import deskew
-from graphcal.diagnosis.diagnose import Diagnosis, diagnose
-from graphcal.errors import CalibrationError, ConfigError, GraphcalError, RecordingError
-from graphcal.recording import Recording
-from graphcal.sensor import SensorModel, sensor_from_catalog
-from graphcal.sim.scenario import Scenario
-from graphcal.sim.simulator import simulate
+The public names are imported on first use (PEP 562): `import graphcal` and the command line's
+start-up (`graphcal --help`) do not load GTSAM, open3d and statsmodels until a command needs them.
+"""
+
+from importlib import import_module
 
 __version__ = "0.1.0"
-__all__ = [
-           "Calibration",
-           "CalibrationConfig",
-           "CalibrationError",
-           "CalibrationResult",
-           "ConfigError",
-           "Diagnosis",
-           "Evaluation",
-           "GraphcalError",
-           "Recording",
-           "RecordingError",
-           "Scenario",
-           "SensorModel",
-           "__version__",
-           "apply_calibration",
-           "calibrate",
-           "deskew",
-           "diagnose",
-           "evaluate",
-           "sensor_from_catalog",
-           "simulate",
-]
+_HOMES = {"calibrate": "graphcal.calibration.calibrate",
+          "CalibrationConfig": "graphcal.calibration.config",
+          "Evaluation": "graphcal.calibration.evaluate", "apply_calibration": "graphcal.calibration.evaluate",
+          "evaluate": "graphcal.calibration.evaluate",
+          "Calibration": "graphcal.calibration.result", "CalibrationResult": "graphcal.calibration.result",
+          "deskew": "graphcal.deskewing",
+          "Diagnosis": "graphcal.diagnosis.diagnose", "diagnose": "graphcal.diagnosis.diagnose",
+          "CalibrationError": "graphcal.errors", "ConfigError": "graphcal.errors", "GraphcalError": "graphcal.errors",
+          "RecordingError": "graphcal.errors",
+          "Recording": "graphcal.recording",
+          "SensorModel": "graphcal.sensor", "sensor_from_catalog": "graphcal.sensor",
+          "Scenario": "graphcal.sim.scenario",
+          "simulate": "graphcal.sim.simulator"}
+__all__ = ["Calibration", "CalibrationConfig", "CalibrationError", "CalibrationResult", "ConfigError", "Diagnosis",
+           "Evaluation", "GraphcalError", "Recording", "RecordingError", "Scenario", "SensorModel", "__version__",
+           "apply_calibration", "calibrate", "deskew", "diagnose", "evaluate", "sensor_from_catalog", "simulate"]
+
+
+def __getattr__(name: str):
+    if name not in _HOMES:
+        raise AttributeError(f"module 'graphcal' has no attribute {name!r}")
+    value = getattr(import_module(_HOMES[name]), name)
+    globals()[name] = value  # once
+    return value
+
+
+def __dir__() -> list[str]:
+    return __all__
