@@ -10,9 +10,9 @@ import numpy as np
 
 from graphcal.association import Correspondences, Features
 from graphcal.calibration.calibrate import calibrate, holding
-from graphcal.calibration.config import ESTIMATES, STAGES, CalibrationConfig
+from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.observability import TRAJECTORY_GAUGE
-from graphcal.calibration.problem import Estimate, ReturnData, prepare
+from graphcal.calibration.problem import Estimate, ReturnData, pose_of, prepare
 from graphcal.calibration.result import CalibrationResult
 from graphcal.calibration.solve import (
     Association,
@@ -69,13 +69,10 @@ def baseline(recording: Recording, config: CalibrationConfig, quiet: bool = True
     result = calibrate(recording, config, quiet=quiet)
     config = result.config  # with the settings calibrate resolved for the recording
     data = prepare(recording, config.control_interval_s, config.max_points, np.random.default_rng(config.seed))
-    stages = STAGES.get(config.mode, (config.mode,))
-    estimated = tuple(any(ESTIMATES[stage][k] for stage in stages) for k in range(3))
     priors = holding(Priors.of(config, data.sensor.n_fibres, len(data.control_times_s)),
                      [name for name in result.unobservable if name not in TRAJECTORY_GAUGE])
-    estimate = result.calibration.estimate
-    nominal = gtsam.Pose3(gtsam.Rot3(recording.extrinsic.R_body_lidar), np.asarray(recording.extrinsic.lever_arm_m))
-    fit = _associated(recording, data, config, estimated, nominal, priors, estimate, None)
+    fit = _associated(recording, data, config, result.estimated, pose_of(recording.extrinsic), priors,
+                      result.calibration.estimate, None)
     return fit, result
 
 
