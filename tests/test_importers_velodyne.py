@@ -311,6 +311,14 @@ def test_bad_calibration_files(tmp_path):
     with pytest.raises(RecordingError, match="16 lasers for a VLP-16"):
         ros.write_text("lasers:\n- {laser_id: 0, vert_correction: 0.1}\n")
         read_velodyne_calibration(ros, model="VLP-16")
+    ros.write_text("lasers:\n- {laser_id: 0, vert_correction: 0.1}\n- {laser_id: 1.7, vert_correction: 0.2}\n")
+    with pytest.raises(RecordingError, match=r"field 'laser_id', row 1: laser_id 1.7.*an integer"):
+        read_velodyne_calibration(ros)
+    broken.write_text("<boost_serialization><DB><enabled_><item>1</item><item></item></enabled_>"
+                      "<points_><item><px><id_>0</id_><vertCorrection_>0.1</vertCorrection_></px></item></points_>"
+                      "</DB></boost_serialization>")
+    with pytest.raises(RecordingError, match=r"field 'enabled_', row 1: missing value"):
+        read_velodyne_calibration(broken)
 
 
 NEBULA = REAL / "nebula_velodyne_rosbag2"

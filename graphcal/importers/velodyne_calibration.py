@@ -88,7 +88,8 @@ def _read_db_xml(path: Path) -> tuple[list[dict], float]:
     if db is None or db.find("points_") is None:
         raise RecordingError(path, "no DB/points_ element", expected="a Velodyne db.xml calibration")
     resolution = 0.01 * _xml_number(path, db, "distLSB_", default=0.2)
-    enabled = [int(float(item.text)) for item in db.find("enabled_").findall("item")] if db.find("enabled_") is not None else []
+    items = db.find("enabled_").findall("item") if db.find("enabled_") is not None else []
+    enabled = [int(_number(path, item.text, "enabled_", row)) for row, item in enumerate(items)]
     lasers = {}
     for index, item in enumerate(db.find("points_").findall("item")):
         px = item.find("px")
@@ -109,14 +110,19 @@ def _read_db_xml(path: Path) -> tuple[list[dict], float]:
 
 def _xml_number(path: Path, element, tag: str, row: int | None = None, default: float | None = None) -> float:
     child = element.find(tag)
-    if child is None or child.text is None:
+    return _number(path, None if child is None else child.text, tag, row, default)
+
+
+def _number(path: Path, text: str | None, field: str, row: int | None = None, default: float | None = None) -> float:
+    """The number an XML element's text holds; RecordingError naming the field and row if none."""
+    if text is None:
         if default is None:
-            raise RecordingError(path, "missing value", field=tag, row=row, expected="a number")
+            raise RecordingError(path, "missing value", field=field, row=row, expected="a number")
         return default
     try:
-        return finite_number(float(child.text), path, tag)
+        return finite_number(float(text), path, field)
     except ValueError:
-        raise RecordingError(path, f"value {child.text!r}", field=tag, row=row, expected="a number") from None
+        raise RecordingError(path, f"value {text!r}", field=field, row=row, expected="a number") from None
 
 
 def _read_ros_yaml(path: Path) -> tuple[list[dict], float]:
@@ -134,7 +140,10 @@ def _read_ros_yaml(path: Path) -> tuple[list[dict], float]:
         two_point = [finite_number(laser[key], path, f"lasers[{index}].{key}") for _, key in _TWO_POINT
                      if laser.get("two_pt_correction_available") and key in laser]
         row["two_point_m"] = _two_point(row["range_offset_m"], two_point)
-        lasers[int(laser["laser_id"])] = row
+        if not isinstance(laser["laser_id"], int) or isinstance(laser["laser_id"], bool):
+            raise RecordingError(path, f"laser_id {laser['laser_id']!r}", field="laser_id", row=index,
+                                 expected="an integer")
+        lasers[laser["laser_id"]] = row
     if sorted(lasers) != list(range(len(lasers))):
         raise RecordingError(path, f"laser ids {sorted(lasers)}", field="laser_id",
                              expected=f"ids 0..{len(lasers) - 1}, each once")

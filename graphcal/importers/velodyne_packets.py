@@ -121,6 +121,14 @@ def returned(packets: np.ndarray, layout: PacketLayout, dual: bool) -> np.ndarra
     return kept
 
 
+def packet_rates(packets: np.ndarray, layout: PacketLayout, dual: bool) -> np.ndarray:
+    """(n,) spin rate of each packet [0.01 deg / us]: its azimuth advance from the first to the
+    last block over their firing times."""
+    timing = layout.timing_us(dual)
+    azimuth = packets["blocks"]["azimuth"].astype(np.float64)
+    return np.mod(azimuth[:, -1] - azimuth[:, 0], 36000.0) / (timing[-1, 0] - timing[0, 0])
+
+
 def decode_returns(packets: np.ndarray, layout: PacketLayout, dual: bool, time_us: np.ndarray,
                    scan: np.ndarray, distance_m: float = 0.002, interpolate_azimuth: bool = True) -> dict:
     """Raw returns of packets (structured PACKET array), those `returned` keeps.
@@ -135,7 +143,7 @@ def decode_returns(packets: np.ndarray, layout: PacketLayout, dual: bool, time_u
     distance = blocks["returns"]["distance"]
     valid = returned(packets, layout, dual)
     block_azimuth = blocks["azimuth"].astype(np.float64)
-    rate = np.mod(block_azimuth[:, -1] - block_azimuth[:, 0], 36000.0) / (timing[-1, 0] - timing[0, 0])
+    rate = packet_rates(packets, layout, dual)
     after_block_us = (timing - timing[:, :1]) if interpolate_azimuth else layout.sequence_start_us()[None, :]
     azimuth = block_azimuth[:, :, None] + rate[:, None, None] * after_block_us[None]
     return {

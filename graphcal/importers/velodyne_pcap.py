@@ -31,6 +31,7 @@ from graphcal.importers.velodyne_packets import (
     UPPER_BLOCK,
     PacketLayout,
     decode_returns,
+    packet_rates,
     returned,
     revolution_counter,
     unwrap_hour_us,
@@ -251,10 +252,7 @@ def _layout(path: Path, packets: np.ndarray, time_us: np.ndarray, records: np.nd
 
 def _rotation_hz(packets: np.ndarray, layout: PacketLayout, dual: bool) -> float:
     """Median spin rate [Hz] from each packet's azimuth advance over its firing time."""
-    timing = layout.timing_us(dual)
-    azimuth = packets["blocks"]["azimuth"].astype(np.float64)
-    rate = np.mod(azimuth[:, -1] - azimuth[:, 0], 36000.0) / (timing[-1, 0] - timing[0, 0])  # 0.01 deg / us
-    return float(np.round(np.median(rate) * 1e6 / 36000.0, 3))
+    return float(np.round(np.median(packet_rates(packets, layout, dual)) * 1e6 / 36000.0, 3))
 
 
 def _sensor(path, decoded: VelodyneReturns, calibration: VelodyneCalibration | None, notes: list[str]):
