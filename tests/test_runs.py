@@ -155,6 +155,18 @@ def test_report_command_rewrites_the_report_and_rejects_other_folders(calibrated
     assert result.exit_code == 0 and (copy / "report.html").is_file(), result.output
     result = CliRunner().invoke(app, ["report", str(tmp_path)])
     assert result.exit_code == 2 and result.output.count("\n") == 1 and "no calibration.yaml" in result.output
+    history = (copy / "history.csv").read_text()
+    (copy / "history.csv").write_text(history.replace("energy_cm2", "J", 1))
+    result = CliRunner().invoke(app, ["report", str(copy)])
+    assert result.exit_code == 2 and result.output.count("\n") == 1, result.output
+    assert "history.csv" in result.output and "field 'energy_cm2'" in result.output
+    (copy / "history.csv").write_text(history)
+    calibration = yaml.safe_load((copy / "calibration.yaml").read_text())
+    del calibration["sensor"]["reference_fibre"]
+    (copy / "calibration.yaml").write_text(yaml.safe_dump(calibration))
+    result = CliRunner().invoke(app, ["report", str(copy)])
+    assert result.exit_code == 2 and result.output.count("\n") == 1, result.output
+    assert "calibration.yaml" in result.output and "field 'sensor.reference_fibre'" in result.output
 
 
 def test_evaluate_command_matches_the_run_and_needs_truth(calibrated, tmp_path):

@@ -62,11 +62,8 @@ class Calibration:
     def load(cls, path: str | Path, sensor: SensorModel) -> Calibration:
         """Read calibration.yaml (the file or its folder) for a recording with this sensor."""
         path = calibration_file(path)
-        data = read_yaml(path)
-        if not isinstance(data, dict) or data.get("format") != FORMAT:
-            raise RecordingError(path, f"format is {data.get('format') if isinstance(data, dict) else data!r}",
-                                 field="format", expected=FORMAT)
-        header = _mapping(data.get("sensor"), path, "sensor", "model and reference_fibre")
+        data = read_calibration_yaml(path)
+        header = data["sensor"]
         model = header.get("model")
         if model != sensor.model:
             raise RecordingError(path, f"sensor model {model!r}", field="sensor.model",
@@ -191,6 +188,24 @@ class CalibrationResult:
 def _gtsam_version() -> str:
     from importlib.metadata import version
     return version("gtsam")
+
+
+def read_calibration_yaml(path: Path) -> dict:
+    """calibration.yaml's mapping with its format, sensor (model, reference_fibre), intrinsics
+    (a list) and extrinsic (a mapping) checked: RecordingError naming the field otherwise."""
+    data = read_yaml(path)
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise RecordingError(path, f"format is {data.get('format') if isinstance(data, dict) else data!r}",
+                             field="format", expected=FORMAT)
+    header = _mapping(data.get("sensor"), path, "sensor", "model and reference_fibre")
+    for key in ("model", "reference_fibre"):
+        if key not in header:
+            raise RecordingError(path, "missing", field=f"sensor.{key}", expected="the sensor's model and reference fibre")
+    if not isinstance(data.get("intrinsics"), list):
+        raise RecordingError(path, f"intrinsics is {data.get('intrinsics')!r}", field="intrinsics",
+                             expected="a list, one row per fibre")
+    _mapping(data.get("extrinsic"), path, "extrinsic", "lever_arm_m and boresight_deg")
+    return data
 
 
 def _mapping(value, path: Path, field: str, expected: str) -> dict:

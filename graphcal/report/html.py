@@ -16,7 +16,7 @@ import numpy as np
 from graphcal.atomic import atomic_path
 from graphcal.calibration.before_after import FILES as PAIRS_FILES
 from graphcal.calibration.before_after import BeforeAfter
-from graphcal.calibration.result import CALIBRATION_FILE
+from graphcal.calibration.result import CALIBRATION_FILE, read_calibration_yaml
 from graphcal.errors import RecordingError
 from graphcal.report import figures
 from graphcal.report.tables import (
@@ -29,6 +29,7 @@ from graphcal.yamlfile import read_yaml
 
 REPORT = "report.html"
 EVALUATION = "evaluation.yaml"
+HISTORY_COLUMNS = ("mode", "energy_cm2", "energy_after_cm2", "weight_sum")  # the history.csv columns it draws
 _STYLE = """body{font-family:system-ui,sans-serif;max-width:1150px;margin:2em auto;color:#222;line-height:1.4}
 h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.6em}
 table{border-collapse:collapse;margin:.6em 0;font-size:.9em}td,th{border:1px solid #ccc;padding:.2em .6em;text-align:right}
@@ -42,7 +43,7 @@ def write_report(folder: Path) -> Path:
     calibration_path = folder / CALIBRATION_FILE
     if not calibration_path.is_file():
         raise RecordingError(folder, "no calibration.yaml", expected="a calibration run folder (graphcal calibrate)")
-    calibration = read_yaml(calibration_path)
+    calibration = read_calibration_yaml(calibration_path)
     manifest = read_yaml(folder / MANIFEST) if (folder / MANIFEST).is_file() else {}
     history = _read_history(folder / "history.csv")
     recording = _recording(manifest)
@@ -62,7 +63,12 @@ def _read_history(path: Path) -> list[dict]:
     if not path.is_file():
         raise RecordingError(path, "file not found", expected="the history graphcal calibrate writes")
     with path.open(newline="") as stream:
-        return list(csv.DictReader(stream))
+        reader = csv.DictReader(stream)
+        missing = [name for name in HISTORY_COLUMNS if name not in (reader.fieldnames or [])]
+        if missing:
+            raise RecordingError(path, f"no column {', '.join(missing)}", field=missing[0],
+                                 expected=f"the columns graphcal calibrate writes ({', '.join(HISTORY_COLUMNS)})")
+        return list(reader)
 
 
 def _recording(manifest: dict):
