@@ -12,6 +12,9 @@ from graphcal.tables import read_csv_columns, write_csv_columns
 CSV_COLUMNS = ("fibre", "d_range_m", "d_azimuth_deg", "d_elevation_deg", "h_z_m")
 # scale from internal SI units (m, rad, rad, m) to the file units (m, deg, deg, m)
 _TO_FILE_UNITS = np.array([1.0, np.degrees(1.0), np.degrees(1.0), 1.0])
+# how the intrinsics are shown (tables, viewer, evaluation): the file's (m, deg, deg, m) as (cm, deg, deg, cm)
+DISPLAY_NAMES = ("d_range_cm", "d_azimuth_deg", "d_elevation_deg", "h_z_cm")
+DISPLAY_FROM_FILE_UNITS = np.array([100.0, 1.0, 1.0, 100.0])
 
 
 def offsets_to_file_units(offsets_si: np.ndarray) -> np.ndarray:

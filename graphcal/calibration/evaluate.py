@@ -18,7 +18,11 @@ from graphcal.calibration.problem import (
 )
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.errors import GraphcalError
-from graphcal.intrinsics import offsets_to_file_units
+from graphcal.intrinsics import (
+    DISPLAY_FROM_FILE_UNITS,
+    DISPLAY_NAMES,
+    offsets_to_file_units,
+)
 from graphcal.metrics import DistanceStats, cloud_to_cloud
 from graphcal.recording import Recording
 
@@ -81,9 +85,8 @@ class Evaluation:
     cloud_after_gauge_free: DistanceStats
 
     def table(self) -> str:
-        names = ("d_range cm", "d_azimuth deg", "d_elevation deg", "Hz cm")
         lines = [f"{'':18}{'before':>12}{'after':>12}"]
-        lines += [f"{n:18}{b:12.3g}{a:12.3g}" for n, b, a in zip(names, self.intrinsic_rms_before,
+        lines += [f"{n:18}{b:12.3g}{a:12.3g}" for n, b, a in zip(DISPLAY_NAMES, self.intrinsic_rms_before,
                                                                  self.intrinsic_rms_after)]
         lines.append(f"{'lever arm m *':18}{self.lever_arm_error_m[0]:12.3g}{self.lever_arm_error_m[1]:12.3g}")
         lines.append(f"{'rotation deg':18}{self.rotation_error_deg[0]:12.3g}{self.rotation_error_deg[1]:12.3g}")
@@ -102,9 +105,8 @@ class Evaluation:
         def stats(d: DistanceStats) -> dict:
             return {"mean": d.mean, "median": d.median, "p95": d.p95, "max": d.max}
 
-        names = ("d_range_cm", "d_azimuth_deg", "d_elevation_deg", "h_z_cm")
-        return {"intrinsic_rms": {"before": dict(zip(names, map(float, self.intrinsic_rms_before))),
-                                  "after": dict(zip(names, map(float, self.intrinsic_rms_after)))},
+        return {"intrinsic_rms": {"before": dict(zip(DISPLAY_NAMES, map(float, self.intrinsic_rms_before))),
+                                  "after": dict(zip(DISPLAY_NAMES, map(float, self.intrinsic_rms_after)))},
                 "lever_arm_error_m": list(map(float, self.lever_arm_error_m)),
                 "rotation_error_deg": list(map(float, self.rotation_error_deg)),
                 "cloud_to_cloud_m": {"before": stats(self.cloud_before), "after": stats(self.cloud_after),
@@ -116,7 +118,7 @@ class Evaluation:
 def intrinsic_rms(offsets: np.ndarray, truth: np.ndarray, reference_fibre: int) -> np.ndarray:
     """Eq. 4.6: RMS over the fibres but the reference of offset - truth, in (cm, deg, deg, cm)."""
     error = np.delete(np.asarray(offsets) - truth, reference_fibre, axis=0)
-    return offsets_to_file_units(np.sqrt(np.mean(error ** 2, axis=0))) * [100.0, 1.0, 1.0, 100.0]  # m -> cm
+    return offsets_to_file_units(np.sqrt(np.mean(error ** 2, axis=0))) * DISPLAY_FROM_FILE_UNITS
 
 
 def evaluate(result: CalibrationResult | Calibration, recording: Recording, max_points: int = 500_000,

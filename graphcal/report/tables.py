@@ -3,10 +3,13 @@ calibration.yaml mapping: shared by the HTML report and the viewer's parameters 
 
 from __future__ import annotations
 
+from graphcal.calibration.observability import INTRINSIC_NAMES
+from graphcal.intrinsics import DISPLAY_FROM_FILE_UNITS
+
 UNOBSERVABLE = "unobservable"
 # calibration.yaml intrinsic field -> (shown name, factor from the file unit)
-INTRINSIC_COLUMNS = (("d_range_m", "d_range [cm]", 100.0), ("d_azimuth_deg", "d_azimuth [deg]", 1.0),
-                     ("d_elevation_deg", "d_elevation [deg]", 1.0), ("h_z_m", "Hz [cm]", 100.0))
+INTRINSIC_COLUMNS = tuple(zip(INTRINSIC_NAMES, ("d_range [cm]", "d_azimuth [deg]", "d_elevation [deg]", "Hz [cm]"),
+                              DISPLAY_FROM_FILE_UNITS.tolist()))
 EXTRINSIC_ROWS = (("roll [deg]", "boresight_deg", 0, 1.0), ("pitch [deg]", "boresight_deg", 1, 1.0),
                   ("yaw [deg]", "boresight_deg", 2, 1.0), ("lever arm x [cm]", "lever_arm_m", 0, 100.0),
                   ("lever arm y [cm]", "lever_arm_m", 1, 100.0), ("lever arm z [cm]", "lever_arm_m", 2, 100.0))

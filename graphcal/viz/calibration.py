@@ -33,7 +33,11 @@ from graphcal.calibration.evaluate import (
 from graphcal.calibration.observability import INTRINSIC_NAMES
 from graphcal.calibration.result import CalibrationResult
 from graphcal.geodesy import to_world
-from graphcal.intrinsics import offsets_to_file_units
+from graphcal.intrinsics import (
+    DISPLAY_FROM_FILE_UNITS,
+    DISPLAY_NAMES,
+    offsets_to_file_units,
+)
 from graphcal.recording import Recording
 from graphcal.viz.colors import fibre_annotations
 from graphcal.viz.log import (
@@ -53,8 +57,6 @@ from graphcal.viz.stream import send_layout
 ARROW_SCALE = 10.0  # trajectory corrections are centimetres on a 100 m scene: drawn 10x longer
 MAX_TRAJECTORY_POINTS = 20_000
 BEFORE, AFTER, TRUTH = (160, 160, 160), (40, 200, 90), (240, 160, 30)
-# display units of the intrinsics: m -> cm, deg stays deg
-INTRINSIC_DISPLAY = (("d_range_cm", 100.0), ("d_azimuth_deg", 1.0), ("d_elevation_deg", 1.0), ("h_z_cm", 100.0))
 COLOURINGS = ("residual", "fibre", "time")  # the first tab is the one shown
 
 
@@ -148,7 +150,7 @@ def log_parameters(stream: rr.RecordingStream, recording: Recording, result: Cal
         values = offsets_to_file_units(calibration.estimate.offsets)
         true = offsets_to_file_units(truth.intrinsics) if truth is not None else None
         held = unobservable_mask(calibration.unobservable, values.shape[0])
-        for k, (name, factor) in enumerate(INTRINSIC_DISPLAY):
+        for k, (name, factor) in enumerate(zip(DISPLAY_NAMES, DISPLAY_FROM_FILE_UNITS)):
             log_with_sigma(stream, f"parameters/intrinsics/{name}", "fibre",
                            np.where(held[:, k], np.nan, values[:, k] * factor), uncertainty.intrinsics[:, k] * factor,
                            None if true is None else true[:, k] * factor)
@@ -234,7 +236,7 @@ def calibration_blueprint(estimated: tuple[bool, bool, bool], eye: rrb.EyeContro
                   rrb.BarChartView(origin="/residuals/after", name="residuals after [cm]")]
     if estimated[0]:
         parameters += [rrb.TimeSeriesView(origin=f"/parameters/intrinsics/{name}", name=f"{name} per fibre")
-                       for name, _ in INTRINSIC_DISPLAY]
+                       for name in DISPLAY_NAMES]
     if estimated[2]:
         parameters += [rrb.TimeSeriesView(origin=f"/parameters/corrections/{name}", name=f"correction {name}")
                        for name in ("x_cm", "y_cm", "z_cm")]
