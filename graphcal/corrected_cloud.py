@@ -10,7 +10,6 @@ calibration comes from another recording.
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -57,7 +56,7 @@ def write_corrected_cloud(path: Path, calibration: Calibration, recording: Recor
     start = 0
     with writer as write:
         for batch in progress(batches, f"writing {path}", total=-(-n_points // BATCH_ROWS), quiet=quiet):
-            part = replace(recording, points=PointTable.from_arrays(**batch))
+            part = recording.with_points(PointTable.from_arrays(**batch))
             rows = slice(start, start + len(batch["time"]))
             write(apply_calibration(calibration, part), time=batch["time"], intensity=batch["intensity"],
                   fibre=batch["fibre"].astype(np.uint8), residual_m=residual[rows])

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -43,6 +43,14 @@ class Recording:
     def world(self) -> WorldTrajectory:
         """T_world_body(t) in the projected world frame, with grid scale and convergence."""
         return to_world(self.trajectory, self.crs, self._source("recording.yaml"))
+
+    def with_points(self, points: PointTable) -> Recording:
+        """The same drive with other returns (a batch of them): the world trajectory is shared,
+        not transformed again."""
+        other = replace(self, points=points)
+        if "world" in self.__dict__:
+            other.__dict__["world"] = self.world
+        return other
 
     @property
     def truth(self) -> Truth | None:

@@ -636,3 +636,15 @@ def test_saved_files_follow_the_umask(valid_dir):
     for path in [valid_dir, *valid_dir.rglob("*")]:
         expected = (0o777 if path.is_dir() else 0o666) & ~umask
         assert path.stat().st_mode & 0o777 == expected, (path, oct(path.stat().st_mode))
+
+
+def test_a_batch_of_returns_shares_the_world_trajectory(simulated, monkeypatch):
+    import graphcal.recording
+
+    real, calls = graphcal.recording.to_world, []
+    monkeypatch.setattr(graphcal.recording, "to_world", lambda *args: calls.append(args) or real(*args))
+    recording = dataclasses.replace(simulated)  # its own cache
+    world = recording.world
+    batch = recording.with_points(PointTable.from_arrays(**recording.points.read(["time", "fibre", "range", "azimuth"])))
+    assert batch.world is world and len(calls) == 1
+    assert len(batch.points) == len(recording.points) and batch.trajectory is recording.trajectory
