@@ -140,7 +140,9 @@ def test_gprmc_time_base_is_gps_seconds_of_week(tmp_path):
     stamp_s = 17 * 60 + 6.2  # 10:17:06.2 on the sensor clock
     sentence = "$GPRMC,101705,A,4851.3000,N,00221.0000,E,000.0,000.0,040321,,,A"
     fix = (1614853025.0, udp_frame(position_packet(int(stamp_s * 1e6), sentence), 8308))
-    capture = spinning_capture(n_packets=20, packet_us=552.96, block_step=19.9, start_us=int(stamp_s * 1e6), extra=[fix])
+    other = (1614853025.1, udp_frame(b"\x00" * 100, 9999))  # neither lidar data nor a position packet
+    capture = spinning_capture(n_packets=20, packet_us=552.96, block_step=19.9, start_us=int(stamp_s * 1e6),
+                               extra=[fix, other])
     recording = import_pcap(_write(tmp_path, capture), quiet=True)
     utc = calendar.timegm((2021, 3, 4, 10, 0, 0)) + _first_return_us(capture) * 1e-6
     gps = utc - calendar.timegm((1980, 1, 6, 0, 0, 0)) + 18.0
@@ -153,6 +155,7 @@ def test_gprmc_time_base_is_gps_seconds_of_week(tmp_path):
     assert trajectory.time[0] <= time[0] and trajectory.time[-1] >= time[-1]
     assert any("STATIC" in note for note in recording.source["notes"])
     assert any("GPRMC" in note for note in recording.source["notes"])
+    assert "1 other records skipped (neither lidar data nor position packets)" in recording.source["notes"]
 
 
 def test_no_fix_needs_a_position_and_uses_the_host_clock_hour(tmp_path):

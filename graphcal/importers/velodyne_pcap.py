@@ -141,6 +141,8 @@ def recording_from_returns(decoded: VelodyneReturns, importer: str, *, calibrati
     mode = "dual" if decoded.dual_return else "single"
     notes = [(f"{decoded.n_data_packets} {decoded.model} data packets ({mode} return), "
               f"{len(decoded.returns['time_s'])} returns, {decoded.rotation_hz:.2f} Hz")]
+    if decoded.n_other_packets:
+        notes.append(f"{decoded.n_other_packets} other records skipped (neither lidar data nor position packets)")
     sensor = _sensor(path, decoded, calibration, notes)
     hour_utc_s = _hour(decoded, notes)
     time, week = seconds_of_week(hour_utc_s, decoded.returns["time_s"])
