@@ -5,8 +5,8 @@ Cases (each in its own process, so each has its own peak memory):
   effect's calibration mode (max one effect added); named first? magnitude error against truth;
   and the same recording against a simulation of the same drive with nominal physics (compare);
 - two: time_offset + azimuth_eccentricity in one recording (both found?);
-- budget: sim6_turn at full size (about 4 M returns), diagnose with max_points subsampling; the
-  acceptance is <= 5 min on 2 cores.
+- budget: sim6_turn at full size (about 4 M returns, pitched head: start section_4_5_2), diagnose
+  with max_points subsampling; the acceptance is <= 5 min on 2 cores.
 Prints the figures and writes benchmarks/results/diagnose.json.
 """
 
@@ -66,7 +66,10 @@ def _budget(max_points: int, queue) -> None:
     import graphcal
     from graphcal.sim.script import load_scenario_builder
 
-    recording = graphcal.simulate(load_scenario_builder("sim6_turn")(size=1.0, seed=0), quiet=True)
+    # pitched head: a level one in this flat courtyard gives the joint baseline a direction it slides along
+    # into the fibres' collapse (docs/math.md), which calibrate refuses
+    recording = graphcal.simulate(load_scenario_builder("sim6_turn")(size=1.0, seed=0, start="section_4_5_2"),
+                                  quiet=True)
     started = time.perf_counter()
     diagnosis = graphcal.diagnose(recording, _config("joint", max_points), quiet=True)
     queue.put({"returns": len(recording.points), "max_points": max_points,
