@@ -73,6 +73,10 @@ class CalibrationConfig(BaseModel):
     extrinsic_sigma_boresight_deg: float = Field(10.0, gt=0)
     max_outer_iterations: int = Field(40, ge=1, description="n_max, per stage")
     tolerance_m: float = Field(1e-5, gt=0, description="delta: stop when max |dX| (m, or rad x 1 m) is below")
+    plateau_iterations: int = Field(6, ge=2, description=(
+        "fine phase: also stop when J has not reached a new low (by plateau_improvement) in this many outer "
+        "iterations: the association's jitter can keep max |dX| above tolerance_m at a J that no longer falls"))
+    plateau_improvement: float = Field(0.01, ge=0, lt=1, description="relative fall of J that counts as a new low")
     step_sigma_m: float = Field(0.02, gt=0, description="damping of one outer step, lengths")
     step_sigma_deg: float = Field(0.5, gt=0, description="damping of one outer step, angles")
     lm_iterations: int = Field(5, ge=1)

@@ -268,6 +268,7 @@ def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
     pose = config.pose_corrections
     association = Association.of(data, config)
     phase, settings, features, gate = "coarse", config, None, config.gate_start_m
+    fine_energies = []
     since_refresh = config.refresh_every
     for _ in progress(range(config.max_outer_iterations), f"calibrating ({stage})",
                       total=config.max_outer_iterations, quiet=quiet):
@@ -290,13 +291,24 @@ def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
                     energy_after_cm2=after, weight_sum=weight_sum, pairs=len(pairs), gate_m=gate, max_step=step,
                     refreshed=refreshed)
         estimate = updated
-        if phase == "fine" and step < config.tolerance_m:
-            break
+        if phase == "fine":
+            fine_energies.append(before)
+            if step < config.tolerance_m or on_plateau(fine_energies, config.plateau_iterations,
+                                                       config.plateau_improvement):
+                break
         if phase == "coarse" and step < config.fine_below_m:
             phase, settings, gate, since_refresh = "fine", config.fine(), config.fine_gate_m, config.refresh_every
         elif phase == "coarse":
             gate = min(gate * config.gate_growth, config.gate_max_m)
     return estimate
+
+
+def on_plateau(energies: list[float], iterations: int, improvement: float) -> bool:
+    """True when none of the last `iterations` energies fell below (1 - improvement) times the
+    lowest one before them: J has stopped falling (it only jitters with the association)."""
+    if len(energies) <= iterations:
+        return False
+    return min(energies[-iterations:]) > (1.0 - improvement) * min(energies[:-iterations])
 
 
 def hold_at_nominal(estimate: Estimate, priors: Priors, nominal_extrinsic: gtsam.Pose3) -> Estimate:
