@@ -20,6 +20,7 @@ from graphcal.calibration.solve import (
     build_graph,
     energy_cm2,
     features_at,
+    levenberg_marquardt,
     read_back,
 )
 from graphcal.diagnosis.context import EffectModel, ReturnContext, world_with_effects
@@ -101,9 +102,7 @@ def refit(fit: Fit, names: tuple[str, ...], prior_sigma: dict, iterations: int =
         pairs = association.pairs(points, fit.data.fibre, features, fine.fine_gate_m, fine)
         graph, initial = build_graph(fit.data, estimate, pairs, config, fit.estimated, fit.nominal, fit.priors,
                                      effects=model)
-        params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(config.lm_iterations)
-        solved = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
+        solved = levenberg_marquardt(graph, initial, config.lm_iterations)
         estimate = read_back(solved, estimate, fit.estimated, fit.data, config.pose_corrections)
         model = replace(model, values=model.read(solved))
     return _associated(fit.recording, fit.data, config, fit.estimated, fit.nominal, fit.priors, estimate,
