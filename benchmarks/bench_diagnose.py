@@ -22,11 +22,10 @@ from common import peak_gib, report, run_in_process
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-def _config(mode: str, max_points: int, angle_prior_deg: float = 10.0):
+def _config(mode: str, max_points: int):
     from graphcal.calibration.config import CalibrationConfig
 
-    return CalibrationConfig(mode=mode, max_outer_iterations=6, max_points=max_points, tolerance_m=1e-4,
-                             intrinsic_sigma_angle_deg=angle_prior_deg)
+    return CalibrationConfig(mode=mode, max_outer_iterations=6, max_points=max_points, tolerance_m=1e-4)
 
 
 def _effect(effects: tuple[str, ...], size: float, max_points: int, queue) -> None:
@@ -39,7 +38,7 @@ def _effect(effects: tuple[str, ...], size: float, max_points: int, queue) -> No
     recording = graphcal.simulate(build(size=size, seed=1, effect=None, effects=effects), quiet=True)
     mode = concealed[effects[0]].mode if effects else "joint"
     started = time.perf_counter()
-    diagnosis = graphcal.diagnose(recording, _config(mode, max_points, build.__globals__["ANGLE_PRIOR_DEG"]),
+    diagnosis = graphcal.diagnose(recording, _config(mode, max_points),
                                   max_effects=len(effects) + 1, quiet=True)
     seconds = time.perf_counter() - started
     clean = graphcal.simulate(build(size=size, seed=1, effect=None), quiet=True)
