@@ -129,11 +129,8 @@ def test_bad_mode_is_a_clear_error(clean, tmp_path):
 
 
 # measured failures (benchmarks/bench_diagnose.py, the same settings): see docs/diagnose.md
-KNOWN_FAILURES = {"intra_sweep_motion": "the linear test at the distorted fit names spin_rate",
-                  "projection_scale": "absorbed once the baseline converges (R2 0.94)",
-                  "fibre_horizontal_offset": "32 parameters, R2 0.91: not significant by self-consistency",
-                  "range_scale": "named, but the refit overshoots (+65 %)",
-                  "incidence_range_bias": "named, but the refit undershoots (-25 %)"}
+KNOWN_FAILURES = {"intra_sweep_motion": "the linear test at the distorted fit names azimuth_eccentricity",
+                  "spin_rate": "time_offset named first (not separable at constant speed), spin_rate second"}
 
 
 @pytest.mark.skipif(not os.environ.get("GRAPHCAL_SLOW_TESTS"), reason="2-5 min per effect: GRAPHCAL_SLOW_TESTS=1")
