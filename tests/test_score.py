@@ -7,6 +7,7 @@ import pytest
 from scipy import stats
 
 from graphcal.diagnosis.score import (
+    PRACTICAL_FLOOR_SIGMA0,
     linearisation_of_rows,
     noncentrality,
     score_candidate,
@@ -15,14 +16,14 @@ from graphcal.diagnosis.score import (
 K_ROWS, CLUSTERS = 2000, 200
 
 
-def _problem(rng, theta_true: float, shared_sigma: float = 0.0):
+def _problem(rng, theta_true: float, shared_sigma: float = 0.0, noise_sigma: float = 1.0, base=(0.3, -0.2)):
     """Residuals r = -(A0 a + a_k theta) + noise: base columns x0, x1 (x1 correlated with the
     candidate's column), the candidate k; noise with a part shared by each cluster of 10 rows."""
     x = rng.normal(size=(K_ROWS, 3))
     A = np.column_stack([x[:, 0], x[:, 1], 0.8 * x[:, 1] + 0.6 * x[:, 2]])
     cluster = np.repeat(np.arange(CLUSTERS), K_ROWS // CLUSTERS)
-    noise = rng.normal(size=K_ROWS) + shared_sigma * rng.normal(size=CLUSTERS)[cluster]
-    r = -(A @ np.array([0.3, -0.2, theta_true])) + noise  # at the linearisation point every parameter is 0
+    noise = noise_sigma * rng.normal(size=K_ROWS) + shared_sigma * rng.normal(size=CLUSTERS)[cluster]
+    r = -(A @ np.array([*base, theta_true])) + noise  # at the linearisation point every parameter is 0
     return linearisation_of_rows(r, A, ["x0", "x1", "range_scale"], {"range_scale": np.array([2])}, cluster, cluster % 2, 0.01), A, r
 
 
@@ -52,3 +53,17 @@ def test_false_alarms_stay_at_the_nominal_rate_with_correlated_noise():
         naive.append(stats.chi2.sf(test.naive_statistic, 1))
     assert np.mean(np.array(robust) < 0.05) < 0.10  # nominal 5 %
     assert np.mean(np.array(naive) < 0.05) > 0.3  # the textbook statistic counts correlated rows as independent
+
+
+def test_an_effect_too_small_to_matter_is_not_a_finding_however_sure():
+    """Noise-free data resolve any misfit: a candidate explaining 0.06 % of sigma0 has p ~ 0 but is not
+    significant; the explained RMS is sigma0 |theta| times the RMS of its column projected off the base."""
+    rng = np.random.default_rng(2)
+    lin, A, _ = _problem(rng, theta_true=1e-3, noise_sigma=1e-6, base=(0.0, 0.0))  # a converged fit
+    tiny = score_candidate(lin, "range_scale", ["range_scale"])
+    projected = A[:, 2] - A[:, :2] @ np.linalg.lstsq(A[:, :2], A[:, 2], rcond=None)[0]
+    assert tiny.explained_rms_m == pytest.approx(0.01 * 1e-3 * np.sqrt(np.mean(projected ** 2)), rel=1e-3)
+    assert tiny.p_value < 1e-12 and tiny.held_out_cm2[1] < tiny.held_out_cm2[0]
+    assert tiny.explained_rms_m < PRACTICAL_FLOOR_SIGMA0 * 0.01 and not tiny.significant(1)
+    large = score_candidate(_problem(rng, theta_true=0.5)[0], "range_scale", ["range_scale"])
+    assert large.explained_rms_m > PRACTICAL_FLOOR_SIGMA0 * 0.01 and large.significant(1)

@@ -161,7 +161,8 @@ def _row(test: CandidateTest, recording: Recording, n: int) -> dict:
             "unit": CANDIDATES[test.name].unit, "statistic": test.statistic, "dof": test.dof, "p_value": test.p_value,
             "bic_gain": test.bic_gain,
             "concealment_r2": test.concealment_r2, "absorbed_by": [a for a, _ in test.absorbed_by],
-            "held_out_cm2": list(test.held_out_cm2), "significant": test.significant(n),
+            "held_out_cm2": list(test.held_out_cm2), "explained_rms_m": test.explained_rms_m,
+            "significant": test.significant(n),
             "plausible": plausible(test, recording) if test.identifiable else False}
 
 

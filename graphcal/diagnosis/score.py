@@ -47,6 +47,10 @@ ALPHA = 1e-3  # family-wise false-alarm rate over the candidates
 POWER = 0.8
 IDENTIFIABLE_R2 = 0.995  # above this concealment the candidate is not tested: the model already has it
 BLIND_INFORMATION = 1e-12  # a candidate's information below this share of the median parameter's: the data are blind
+# an effect must explain at least this fraction of sigma0 (RMS over the pairs, beyond what the base
+# absorbs) to count: on noise-free data the tests otherwise resolve the pipeline's own misfits (two
+# effects named on 400 k noise-free returns). A concealed 0.08 deg eccentricity explains 0.3 mm (0.03)
+PRACTICAL_FLOOR_SIGMA0 = 0.01
 
 
 @functools.lru_cache(maxsize=64)
@@ -195,12 +199,15 @@ class CandidateTest:
     absorbed_by: list
     held_out_cm2: tuple[float, float]
     n_clusters: int = 0
+    explained_rms_m: float = 0.0
+    sigma0_m: float = 1.0
 
     def significant(self, n_candidates: int, alpha: float = ALPHA) -> bool:
-        """Bonferroni over the candidates, a positive BIC gain, and confirmed on held-out data (lower
-        held-out J)."""
+        """Bonferroni over the candidates, a positive BIC gain, confirmed on held-out data (lower
+        held-out J), and large enough to matter: it explains at least PRACTICAL_FLOOR_SIGMA0 sigma0."""
         return bool(self.p_value < alpha / max(n_candidates, 1) and self.bic_gain > 0
-                    and self.held_out_cm2[1] < self.held_out_cm2[0])
+                    and self.held_out_cm2[1] < self.held_out_cm2[0]
+                    and self.explained_rms_m >= PRACTICAL_FLOOR_SIGMA0 * self.sigma0_m)
 
     @property
     def bic_gain(self) -> float:
@@ -259,10 +266,12 @@ def score_candidate(lin: Linearisation, name: str, candidates: list[str]) -> Can
     statistic = float(u @ S_inv @ u) / factor
     covariance = S_inv * factor
     sigma, mdb = _headline_sigma(name, theta, covariance)
+    # the fall of J (m^2, whitened cost x sigma0^2 over the weight sum) the projected candidate explains
+    explained_rms_m = lin.sigma0_m * float(np.sqrt(max(theta @ S @ theta, 0.0) / max(lin.half_weight.sum(), 1e-300)))
     return CandidateTest(name, len(k), statistic, float(stats.chi2.sf(statistic, len(k))), float(u @ S_inv @ u),
                          theta, covariance, CANDIDATES[name].magnitude(theta), sigma, mdb, r2,
                          _absorbing(L, base, k, Xs, S_inv, theta, lin.names), _held_out(lin, base, k),
-                         lin.n_clusters)
+                         lin.n_clusters, explained_rms_m, lin.sigma0_m)
 
 
 def _cluster_variance(lin: Linearisation, base: np.ndarray, k: np.ndarray, Xs: np.ndarray,
