@@ -125,7 +125,8 @@ def check_fibres_apart(elevation_deg: np.ndarray, d_elevation_rad: np.ndarray, r
 
     The self-consistency energy has a trivial minimum: fibres that sweep one cone see the same
     points, and every point-to-plane distance between them vanishes. A run that starts far from
-    the truth, or stops early, can slide towards it (J falls while the cloud gets worse); no
+    the truth, or stops early, or whose scene leaves it a direction it cannot see (a level head
+    over flat ground, docs/math.md), can slide towards it (J falls while the cloud gets worse); no
     real sensor has its beams' spread halved, so such a result is refused, not returned."""
     calibrated = elevation_deg + np.degrees(d_elevation_rad)
     nominal_spread, spread = float(np.std(elevation_deg)), float(np.std(calibrated))
@@ -134,7 +135,10 @@ def check_fibres_apart(elevation_deg: np.ndarray, d_elevation_rad: np.ndarray, r
             f"{recording.path or recording.name}: the fibres' calibrated elevations collapsed together (spread "
             f"{spread:.2f} deg against {nominal_spread:.2f} deg nominal): a degenerate minimum where neighbouring "
             "fibres coincide, not a calibration; start closer to the truth (smaller offsets), allow more outer "
-            "iterations (max_outer_iterations), or tighten the angle prior (intrinsic_sigma_angle_deg)")
+            "iterations (max_outer_iterations), or tighten the angle prior (intrinsic_sigma_angle_deg). A level "
+            "head over flat ground slides there even from the truth: its fibres that see only the ground can rise "
+            "together unseen (docs/math.md); calibrate its intrinsics from a drive with the head pitched or with "
+            "objects at many heights")
 
 
 def check_energy_fell(history: list[dict], recording: Recording) -> None:
