@@ -63,9 +63,10 @@ class CalibrationConfig(BaseModel):
     control_interval_s: float = Field(1.0, gt=0)
     block_controls: int = Field(4, ge=1, description="control intervals of p grouped in one block factor")
     pose_corrections: bool = Field(False, description="Pose3 trajectory corrections (else Point3)")
-    lambda_rigid: float = Field(1e-5, gt=0, description=(
+    lambda_rigid: float = Field(1e-6, gt=0, description=(
         "weight of E_def against the normalised energy J (eq. 5.4, both m^2): the seed's 1e2 is against the "
-        "un-normalised sum of eq. 5.5 over a full cloud's pairs (weight sum ~1e7)"))
+        "un-normalised sum of eq. 5.5 over a full cloud's pairs (weight sum ~1e7), 1e-5 here; 1e-6 measured "
+        "better (docs/math.md)"))
     deformation: Literal["prior", "monnier"] = "prior"
     intrinsic_sigma_range_m: float = Field(0.3, gt=0, description="prior on d_range and Hz about the nominal 0")
     intrinsic_sigma_angle_deg: float = Field(10.0, gt=0, description="prior on d_azimuth and d_elevation")
