@@ -129,8 +129,7 @@ def test_bad_mode_is_a_clear_error(clean, tmp_path):
 
 
 # measured failures (benchmarks/bench_diagnose.py, the same settings): see docs/diagnose.md
-KNOWN_FAILURES = {"intra_sweep_motion": "the linear test at the distorted fit names azimuth_eccentricity",
-                  "spin_rate": "time_offset named first (not separable at constant speed), spin_rate second"}
+KNOWN_FAILURES = {"intra_sweep_motion": "the linear test at the distorted fit names azimuth_eccentricity"}
 
 
 @pytest.mark.skipif(not os.environ.get("GRAPHCAL_SLOW_TESTS"), reason="2-5 min per effect: GRAPHCAL_SLOW_TESTS=1")

@@ -67,3 +67,21 @@ def test_an_effect_too_small_to_matter_is_not_a_finding_however_sure():
     assert tiny.explained_rms_m < PRACTICAL_FLOOR_SIGMA0 * 0.01 and not tiny.significant(1)
     large = score_candidate(_problem(rng, theta_true=0.5)[0], "range_scale", ["range_scale"])
     assert large.explained_rms_m > PRACTICAL_FLOOR_SIGMA0 * 0.01 and large.significant(1)
+
+
+def test_twins_are_named_by_the_cost_they_explain_not_by_their_robust_factor():
+    """Of two candidates the data cannot tell apart, the leader by robust statistic (time_offset, 100)
+    explains less cost (naive 200) than its twin (spin_rate, naive 220, robust 90: a larger variance
+    factor, itself an estimate): the twin takes the name, on the leader's factor (220 / 2 > 200 / 2).
+    A candidate whose physics fixes its size (intra_sweep_motion) goes first whatever its cost."""
+    from dataclasses import replace
+
+    from graphcal.diagnosis.diagnose import name_preference
+
+    test = score_candidate(_problem(np.random.default_rng(3), theta_true=0.5)[0], "range_scale", ["range_scale"])
+    leader = replace(test, name="time_offset", statistic=100.0, naive_statistic=200.0)
+    twin = replace(test, name="spin_rate", statistic=90.0, naive_statistic=220.0)
+    sized = replace(test, name="intra_sweep_motion", statistic=50.0, naive_statistic=100.0)
+    assert max([leader, twin], key=lambda t: name_preference(t, leader, None)) is twin
+    assert max([leader, twin, sized], key=lambda t: name_preference(t, leader, None)) is sized
+    assert name_preference(twin, leader, None)[1] == pytest.approx(220.0 / 2.0 - np.log(CLUSTERS))

@@ -12,6 +12,7 @@ identification, adaptation).
 
 from __future__ import annotations
 
+import functools
 import json
 import time
 from dataclasses import dataclass, field, replace
@@ -46,6 +47,9 @@ SEPARATING_DATA = {
     "only the projection's known scale factor tells them apart; a recording in a local metric frame, or ranges to "
     "a surveyed target, would separate them",
     frozenset({"time_offset", "lever_arm"}): "a speed change, or passes in both directions",
+    frozenset({"time_offset", "spin_rate"}): "a constant latency against a time error growing over each revolution: "
+    "they differ only by a sawtooth of half the spin error's mean (faster driving shows it more); the spin rate "
+    "measured from the packets' timestamps and azimuths would settle it",
     frozenset({"heading_bias", "heading_drift"}): "a longer drive (the drift grows, the bias does not)",
 }
 # the largest size each candidate can physically have (its unit): beyond, the estimate is a degenerate fit
@@ -79,8 +83,20 @@ def plausible(test: CandidateTest, recording: Recording) -> bool:
     return abs(test.magnitude) < PHYSICAL_BOUND[test.name]
 
 
+def name_preference(test: CandidateTest, leader: CandidateTest, recording: Recording) -> tuple[bool, float]:
+    """Which of candidates the data cannot tell apart takes the name (the largest key): one whose
+    physics fixes its size, first; then the one explaining most of the cost, its score statistic
+    scaled by one variance factor (the leader's) less BIC's price. Each candidate's own robust
+    factor calibrates its significance, but it is an estimate: between near-collinear signatures its
+    noise, not the fit, would choose (a 3 % spin-rate error explained more cost than the time offset
+    it looks like, yet had the larger factor)."""
+    factor = leader.naive_statistic / max(leader.statistic, 1e-300)
+    return (expected_magnitude(test.name, recording) is not None,
+            test.naive_statistic / factor - test.dof * np.log(max(test.n_clusters, 2)))
+
+
 def display(name: str, value: float) -> str:
-    scale, unit = UNIT_DISPLAY[CANDIDATES[name].unit]
+    scale, unit = (100.0, "%") if name == "spin_rate" else UNIT_DISPLAY[CANDIDATES[name].unit]
     return f"{value * scale:.3g} {unit}"
 
 
@@ -212,20 +228,17 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
         eligible = sorted((t for t in significant if plausible(t, recording)), key=lambda t: -t.bic_gain)
         if not eligible or len(findings) == max_effects:
             break
-        winner = eligible[0]
-        twins = [(other, separation(lin, winner.name, other.name, names)) for other in significant
-                 if other.name != winner.name]
-        twins = [(other, rho) for other, rho in twins if rho > NOT_SEPARABLE_CORRELATION]
-        for other, _ in twins:  # the data cannot choose: a candidate whose known size fits is the better name
-            if (expected_magnitude(winner.name, recording) is None and other in eligible
-                    and expected_magnitude(other.name, recording) is not None):
-                winner = other
-        for other, rho in twins:
-            names_pair = sorted({winner.name, other.name}) if other.name != winner.name else None
-            if names_pair:
-                not_separable.append({"effects": names_pair, "correlation": rho, "named": winner.name,
-                                      "would_separate": SEPARATING_DATA.get(frozenset(names_pair),
-                                                                            DEFAULT_SEPARATING_DATA)})
+        leader = eligible[0]
+        # candidates the data cannot tell apart (an implausible size rules one out: physics tells them apart)
+        group = [leader] + [other for other in eligible[1:]
+                            if separation(lin, leader.name, other.name, names) > NOT_SEPARABLE_CORRELATION]
+        winner = max(group, key=functools.partial(name_preference, leader=leader, recording=recording))
+        for other in group:
+            if other.name != winner.name:
+                pair = sorted((winner.name, other.name))
+                not_separable.append({"effects": pair, "correlation": separation(lin, winner.name, other.name, names),
+                                      "named": winner.name, "would_separate": SEPARATING_DATA.get(
+                                          frozenset(pair), DEFAULT_SEPARATING_DATA)})
         before = fit.energy_cm2
         active = fit.model.names + (winner.name,)
         prior = {n: float(max(10 * np.abs(fit.model.values.get(n, winner.theta)).max(), 10 * np.sqrt(
