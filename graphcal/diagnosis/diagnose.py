@@ -25,6 +25,11 @@ from graphcal.atomic import atomic_path
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.diagnosis.fit import Fit, baseline, refit
+from graphcal.diagnosis.hypothesis import (
+    TESTED_AT_KNOWN_SIZE,
+    HypothesisTest,
+    refit_at_known_size,
+)
 from graphcal.diagnosis.locate import locate
 from graphcal.diagnosis.score import (
     ALPHA,
@@ -104,7 +109,8 @@ def display(name: str, value: float) -> str:
 class Diagnosis:
     """What graphcal.diagnose found: findings (strongest first; diagnosis.json of RECORDING.md),
     candidates the data could not tell apart, the residual field's top locations, every candidate's
-    first-round test, the candidates the model already mimics entirely, and J before/after [cm^2].
+    first-round test, the candidates the model already mimics entirely, the tests of candidates at
+    their known size (graphcal.diagnosis.hypothesis), and J before/after [cm^2].
     locations are those of the final fit, locations_baseline those of the fit without any effect."""
 
     findings: list[dict]
@@ -115,13 +121,14 @@ class Diagnosis:
     concealed: list[dict]
     energy_cm2: dict
     seconds: float
+    at_known_size: list[dict] = field(default_factory=list)
     calibration: CalibrationResult | None = field(default=None, repr=False)
     fit: Fit | None = field(default=None, repr=False)
 
     def to_json(self) -> dict:
         return {"format": FORMAT, "findings": self.findings, "not_separable": self.not_separable,
                 "locations": self.locations, "locations_baseline": self.locations_baseline, "candidates": self.candidates, "concealed": self.concealed,
-                "energy_cm2": self.energy_cm2, "seconds": round(self.seconds, 2)}
+                "at_known_size": self.at_known_size, "energy_cm2": self.energy_cm2, "seconds": round(self.seconds, 2)}
 
     def save(self, directory: str | Path, command: str = "graphcal.diagnose") -> Path:
         """diagnosis.json, and when there is one, the re-solved calibration (calibration/calibration.yaml,
@@ -211,19 +218,29 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
     config = config or CalibrationConfig(mode="joint")
     fit, result = baseline(recording, config, quiet=quiet)
     energy, located = {"before": fit.energy_cm2}, locate(fit)
-    findings, not_separable, first_round, concealed, added = [], [], None, [], None
+    findings, not_separable, first_round, concealed, added, at_known_size = [], [], None, [], None, []
     for _ in progress(range(max_effects + 1), "diagnosing", total=max_effects + 1, quiet=quiet):
         names = candidate_names(fit, candidates)
         tests, lin = score_all(fit, names)
         if added is not None:  # the effect added last, with its sigma at the refit
-            winner, before = added
+            winner, before, hypothesis = added
             sigma = score_candidate(lin, winner.name, names + [winner.name]).sigma
-            findings.append(_finding(winner, fit, before, sigma))
+            findings.append(_finding(winner, fit, before, sigma, hypothesis))
             added = None
         if first_round is None:
             first_round = [_row(t, recording, len(names)) for t in sorted(tests.values(), key=lambda t: t.log10_p)]
             concealed = [{"effect": t.name, "concealment_r2": t.concealment_r2,
                           "absorbed_by": [a for a, _ in t.absorbed_by]} for t in tests.values() if not t.identifiable]
+            # a candidate of known size beyond the linear test's reach distorts the fit every test is made
+            # at: tested first, by a refit at its size
+            hypotheses = [refit_at_known_size(fit, n, expected_magnitude(n, recording), refit_iterations)
+                          for n in TESTED_AT_KNOWN_SIZE if n in names and np.isfinite(tests[n].mdb) and max_effects]
+            at_known_size = [h.to_json(ALPHA / len(names)) for h in hypotheses]
+            accepted = [h for h in hypotheses if h.accepted(ALPHA / len(names))]
+            if accepted:
+                hypothesis = max(accepted, key=lambda h: h.statistic)
+                added, fit = (tests[hypothesis.name], fit.energy_cm2, hypothesis), hypothesis.fit
+                continue
         significant = [t for t in tests.values() if t.identifiable and t.significant(len(names))]
         eligible = sorted((t for t in significant if plausible(t, recording)), key=lambda t: -t.bic_gain)
         if not eligible or len(findings) == max_effects:
@@ -244,13 +261,13 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
         prior = {n: float(max(10 * np.abs(fit.model.values.get(n, winner.theta)).max(), 10 * np.sqrt(
             np.max(np.diag(winner.covariance))))) for n in active}
         fit = refit(fit, active, prior, refit_iterations)
-        added = (winner, before)
+        added = (winner, before, None)
     energy["after"] = fit.energy_cm2
     calibration = _calibration(result, fit, findings)
     final = locate(fit) if findings else located
     findings += unexplained(final)
     return Diagnosis(findings, not_separable, final, located, first_round, concealed, energy,
-                     time.perf_counter() - started, calibration, fit)
+                     time.perf_counter() - started, at_known_size, calibration, fit)
 
 
 def unexplained(locations: list[dict]) -> list[dict]:
@@ -269,23 +286,37 @@ def unexplained(locations: list[dict]) -> list[dict]:
              "evidence": {"statistic": None, "p_value": row["p_value"], "q_value": row["q_value"]}}]
 
 
-def _finding(test: CandidateTest, fit: Fit, energy_before: float, sigma: float) -> dict:
-    """The finding of an effect added: its size at the refit (fit) with sigma, what absorbed it and the
-    held-out J from its test at the fit before (test)."""
+def _finding(test: CandidateTest, fit: Fit, energy_before: float, sigma: float,
+             hypothesis: HypothesisTest | None = None) -> dict:
+    """The finding of an effect added: its size at the refit (fit) with sigma, what absorbed it (its
+    score test at the fit before, test) and the evidence: the score test's, with its held-out J, or
+    for a candidate tested at its known size that test's (truncated cost, no held-out J)."""
     value = fit.model.values[test.name]
     magnitude = CANDIDATES[test.name].magnitude(value)
     absorbed = test.absorbed_by[0]
-    held_before, held_after = test.held_out_cm2
+    if hypothesis is None:
+        held_before, held_after = test.held_out_cm2
+        gain = (f"held-out J from {held_before:.3g} to {held_after:.3g} cm² and J from {energy_before:.3g} to "
+                f"{fit.energy_cm2:.3g} cm²")
+        evidence = {"statistic": test.statistic, "dof": test.dof, "p_value": test.p_value, "log10_p": test.log10_p,
+                    "bic_gain": test.bic_gain, "naive_statistic": test.naive_statistic}
+    else:
+        held_before = held_after = np.nan
+        gain = (f"the truncated cost from {hypothesis.cost_cm2[0]:.3g} to {hypothesis.cost_cm2[1]:.3g} cm² "
+                f"(pairs on a common surface {hypothesis.pairs[0]} -> {hypothesis.pairs[1]}; t = "
+                f"{hypothesis.statistic:.3g} over {hypothesis.blocks} time blocks, lower in both halves); J on each "
+                f"fit's own pairs goes from {energy_before:.3g} to {fit.energy_cm2:.3g} cm² (the fit without it kept "
+                "the pairs that agree in its distorted cloud)")
+        evidence = {"statistic": hypothesis.statistic, "dof": hypothesis.blocks - 1, "p_value": hypothesis.p_value,
+                    "test": "refit at the known size, truncated cost per time block (graphcal.diagnosis.hypothesis)"}
     statement = (f"the recording shows {CANDIDATES[test.name].physics} ({test.name}: {display(test.name, magnitude)} "
                  f"± {display(test.name, sigma)}), which the model left out; it was absorbed by {absorbed[0]} "
                  f"(correlation {absorbed[1]:+.2f}, concealment R² {test.concealment_r2:.2f}); adding it lowers "
-                 f"held-out J from {held_before:.3g} to {held_after:.3g} cm² and J from {energy_before:.3g} to "
-                 f"{fit.energy_cm2:.3g} cm²")
+                 f"{gain}")
     return {"effect": test.name, "magnitude": magnitude, "sigma": sigma, "unit": CANDIDATES[test.name].unit,
             "parameters": np.asarray(value).tolist(), "statement": statement,
             "absorbed_by": [a for a, _ in test.absorbed_by], "mdb": test.mdb, "concealment_r2": test.concealment_r2,
-            "evidence": {"statistic": test.statistic, "dof": test.dof, "p_value": test.p_value,
-                         "log10_p": test.log10_p, "bic_gain": test.bic_gain, "naive_statistic": test.naive_statistic},
+            "evidence": evidence,
             "energy_cm2": {"before": energy_before, "after": fit.energy_cm2, "held_out_before": held_before,
                            "held_out_after": held_after}}
 
