@@ -38,6 +38,10 @@ class Correspondences:
     def __len__(self) -> int:
         return len(self.index_p)
 
+    def take(self, rows: np.ndarray) -> Correspondences:
+        """The pairs at rows (indices or a boolean mask)."""
+        return Correspondences(self.index_p[rows], self.index_m[rows], self.normal[rows], self.weight[rows])
+
 
 def local_features(points_m: np.ndarray, radius_m: float = 0.5, max_nn: int = 20, voxel_m: float = 0.0) -> Features:
     """Normals and dimensionality features at every point, from the covariance of its max_nn

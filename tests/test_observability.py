@@ -3,7 +3,7 @@
 import gtsam
 import numpy as np
 
-from graphcal.calibration.observability import DenseMarginals
+from graphcal.calibration.observability import DenseMarginals, soft_parameters
 
 
 def test_dense_marginals_match_gtsam():
@@ -34,3 +34,33 @@ def test_dense_marginals_keep_an_ill_scaled_direction():
     reference, dense = gtsam.Marginals(graph, values), DenseMarginals(graph, values)
     for key in (1, 2):
         np.testing.assert_allclose(dense.marginalCovariance(key), reference.marginalCovariance(key), rtol=1e-6, atol=1e-20)
+
+
+def _whitened_smallest(information, firm, kept):
+    whitened = information * np.outer(firm, firm)
+    return np.linalg.eigvalsh(whitened[np.ix_(kept, kept)])[0]
+
+
+def test_soft_parameters_hold_one_of_a_common_mode_and_what_the_data_barely_see():
+    """Five offsets seen only through their differences (1 mm each, as fibres that pair with each
+    other but never with the reference): their common value is unseen, so one of them is held, as a
+    reference fixes a gauge; a sixth seen to 5 cm alone is held; a seventh seen to 2 mm stays."""
+    firm = np.full(7, 0.01)
+    information = np.zeros((7, 7))
+    for i in range(4):  # x_i - x_{i+1} observed with sigma 1 mm
+        row = np.zeros(7)
+        row[i], row[i + 1] = 1.0, -1.0
+        information += np.outer(row, row) / 0.001 ** 2
+    information[5, 5], information[6, 6] = 1 / 0.05 ** 2, 1 / 0.002 ** 2
+    held = soft_parameters(information, firm)
+    assert len(held) == 2 and held[1] == 5 and held[0] in range(5)
+    kept = [i for i in range(7) if i not in held]
+    assert _whitened_smallest(information, firm, kept) >= 1.0
+    sigma = np.sqrt(np.diag(np.linalg.inv(information[np.ix_(kept, kept)])))
+    assert np.all(sigma <= 0.01)  # every one left is determined to 1 cm: the chain's ends to about 2 mm
+
+
+def test_soft_parameters_keep_everything_well_determined_and_whiten_by_unit():
+    information = np.diag([1 / 0.005 ** 2, 1 / np.radians(0.02) ** 2])  # 5 mm and 0.02 deg
+    assert soft_parameters(information, np.array([0.01, np.radians(0.05)])) == []
+    assert soft_parameters(information, np.array([0.001, np.radians(0.05)])) == [0]  # 5 mm is soft against 1 mm

@@ -136,10 +136,11 @@ def test_report_is_self_contained_and_complete(calibrated):
     page = (folder / "report.html").read_text()
     assert not re.search(r"(src|href)=['\"](?!data:)", page), "the report links to something outside itself"
     images = re.findall(r"src='data:image/png;base64,([A-Za-z0-9+/=]+)'", page)
-    assert len(images) == 4  # J curve, residuals, corrections, timings
+    assert len(images) == 5  # J curve, residuals, the cloud before/after, corrections, timings
     for image in images:
         assert base64.b64decode(image)[:8] == b"\x89PNG\r\n\x1a\n"
-    for text in ("Energy J per outer iteration", "Residuals before and after", "Errors against truth",
+    for text in ("Energy J per outer iteration", "Residuals before and after", "The cloud before and after",
+                 "Errors against truth",
                  "c2c mean", "Trajectory corrections per control time", "trajectory.common_translation",
                  "Time per stage", "calibrate: solve trajectory"):
         assert text in page, text

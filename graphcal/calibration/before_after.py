@@ -3,8 +3,8 @@ report's histograms and the viewer's residual colours show.
 
 In each cloud (nominal, calibrated) the returns the calibration used are paired as its first
 outer iteration pairs them (same candidates, features at that cloud, coarse settings, gate_start_m,
-seed), and each pair's signed point-to-plane distance n·(p_w - m_w) [m] (eq. 4.4) is taken. In the
-nominal cloud these are exactly the first iteration's pairs: their weighted mean square is the
+seed; the fine settings with fixed_association), and each pair's signed point-to-plane distance
+n·(p_w - m_w) [m] (eq. 4.4) is taken. In the nominal cloud these are exactly the first iteration's pairs: their weighted mean square is the
 history's first J. The coarse settings cut nothing on the distance to the plane, so the blur of
 the nominal cloud shows whole; they also keep some pairs across edges, which leave about 0.3 cm²
 of J even at the true calibration (docs/math.md).
@@ -95,9 +95,10 @@ def residuals_before_after(recording: Recording, result: CalibrationResult) -> B
 
 def pairs_in(data: ReturnData, calibration: Calibration, association: Association, config: CalibrationConfig) -> Pairs:
     """The first outer iteration's association in the cloud of `calibration`."""
+    settings = config.fine() if config.fixed_association else config  # fixed: the fine phase only
     points = world_of(calibration, data) - data.origin_m
     features = features_at(points, config)
-    pairs = association.pairs(points, data.fibre, features, config.gate_start_m, config)
+    pairs = association.pairs(points, data.fibre, features, settings.gate_start_m, settings)
     residual = np.einsum("ni,ni->n", pairs.normal, points[pairs.index_p] - points[pairs.index_m])
     return Pairs(data.rows[pairs.index_p], data.rows[pairs.index_m], pairs.weight, residual,
                  points[pairs.index_p] + data.origin_m)

@@ -9,6 +9,7 @@ import gtsam
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from graphcal.association import Correspondences
 from graphcal.calibration.config import ESTIMATES, STAGES, CalibrationConfig, held_names
 from graphcal.calibration.observability import (
     CONTROL_NAMES,
@@ -20,6 +21,7 @@ from graphcal.calibration.observability import (
     Uncertainty,
     intrinsic_sigmas,
     pose_sigmas,
+    soft_parameters,
 )
 from graphcal.calibration.problem import (
     Estimate,
@@ -83,14 +85,25 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
         timings[name] = time.perf_counter() - mark
         return out
 
+    # a static sensor's pairs are made once, at the start (config.fixed_association; docs/math.md)
+    fixed_pairs = strict_pairs(data, estimate, config)[1] if config.fixed_association else None
+    if config.hold_soft and estimated[0]:
+        soft = timed("soft parameters", soft_intrinsics, data, estimate, config, nominal, priors, fixed_pairs)
+        held, priors = held + soft, holding(priors, soft)
+    if config.check_halves and estimated[0]:
+        halves = timed("azimuth halves", unreproducible_intrinsics, data, estimate, config, nominal, priors,
+                       fixed_pairs)
+        held, priors = held + halves, holding(priors, halves)
+
     def run_stages(estimate: Estimate, priors: Priors, label: str = "") -> Estimate:
         for stage in stages:
             estimate = timed(f"solve {stage}{label}", solve_stage, data, estimate, config, stage + label,
-                             ESTIMATES[stage], nominal, priors, history, quiet)
+                             ESTIMATES[stage], nominal, priors, history, quiet, fixed_pairs)
         return estimate
 
     estimate = run_stages(estimate, priors)
-    final = timed("final fit and marginals", final_fit, data, estimate, config, estimated, nominal, priors)
+    final = timed("final fit and marginals", final_fit, data, estimate, config, estimated, nominal, priors,
+                  fixed_pairs)
     unobservable = [name for name in final.uncertainty.unobservable() if name not in held]
     if unobservable:  # hold them at nominal and run the stages again: they must not drag the others
         priors = holding(priors, unobservable)
@@ -98,7 +111,7 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
         estimate = hold_at_nominal(run_stages(hold_at_nominal(estimate, priors, nominal), priors, ", unobservable held"),
                                    priors, nominal)
         final = timed("final fit and marginals, unobservable held", final_fit, data, estimate, config, estimated,
-                      nominal, priors)
+                      nominal, priors, fixed_pairs)
     unobservable = held + unobservable
     check_energy_fell(history.rows, recording)
     if estimated[0]:
@@ -163,12 +176,71 @@ class FinalFit:
         self.pairs, self.residual_m, self.uncertainty = pairs, residual_m, uncertainty
 
 
-def final_fit(data: ReturnData, estimate: Estimate, config: CalibrationConfig, estimated, nominal: gtsam.Pose3,
-              priors: Priors) -> FinalFit:
+def strict_pairs(data: ReturnData, estimate: Estimate, config: CalibrationConfig):
+    """(world points [m], pairs) at an estimate with the strict settings of the fine phase."""
     fine = config.fine()
     points = world_at(data, estimate, config.pose_corrections)
-    features = features_at(points, config)
-    pairs = Association.of(data, fine).pairs(points, data.fibre, features, fine.fine_gate_m, fine)
+    return points, Association.of(data, fine).pairs(points, data.fibre, features_at(points, config), fine.fine_gate_m,
+                                                    fine)
+
+
+def soft_intrinsics(data: ReturnData, estimate: Estimate, config: CalibrationConfig, nominal: gtsam.Pose3,
+                    priors: Priors, pairs: Correspondences | None = None) -> list[str]:
+    """Names of the intrinsics not yet held that the data at the estimate (strict association)
+    determine worse than config.firm_sigma_m / firm_sigma_deg, alone or in combination
+    (observability.soft_parameters on the graph's information; the weak priors add about
+    (firm / prior sigma)^2 = 1e-3 of the threshold to it). On a static sensor whose reference fibre
+    sees only far objects, the common vertical offset of the fibres that see the ground is such a
+    combination: no pair ties it to the reference (docs/math.md). pairs: those to judge by (None: the
+    strict association at the estimate)."""
+    pairs = strict_pairs(data, estimate, config)[1] if pairs is None else pairs
+    graph, values = build_graph(data, estimate, pairs, config, (True, False, False), nominal, priors, damped=False)
+    fibres = [f for f in range(data.sensor.n_fibres) if f != data.sensor.reference_fibre]
+    information, _ = graph.linearize(values).hessian(gtsam.Ordering([I(f) for f in fibres]))
+    free = np.flatnonzero(priors.intrinsic[fibres].ravel() > HELD_SIGMA)
+    firm_rad = np.radians(config.firm_sigma_deg)
+    firm = np.tile([config.firm_sigma_m, firm_rad, firm_rad, config.firm_sigma_m], len(fibres))
+    soft = free[soft_parameters(information[np.ix_(free, free)], firm[free])]
+    return [f"fibre_{fibres[i // 4]}.{INTRINSIC_NAMES[i % 4]}" for i in soft]
+
+
+# estimates from the two azimuth halves differing by more than this many firm sigmas: not the sensor's
+HALVES_RATIO = 3.0
+
+
+def unreproducible_intrinsics(data: ReturnData, estimate: Estimate, config: CalibrationConfig, nominal: gtsam.Pose3,
+                              priors: Priors, pairs: Correspondences | None = None) -> list[str]:
+    """Names of the intrinsics not yet held whose estimates from the two azimuth halves of the scene
+    differ by more than HALVES_RATIO times config.firm_sigma_m / firm_sigma_deg. A sensor's offset is
+    the same in every direction; but a static head sees each surface from one viewpoint, and an
+    offset can also fit the shape of the surfaces between its rings (docs/math.md): fitted on the
+    pairs whose p has an encoder azimuth in [0, 180) deg, then on those in [180, 360), such an offset
+    comes out differently. Each half is solved as the intrinsic stage on its pairs, held fixed
+    (pairs: None: the strict association at the estimate), and again with what disagreed held,
+    until the halves agree on every parameter left: holding one can move the others."""
+    pairs = strict_pairs(data, estimate, config)[1] if pairs is None else pairs
+    first = np.mod(data.azimuth_rad[pairs.index_p], 2 * np.pi) < np.pi
+    firm_rad = np.radians(config.firm_sigma_deg)
+    firm = np.array([config.firm_sigma_m, firm_rad, firm_rad, config.firm_sigma_m])
+    names = []
+    while True:
+        fits = [solve_stage(data, estimate, config, "intrinsic, azimuth half", ESTIMATES["intrinsic"], nominal,
+                            priors, History(), True, pairs.take(half)) for half in (first, ~first)]
+        apart = (np.abs(fits[0].offsets - fits[1].offsets) / firm > HALVES_RATIO) & (priors.intrinsic > HELD_SIGMA)
+        apart[data.sensor.reference_fibre] = False
+        if not apart.any():
+            return names
+        more = [f"fibre_{i}.{INTRINSIC_NAMES[k]}" for i, k in zip(*np.nonzero(apart))]
+        names, priors = names + more, holding(priors, more)
+
+
+def final_fit(data: ReturnData, estimate: Estimate, config: CalibrationConfig, estimated, nominal: gtsam.Pose3,
+              priors: Priors, pairs: Correspondences | None = None) -> FinalFit:
+    """The fit at the estimate on the given pairs (None: the strict association at the estimate)."""
+    if pairs is None:
+        points, pairs = strict_pairs(data, estimate, config)
+    else:
+        points = world_at(data, estimate, config.pose_corrections)
     residual = np.einsum("ni,ni->n", pairs.normal, points[pairs.index_p] - points[pairs.index_m])
     graph, values = build_graph(data, estimate, pairs, config, estimated, nominal, priors, damped=False)
     return FinalFit(pairs, residual, uncertainty(Marginals(graph, values), data, estimate, config, estimated,

@@ -19,8 +19,9 @@ ESTIMATES = {"intrinsic": (True, False, False), "extrinsic": (False, True, False
              "trajectory": (False, False, True), "joint": (True, True, False),
              "joint_trajectory": (True, True, True)}
 STATIC_FEATURE_VOXEL_M = 0.1  # spans the HDL-32E's rings on walls within ~10 m
-# a static sensor's fibres can all slide onto one cone, where every pair's distance vanishes
-STATIC_HOLD = ("fibre_*.d_elevation_deg",)
+# a static sensor's fibres can all slide onto one cone, where every pair's distance vanishes; its range and
+# azimuth offsets fit the surfaces between the rings, not the sensor (docs/math.md "A static sensor")
+STATIC_HOLD = ("fibre_*.d_elevation_deg", "fibre_*.d_range_m", "fibre_*.d_azimuth_deg")
 MAX_FIBRES = 128  # the most fibres of a supported head: the vocabulary of `hold` before the sensor is known
 STAGES = {"extrinsic_then_intrinsic": ("extrinsic", "intrinsic"),
           "intrinsic_then_extrinsic": ("intrinsic", "extrinsic")}
@@ -46,7 +47,21 @@ class CalibrationConfig(BaseModel):
         f"{STATIC_FEATURE_VOXEL_M} m for a static sensor (it sees the same spots every revolution), else 0"))
     hold: tuple[str, ...] | None = Field(None, description=(
         "parameters held at nominal and named unobservable, e.g. 'fibre_*.d_elevation_deg' (shell wildcards); "
-        "None: every fibre's elevation for a static sensor (docs/math.md: its energy's trivial minimum), else none"))
+        f"None: {', '.join(STATIC_HOLD)} for a static sensor (docs/math.md \"A static sensor\"), else none"))
+    hold_soft: bool | None = Field(None, description=(
+        "before solving, also hold the intrinsics that the data at the start (strict association) determine "
+        "worse than firm_sigma_m / firm_sigma_deg, alone or in combination (observability.soft_parameters); "
+        "None: for a static sensor"))
+    firm_sigma_m: float = Field(0.01, gt=0, description="hold_soft: largest 1-sigma of a determined length")
+    firm_sigma_deg: float = Field(0.05, gt=0, description="hold_soft: largest 1-sigma of a determined angle")
+    check_halves: bool | None = Field(None, description=(
+        "before solving, fit the intrinsics on each azimuth half of the scene and hold those whose two estimates "
+        "differ by more than 3 firm sigmas (a sensor's offset is the same in every direction); None: for a "
+        "static sensor"))
+    fixed_association: bool | None = Field(None, description=(
+        "pair and estimate normals once, with the strict (fine) settings at the start, and keep them: the energy "
+        "is then a plain least-squares fit; None: for a static sensor, whose re-associated energy falls by "
+        "dropping pairs and by re-shaping the ground (docs/math.md)"))
     min_planarity: float = Field(0.3, ge=0, le=1, description="coarse phase: p and m both at least this planar")
     max_normal_angle_deg: float = Field(30.0, gt=0, le=90, description="coarse phase: normals at p and m agree within")
     max_plane_distance_m: float = Field(np.inf, gt=0, description="coarse phase: m this close to the plane at p")
@@ -96,7 +111,11 @@ class CalibrationConfig(BaseModel):
         """The settings left to the recording (None) resolved for a static or a moving sensor."""
         voxel_m = (STATIC_FEATURE_VOXEL_M if static else 0.0) if self.feature_voxel_m is None else self.feature_voxel_m
         hold = (STATIC_HOLD if static else ()) if self.hold is None else self.hold
-        return self.model_copy(update={"feature_voxel_m": voxel_m, "hold": hold})
+        return self.model_copy(update={
+            "feature_voxel_m": voxel_m, "hold": hold,
+            "hold_soft": static if self.hold_soft is None else self.hold_soft,
+            "check_halves": static if self.check_halves is None else self.check_halves,
+            "fixed_association": static if self.fixed_association is None else self.fixed_association})
 
     def fine(self) -> CalibrationConfig:
         """The settings of the fine phase."""

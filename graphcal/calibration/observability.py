@@ -121,3 +121,25 @@ def pose_sigmas(covariance_tangent: np.ndarray, R: np.ndarray) -> np.ndarray:
     R's output frame (see tangent_to_axes)."""
     rotate = tangent_to_axes(R)
     return np.sqrt(np.diag(rotate @ covariance_tangent @ rotate.T)) * POSE_TO_FILE_UNITS
+
+
+def soft_parameters(information: np.ndarray, firm_sigma: np.ndarray) -> list[int]:
+    """Indices of the parameters to hold so that every remaining one, and every combination of
+    them, is determined to within firm_sigma by the data: the smallest eigenvalue of the
+    information whitened by firm_sigma (information * outer(firm_sigma, firm_sigma)) is then
+    at least 1. Greedy and pivoted: while the free set has a softer direction, hold the free
+    parameter with the largest component along the softest direction (for a direction no pair
+    sees, e.g. the common vertical offset of fibres that never pair with the reference fibre,
+    this picks one of them, as choosing a reference fixes a gauge).
+
+    information: (P, P) Gauss-Newton information of the data term (units of the parameters^-2);
+    firm_sigma: (P,) the largest 1-sigma that counts as determined, in the parameters' units."""
+    whitened = np.asarray(information, dtype=np.float64) * np.outer(firm_sigma, firm_sigma)
+    free = list(range(len(firm_sigma)))
+    held = []
+    while free:
+        eigenvalues, vectors = np.linalg.eigh(whitened[np.ix_(free, free)])
+        if eigenvalues[0] >= 1.0:
+            break
+        held.append(free.pop(int(np.argmax(np.abs(vectors[:, 0])))))
+    return sorted(held)

@@ -279,22 +279,26 @@ class Association:
 
 def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig, stage: str,
                 estimates: tuple[bool, bool, bool], nominal_extrinsic: gtsam.Pose3, priors: Priors,
-                history: History, quiet: bool = False) -> Estimate:
+                history: History, quiet: bool = False, fixed_pairs: Correspondences | None = None) -> Estimate:
     """Outer iterations of one stage (which parameter groups move: estimates): coarse phase, then
-    fine phase once max |dX| < fine_below_m, until max |dX| < tolerance or n_max."""
+    fine phase once max |dX| < fine_below_m, until max |dX| < tolerance or n_max. fixed_pairs
+    (config.fixed_association): the fine phase only, every outer iteration on these pairs and normals."""
     pose = config.pose_corrections
     association = Association.of(data, config)
     phase, settings, features, gate = "coarse", config, None, config.gate_start_m
+    if fixed_pairs is not None:
+        phase, gate = "fine", config.fine_gate_m
     fine_energies = []
     since_refresh = config.refresh_every
     for _ in progress(range(config.max_outer_iterations), f"calibrating ({stage})",
                       total=config.max_outer_iterations, quiet=quiet):
         points = world_at(data, estimate, pose)
-        refreshed = since_refresh >= config.refresh_every
+        refreshed = fixed_pairs is None and since_refresh >= config.refresh_every
         if refreshed:
             features, since_refresh = features_at(points, config), 0
         since_refresh += 1
-        pairs = association.pairs(points, data.fibre, features, gate, settings)
+        pairs = fixed_pairs if fixed_pairs is not None else association.pairs(points, data.fibre, features, gate,
+                                                                                settings)
         before, weight_sum = energy_cm2(points[pairs.index_p], points[pairs.index_m], pairs)
         graph, values = build_graph(data, estimate, pairs, config, estimates, nominal_extrinsic, priors)
         updated = read_back(levenberg_marquardt(graph, values, config.lm_iterations), estimate, estimates, data, pose)

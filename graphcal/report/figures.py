@@ -21,10 +21,11 @@ def _figure(rows: int = 1, columns: int = 1, height_in: float = 3.8):
     return figure, axes.ravel()
 
 
-def _png(figure) -> bytes:
+def _png(figure, tight: bool = True) -> bytes:
     import matplotlib.pyplot as plt
 
-    figure.tight_layout()
+    if tight:  # a figure with its own layout (cloud_png) keeps it
+        figure.tight_layout()
     buffer = io.BytesIO()
     figure.savefig(buffer, format="png", dpi=DPI)
     plt.close(figure)
@@ -80,6 +81,32 @@ def residuals_png(before_m: np.ndarray, after_m: np.ndarray) -> bytes:
                  title=f"{title} (beyond the range: in the end bins)")
         axes.legend(loc="upper right")
     return _png(figure)
+
+
+def cloud_png(before_m: np.ndarray, before_residual_m: np.ndarray, after_m: np.ndarray,
+              after_residual_m: np.ndarray) -> bytes:
+    """The paired returns p (K,3) [m, world] of the cloud before and after, coloured by |residual|
+    [cm] on one scale (the before's 99th percentile), about the before's median point: seen from
+    above (top row) and from the south, east against up (bottom row)."""
+    import matplotlib.pyplot as plt
+
+    _figure()  # the style; this figure needs a layout that leaves room for one shared colour bar
+    plt.close()
+    figure, axes = plt.subplots(2, 2, figsize=(WIDTH_IN, 8.5), layout="constrained", height_ratios=(2.2, 1))
+    centre = np.median(before_m, axis=0)
+    limit = max(float(np.percentile(np.abs(before_residual_m), 99)) * 100.0, 1e-3)
+    for column, (name, points, residual) in enumerate((("before", before_m, before_residual_m),
+                                                       ("after", after_m, after_residual_m))):
+        local = np.asarray(points) - centre
+        colour = np.abs(np.asarray(residual)) * 100.0
+        order = np.argsort(colour)  # the largest residuals drawn last, on top
+        style = {"c": colour[order], "s": 1, "cmap": "viridis", "vmin": 0, "vmax": limit, "rasterized": True}
+        shown = axes[0, column].scatter(local[order, 0], local[order, 1], **style)
+        axes[0, column].set(xlabel="east [m]", ylabel="north [m]", title=f"{name}: from above", aspect="equal")
+        axes[1, column].scatter(local[order, 0], local[order, 2], **style)
+        axes[1, column].set(xlabel="east [m]", ylabel="up [m]", title=f"{name}: from the south")
+    figure.colorbar(shown, ax=axes, label="|residual| [cm]", shrink=0.6)
+    return _png(figure, tight=False)
 
 
 def intrinsics_png(values: np.ndarray, sigma: np.ndarray, truth: np.ndarray | None, unobservable: np.ndarray,

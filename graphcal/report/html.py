@@ -116,12 +116,21 @@ def _residuals(folder: Path) -> str:
         return _section("Residuals before and after", "<p>not computed for this run (no pairs_*.parquet)</p>")
     residuals = BeforeAfter.load(folder)
     before, after = residuals.before, residuals.after
-    return _section("Residuals before and after", _image(figures.residuals_png(before.residual_m, after.residual_m)),
-                    "Signed point-to-plane residuals of the returns the calibration used, paired in the nominal "
-                    "cloud (before) and again in the calibrated cloud (after) as the first outer iteration pairs them "
-                    "(coarse settings: nothing cut on the distance to the plane, so some pairs across edges remain "
-                    f"even in a perfect cloud). Before: {len(before.row_p):,} pairs, J {before.energy_cm2():.4g} cm²; "
-                    f"after: {len(after.row_p):,} pairs, J {after.energy_cm2():.4g} cm².")
+    settings = read_yaml(folder / "config.yaml") if (folder / "config.yaml").is_file() else {}
+    how = ("strict settings: the calibration's pairs were made once, in the nominal cloud, so before are exactly "
+           "its pairs" if settings.get("fixed_association") else
+           "coarse settings: nothing cut on the distance to the plane, so some pairs across edges remain even in a "
+           "perfect cloud")
+    counts = (f"Before: {len(before.row_p):,} pairs, J {before.energy_cm2():.4g} cm²; after: {len(after.row_p):,} "
+              f"pairs, J {after.energy_cm2():.4g} cm².")
+    return (_section("Residuals before and after", _image(figures.residuals_png(before.residual_m, after.residual_m)),
+                     "Signed point-to-plane residuals of the returns the calibration used, paired in the nominal "
+                     "cloud (before) and again in the calibrated cloud (after) as the first outer iteration pairs "
+                     f"them ({how}). {counts}")
+            + _section("The cloud before and after",
+                       _image(figures.cloud_png(before.p_m, before.residual_m, after.p_m, after.residual_m),
+                              "cloud before and after"),
+                       "The paired returns of each cloud coloured by their residual, on one colour scale. " + counts))
 
 
 def _truth(folder: Path) -> str:
