@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import time
-from dataclasses import replace
 
 import gtsam
 import numpy as np
@@ -12,16 +11,13 @@ from threadpoolctl import threadpool_limits
 from graphcal.association import Correspondences
 from graphcal.calibration.config import ESTIMATES, STAGES, CalibrationConfig, held_names
 from graphcal.calibration.observability import (
-    CONTROL_NAMES,
     EXTRINSIC_NAMES,
-    INTRINSIC_NAMES,
     POSE_TO_FILE_UNITS,
     TRAJECTORY_GAUGE,
     Marginals,
     Uncertainty,
     intrinsic_sigmas,
     pose_sigmas,
-    soft_parameters,
 )
 from graphcal.calibration.problem import (
     Estimate,
@@ -33,7 +29,6 @@ from graphcal.calibration.problem import (
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.calibration.solve import (
     HELD_SIGMA,
-    Association,
     E,
     History,
     I,
@@ -41,10 +36,12 @@ from graphcal.calibration.solve import (
     X,
     build_graph,
     control_prior_sigma,
-    features_at,
     hold_at_nominal,
+    holding,
     solve_stage,
+    strict_pairs,
 )
+from graphcal.calibration.static_sensor import halves_check, soft_intrinsics
 from graphcal.errors import CalibrationError, ConfigError
 from graphcal.intrinsics import offsets_to_file_units
 from graphcal.recording import Recording
@@ -87,13 +84,15 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
 
     # a static sensor's pairs are made once, at the start (config.fixed_association; docs/math.md)
     fixed_pairs = strict_pairs(data, estimate, config)[1] if config.fixed_association else None
-    if config.hold_soft and estimated[0]:
-        soft = timed("soft parameters", soft_intrinsics, data, estimate, config, nominal, priors, fixed_pairs)
-        held, priors = held + soft, holding(priors, soft)
-    if config.check_halves and estimated[0]:
-        halves = timed("azimuth halves", unreproducible_intrinsics, data, estimate, config, nominal, priors,
-                       fixed_pairs)
-        held, priors = held + halves, holding(priors, halves)
+    halves = None
+    if (config.hold_soft or config.check_halves) and estimated[0]:
+        start_pairs = strict_pairs(data, estimate, config)[1] if fixed_pairs is None else fixed_pairs
+        if config.hold_soft:
+            soft = timed("soft parameters", soft_intrinsics, data, estimate, config, nominal, priors, start_pairs)
+            held, priors = held + soft, holding(priors, soft)
+        if config.check_halves:
+            halves = timed("azimuth halves", halves_check, data, estimate, config, nominal, priors, start_pairs)
+            held, priors = held + list(halves.held), holding(priors, halves.held)
 
     def run_stages(estimate: Estimate, priors: Priors, label: str = "") -> Estimate:
         for stage in stages:
@@ -124,7 +123,8 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
     calibration = Calibration(data.sensor.model, data.sensor.reference_fibre, estimate, data.control_times_s,
                               tuple(unobservable))
     return CalibrationResult(calibration, final.uncertainty, estimated, history.rows, data.rows[final.pairs.index_p],
-                             final.residual_m, final.pairs.weight, config, time.perf_counter() - started, timings)
+                             final.residual_m, final.pairs.weight, config, time.perf_counter() - started, timings,
+                             halves=None if halves is None else halves.to_yaml_dict())
 
 
 # calibrated elevations spread over less than this fraction of the nominal ones: the fibres collapsed
@@ -176,64 +176,6 @@ class FinalFit:
         self.pairs, self.residual_m, self.uncertainty = pairs, residual_m, uncertainty
 
 
-def strict_pairs(data: ReturnData, estimate: Estimate, config: CalibrationConfig):
-    """(world points [m], pairs) at an estimate with the strict settings of the fine phase."""
-    fine = config.fine()
-    points = world_at(data, estimate, config.pose_corrections)
-    return points, Association.of(data, fine).pairs(points, data.fibre, features_at(points, config), fine.fine_gate_m,
-                                                    fine)
-
-
-def soft_intrinsics(data: ReturnData, estimate: Estimate, config: CalibrationConfig, nominal: gtsam.Pose3,
-                    priors: Priors, pairs: Correspondences | None = None) -> list[str]:
-    """Names of the intrinsics not yet held that the data at the estimate (strict association)
-    determine worse than config.firm_sigma_m / firm_sigma_deg, alone or in combination
-    (observability.soft_parameters on the graph's information; the weak priors add about
-    (firm / prior sigma)^2 = 1e-3 of the threshold to it). On a static sensor whose reference fibre
-    sees only far objects, the common vertical offset of the fibres that see the ground is such a
-    combination: no pair ties it to the reference (docs/math.md). pairs: those to judge by (None: the
-    strict association at the estimate)."""
-    pairs = strict_pairs(data, estimate, config)[1] if pairs is None else pairs
-    graph, values = build_graph(data, estimate, pairs, config, (True, False, False), nominal, priors, damped=False)
-    fibres = [f for f in range(data.sensor.n_fibres) if f != data.sensor.reference_fibre]
-    information, _ = graph.linearize(values).hessian(gtsam.Ordering([I(f) for f in fibres]))
-    free = np.flatnonzero(priors.intrinsic[fibres].ravel() > HELD_SIGMA)
-    firm_rad = np.radians(config.firm_sigma_deg)
-    firm = np.tile([config.firm_sigma_m, firm_rad, firm_rad, config.firm_sigma_m], len(fibres))
-    soft = free[soft_parameters(information[np.ix_(free, free)], firm[free])]
-    return [f"fibre_{fibres[i // 4]}.{INTRINSIC_NAMES[i % 4]}" for i in soft]
-
-
-# estimates from the two azimuth halves differing by more than this many firm sigmas: not the sensor's
-HALVES_RATIO = 3.0
-
-
-def unreproducible_intrinsics(data: ReturnData, estimate: Estimate, config: CalibrationConfig, nominal: gtsam.Pose3,
-                              priors: Priors, pairs: Correspondences | None = None) -> list[str]:
-    """Names of the intrinsics not yet held whose estimates from the two azimuth halves of the scene
-    differ by more than HALVES_RATIO times config.firm_sigma_m / firm_sigma_deg. A sensor's offset is
-    the same in every direction; but a static head sees each surface from one viewpoint, and an
-    offset can also fit the shape of the surfaces between its rings (docs/math.md): fitted on the
-    pairs whose p has an encoder azimuth in [0, 180) deg, then on those in [180, 360), such an offset
-    comes out differently. Each half is solved as the intrinsic stage on its pairs, held fixed
-    (pairs: None: the strict association at the estimate), and again with what disagreed held,
-    until the halves agree on every parameter left: holding one can move the others."""
-    pairs = strict_pairs(data, estimate, config)[1] if pairs is None else pairs
-    first = np.mod(data.azimuth_rad[pairs.index_p], 2 * np.pi) < np.pi
-    firm_rad = np.radians(config.firm_sigma_deg)
-    firm = np.array([config.firm_sigma_m, firm_rad, firm_rad, config.firm_sigma_m])
-    names = []
-    while True:
-        fits = [solve_stage(data, estimate, config, "intrinsic, azimuth half", ESTIMATES["intrinsic"], nominal,
-                            priors, History(), True, pairs.take(half)) for half in (first, ~first)]
-        apart = (np.abs(fits[0].offsets - fits[1].offsets) / firm > HALVES_RATIO) & (priors.intrinsic > HELD_SIGMA)
-        apart[data.sensor.reference_fibre] = False
-        if not apart.any():
-            return names
-        more = [f"fibre_{i}.{INTRINSIC_NAMES[k]}" for i, k in zip(*np.nonzero(apart))]
-        names, priors = names + more, holding(priors, more)
-
-
 def final_fit(data: ReturnData, estimate: Estimate, config: CalibrationConfig, estimated, nominal: gtsam.Pose3,
               priors: Priors, pairs: Correspondences | None = None) -> FinalFit:
     """The fit at the estimate on the given pairs (None: the strict association at the estimate)."""
@@ -277,19 +219,3 @@ def uncertainty(marginals: gtsam.Marginals, data: ReturnData, estimate: Estimate
             prior_rows.append(np.where(held, HELD_SIGMA, control_sigma) * POSE_TO_FILE_UNITS)
         controls, controls_prior = np.array(rows), np.array(prior_rows)
     return Uncertainty(intrinsics, prior_int, extrinsic, extrinsic_prior, controls, controls_prior)
-
-
-def holding(priors: Priors, names: list[str]) -> Priors:
-    """Priors with the named parameters' sigmas shrunk to HELD_SIGMA (held at nominal)."""
-    intrinsic, extrinsic, control = priors.intrinsic.copy(), priors.extrinsic.copy(), priors.control_held.copy()
-    for name in names:
-        owner, parameter = name.split(".")
-        index = int(owner.split("_")[1]) if "_" in owner else 0
-        if owner.startswith("fibre_"):
-            intrinsic[index, INTRINSIC_NAMES.index(parameter)] = HELD_SIGMA
-        elif owner == "extrinsic":
-            extrinsic[EXTRINSIC_NAMES.index(parameter)] = HELD_SIGMA
-        else:
-            column = CONTROL_NAMES.index(parameter) - (6 - control.shape[1])
-            control[index, column] = True
-    return replace(priors, intrinsic=intrinsic, extrinsic=extrinsic, control_held=control)

@@ -32,6 +32,7 @@ from graphcal.yamlfile import read_yaml, write_yaml
 
 FORMAT = "graphcal-calibration/1"
 CALIBRATION_FILE = "calibration.yaml"
+HALVES_FILE = "halves.yaml"
 
 
 
@@ -108,7 +109,9 @@ class CalibrationResult:
     before/after the solve, weight sum, pairs, gate, step), and the final per-point residuals
     (row of the return p in the recording, signed point-to-plane distance [m], weight), the
     total seconds and the seconds of each step (prepare, solve <stage>, final fit and marginals ...);
-    effects: the extra physics modelled (graphcal.diagnose's findings, calibration.yaml's `effects`)."""
+    effects: the extra physics modelled (graphcal.diagnose's findings, calibration.yaml's `effects`);
+    halves: a static sensor's azimuth-halves check (static_sensor.HalvesCheck.to_yaml_dict), saved as
+    halves.yaml."""
 
     calibration: Calibration
     uncertainty: Uncertainty
@@ -121,6 +124,7 @@ class CalibrationResult:
     seconds: float
     timings_s: dict[str, float] = field(default_factory=dict)
     effects: tuple[dict, ...] = ()
+    halves: dict | None = None
 
     @property
     def energy_cm2(self) -> tuple[float, float]:
@@ -132,11 +136,13 @@ class CalibrationResult:
         return self.calibration.unobservable
 
     def save(self, directory: str | Path, command: str = "graphcal.calibrate") -> Path:
-        """calibration.yaml, config.yaml, history.csv and residuals.parquet into directory."""
+        """calibration.yaml, config.yaml, history.csv, residuals.parquet (and halves.yaml) into directory."""
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         write_yaml(directory / CALIBRATION_FILE, self.to_yaml_dict(command))
         write_yaml(directory / "config.yaml", self.config.model_dump())
+        if self.halves is not None:
+            write_yaml(directory / HALVES_FILE, self.halves)
         with atomic_path(directory / "history.csv") as tmp, tmp.open("w", newline="") as stream:
             writer = csv.DictWriter(stream, fieldnames=list(self.history[0]))
             writer.writeheader()

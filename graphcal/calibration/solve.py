@@ -24,7 +24,12 @@ from graphcal.association import (
     neighbour_fibres,
 )
 from graphcal.calibration.config import CalibrationConfig
-from graphcal.calibration.observability import tangent_to_axes
+from graphcal.calibration.observability import (
+    CONTROL_NAMES,
+    EXTRINSIC_NAMES,
+    INTRINSIC_NAMES,
+    tangent_to_axes,
+)
 from graphcal.calibration.problem import Estimate, ReturnData, corrections_at, world_at
 from graphcal.progress import progress
 
@@ -70,6 +75,22 @@ class Priors:
         """Gaussian noise on the Pose3 tangent [w, v] (lidar axes) for body-axes sigmas."""
         to_tangent = tangent_to_axes(R_body_lidar).T
         return gtsam.noiseModel.Gaussian.Covariance(to_tangent @ np.diag(self.extrinsic ** 2) @ to_tangent.T)
+
+
+def holding(priors: Priors, names: list[str]) -> Priors:
+    """Priors with the named parameters' sigmas shrunk to HELD_SIGMA (held at nominal)."""
+    intrinsic, extrinsic, control = priors.intrinsic.copy(), priors.extrinsic.copy(), priors.control_held.copy()
+    for name in names:
+        owner, parameter = name.split(".")
+        index = int(owner.split("_")[1]) if "_" in owner else 0
+        if owner.startswith("fibre_"):
+            intrinsic[index, INTRINSIC_NAMES.index(parameter)] = HELD_SIGMA
+        elif owner == "extrinsic":
+            extrinsic[EXTRINSIC_NAMES.index(parameter)] = HELD_SIGMA
+        else:
+            column = CONTROL_NAMES.index(parameter) - (6 - control.shape[1])
+            control[index, column] = True
+    return replace(priors, intrinsic=intrinsic, extrinsic=extrinsic, control_held=control)
 
 
 def energy_cm2(p_m: np.ndarray, m_m: np.ndarray, pairs: Correspondences) -> tuple[float, float]:
@@ -275,6 +296,14 @@ class Association:
                          np.cos(np.radians(config.max_normal_angle_deg)), config.max_plane_distance_m,
                          config.max_pairs_per_fibre_pair,
                          np.random.default_rng(self.seed), self.candidates)
+
+
+def strict_pairs(data: ReturnData, estimate: Estimate, config: CalibrationConfig) -> tuple[np.ndarray, Correspondences]:
+    """(world points [m], pairs) at an estimate with the strict settings of the fine phase."""
+    fine = config.fine()
+    points = world_at(data, estimate, config.pose_corrections)
+    return points, Association.of(data, fine).pairs(points, data.fibre, features_at(points, config), fine.fine_gate_m,
+                                                    fine)
 
 
 def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig, stage: str,

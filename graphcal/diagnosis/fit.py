@@ -9,7 +9,7 @@ import gtsam
 import numpy as np
 
 from graphcal.association import Correspondences, Features
-from graphcal.calibration.calibrate import calibrate, holding
+from graphcal.calibration.calibrate import calibrate
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.observability import TRAJECTORY_GAUGE
 from graphcal.calibration.problem import Estimate, ReturnData, pose_of, prepare
@@ -20,6 +20,7 @@ from graphcal.calibration.solve import (
     build_graph,
     energy_cm2,
     features_at,
+    holding,
     levenberg_marquardt,
     read_back,
 )

@@ -16,7 +16,11 @@ import numpy as np
 from graphcal.atomic import atomic_path
 from graphcal.calibration.before_after import FILES as PAIRS_FILES
 from graphcal.calibration.before_after import BeforeAfter
-from graphcal.calibration.result import CALIBRATION_FILE, read_calibration_yaml
+from graphcal.calibration.result import (
+    CALIBRATION_FILE,
+    HALVES_FILE,
+    read_calibration_yaml,
+)
 from graphcal.errors import RecordingError
 from graphcal.report import figures
 from graphcal.report.tables import (
@@ -51,7 +55,8 @@ def write_report(folder: Path) -> Path:
                 _section("Energy J per outer iteration", _image(figures.energy_png(history)),
                          "J = Σ w (n·(p−m))² / Σ w over the pairs of each outer iteration (eq. 4.4); it is not "
                          "monotonic when the pairs change (the gate opens, the fine phase starts)."),
-                _residuals(folder), _truth(folder), _parameters(calibration, recording), _timings(manifest)]
+                _residuals(folder), _truth(folder), _parameters(calibration, recording), _halves(folder),
+                _timings(manifest)]
     page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>graphcal report: {html.escape(folder.name)}"
             f"</title><style>{_STYLE}</style></head><body>{''.join(sections)}</body></html>")
     with atomic_path(folder / REPORT) as tmp:
@@ -188,6 +193,35 @@ def _corrections_figure(corrections: list[dict], recording) -> bytes:
         truth = np.full_like(values, np.nan)
         truth[inside] = (true.interpolate(time[inside])[0] - recorded.interpolate(time[inside])[0]) * 100.0
     return figures.corrections_png(time, values, sigma, truth)
+
+
+def _halves(folder: Path) -> str:
+    """A static sensor's azimuth-halves check (halves.yaml), when the run made one."""
+    if not (folder / HALVES_FILE).is_file():
+        return ""
+    check = read_yaml(folder / HALVES_FILE)
+    factor = {key: f for key, _, f in INTRINSIC_COLUMNS}
+    names = sorted({name for fold in check["folds"] for name in fold["estimates"]},
+                   key=lambda name: (int(name.split(".")[0].split("_")[1]), name))  # fibre_<n>.<parameter>
+    header = ["fitted on", "J own pairs [cm²]", "J other half (held out) [cm²]"] + [
+        f"{name} [{'deg' if name.endswith('_deg') else 'cm'}]" for name in names]
+    rows = [[fold["fitted_on"],
+             f"{fold['energy_cm2']['before']:.4g} → {fold['energy_cm2']['after']:.4g}",
+             f"{fold['held_out_energy_cm2']['before']:.4g} → {fold['held_out_energy_cm2']['after']:.4g}"]
+            + [f"{fold['estimates'][name] * factor[name.split('.')[1]]:.3g}" for name in names]
+            for fold in check["folds"]]
+    verdict = ("passed: each half's fit lowered J on the other half's pairs, so the estimates are kept" if
+               check["passed"] else "failed: a half's fit raised J on the other half's pairs, so what it estimated "
+               "fits the surfaces that half sees, not the sensor; every intrinsic left is held at nominal and named "
+               "unobservable")
+    return _section("What this static recording determines: the azimuth-halves check", _table(header, rows),
+                    "A static head sees each surface from one viewpoint, so an offset can fit the shape of the "
+                    "surfaces between its rings as well as the sensor. The intrinsics left after the soft ones are "
+                    "held were fitted on the pairs of each azimuth half of the scene; those one half alone does not "
+                    "determine and those the halves disagreed on were held, and each half's fit of the rest was tried "
+                    f"on the other half's pairs ({len(check['held'])} held by this check in all). Verdict: {verdict}. "
+                    "The estimates in the table are each half's fit, not the calibration (docs/math.md "
+                    "\"A static sensor\").")
 
 
 def _timings(manifest: dict) -> str:

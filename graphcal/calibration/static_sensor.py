@@ -1,0 +1,128 @@
+"""What a static recording determines (docs/math.md "A static sensor"): the checks calibrate runs
+before solving the intrinsics of a head that does not move.
+
+A static head sees each surface from one viewpoint, so an intrinsic offset can fit the shape of
+the surfaces between its rings as well as the sensor. Two checks keep only what the data tie to
+the sensor: soft_intrinsics holds what the pairs barely determine, alone or in combination;
+halves_check fits the intrinsics on each azimuth half of the scene, holds those the two halves
+disagree on, and then asks of what is left that the fit on one half lower J on the other half's
+pairs: a sensor's offset is the same in every direction, a surface's shape is not."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from graphcal.association import Correspondences
+from graphcal.calibration.config import ESTIMATES, CalibrationConfig
+from graphcal.calibration.observability import INTRINSIC_NAMES, soft_parameters
+from graphcal.calibration.problem import Estimate, ReturnData, world_at
+from graphcal.calibration.solve import (
+    HELD_SIGMA,
+    History,
+    I,
+    Priors,
+    build_graph,
+    energy_cm2,
+    holding,
+    solve_stage,
+)
+from graphcal.intrinsics import offsets_to_file_units
+
+# estimates from the two azimuth halves differing by more than this many firm sigmas: not the sensor's
+HALVES_RATIO = 3.0
+HALVES = ("azimuth [0, 180) deg", "azimuth [180, 360) deg")
+
+
+def firm_sigmas(config: CalibrationConfig) -> np.ndarray:
+    """(4,) the largest 1-sigma that counts as determined, per intrinsic (m, rad, rad, m)."""
+    firm_rad = np.radians(config.firm_sigma_deg)
+    return np.array([config.firm_sigma_m, firm_rad, firm_rad, config.firm_sigma_m])
+
+
+def intrinsic_name(fibre: int, parameter: int) -> str:
+    return f"fibre_{fibre}.{INTRINSIC_NAMES[parameter]}"
+
+
+def soft_intrinsics(data: ReturnData, estimate: Estimate, config: CalibrationConfig, nominal: gtsam.Pose3,
+                    priors: Priors, pairs: Correspondences) -> list[str]:
+    """Names of the intrinsics not yet held that the pairs at the estimate determine worse than
+    config.firm_sigma_m / firm_sigma_deg, alone or in combination (observability.soft_parameters on
+    the graph's information; the weak priors add about (firm / prior sigma)^2 = 1e-3 of the
+    threshold to it). On a static sensor whose reference fibre sees only far objects, the common
+    vertical offset of the fibres that see the ground is such a combination: no pair ties it to the
+    reference (docs/math.md)."""
+    graph, values = build_graph(data, estimate, pairs, config, ESTIMATES["intrinsic"], nominal, priors, damped=False)
+    fibres = [f for f in range(data.sensor.n_fibres) if f != data.sensor.reference_fibre]
+    information, _ = graph.linearize(values).hessian(gtsam.Ordering([I(f) for f in fibres]))
+    free = np.flatnonzero(priors.intrinsic[fibres].ravel() > HELD_SIGMA)
+    firm = np.tile(firm_sigmas(config), len(fibres))
+    soft = free[soft_parameters(information[np.ix_(free, free)], firm[free])]
+    return [intrinsic_name(fibres[i // 4], i % 4) for i in soft]
+
+
+@dataclass(frozen=True)
+class HalvesCheck:
+    """halves_check's verdict: the intrinsics it held (the halves disagreed on them, or what was
+    left did not lower J on the other half), and per half the fit of the parameters left when the
+    halves agreed: J [cm^2] on its own pairs and on the other half's (held out) before and after,
+    and its estimates in calibration.yaml's units. passed: every held-out J fell."""
+
+    held: tuple[str, ...]
+    folds: tuple[dict, ...]
+    passed: bool
+
+    def to_yaml_dict(self) -> dict:
+        return {"passed": self.passed, "held": list(self.held), "folds": list(self.folds)}
+
+
+def halves_check(data: ReturnData, estimate: Estimate, config: CalibrationConfig, nominal: gtsam.Pose3,
+                 priors: Priors, pairs: Correspondences) -> HalvesCheck:
+    """Hold the intrinsics that the pairs of one azimuth half of the scene alone do not determine
+    (soft_intrinsics on the pairs whose p has an encoder azimuth in [0, 180) deg, then on those in
+    [180, 360)). Fit the rest (the intrinsic stage, on fixed pairs) on each half; hold those whose two estimates
+    differ by more than HALVES_RATIO firm sigmas, and fit again until the halves agree on every
+    parameter left (holding one can move the others). Then each half's fit must lower J on the
+    other half's pairs; if one does not, what is left fits the surfaces one half sees, not the
+    sensor, and every intrinsic left is held too (a fit that leaves the other half's J as it was
+    has not shown anything either)."""
+    first = np.mod(data.azimuth_rad[pairs.index_p], 2 * np.pi) < np.pi
+    halves = [pairs.take(first), pairs.take(~first)]
+    firm = firm_sigmas(config)
+    # what one half alone does not determine cannot be compared between the halves
+    held = sorted(set().union(*(soft_intrinsics(data, estimate, config, nominal, priors, half) for half in halves)))
+    priors = holding(priors, held)
+    while True:
+        fits = [solve_stage(data, estimate, config, f"intrinsic, {name}", ESTIMATES["intrinsic"], nominal, priors,
+                            History(), True, half) for name, half in zip(HALVES, halves)]
+        apart = (np.abs(fits[0].offsets - fits[1].offsets) / firm > HALVES_RATIO) & (priors.intrinsic > HELD_SIGMA)
+        apart[data.sensor.reference_fibre] = False
+        if not apart.any():
+            break
+        more = [intrinsic_name(i, k) for i, k in zip(*np.nonzero(apart))]
+        held, priors = held + more, holding(priors, more)
+    free = priors.intrinsic > HELD_SIGMA
+    free[data.sensor.reference_fibre] = False
+    folds = tuple(_fold(data, estimate, fit, name, halves[k], halves[1 - k], free, config.pose_corrections)
+                  for k, (name, fit) in enumerate(zip(HALVES, fits)))
+    passed = not free.any() or all(fold["held_out_energy_cm2"]["after"] < fold["held_out_energy_cm2"]["before"]
+                                   for fold in folds)
+    if not passed:
+        held += [intrinsic_name(i, k) for i, k in zip(*np.nonzero(free))]
+    return HalvesCheck(tuple(held), folds, passed)
+
+
+def _fold(data: ReturnData, estimate: Estimate, fit: Estimate, name: str, train: Correspondences,
+          test: Correspondences, free: np.ndarray, pose: bool) -> dict:
+    """One half's fit: J [cm^2] before/after on its pairs and on the held-out ones, its estimates."""
+    start, end = world_at(data, estimate, pose), world_at(data, fit, pose)
+
+    def energy(points: np.ndarray, sub: Correspondences) -> float:
+        return float(energy_cm2(points[sub.index_p], points[sub.index_m], sub)[0])
+
+    values = offsets_to_file_units(fit.offsets)
+    return {"fitted_on": name, "energy_cm2": {"before": energy(start, train), "after": energy(end, train)},
+            "held_out_energy_cm2": {"before": energy(start, test), "after": energy(end, test)},
+            "estimates": {intrinsic_name(i, k): float(values[i, k]) for i, k in zip(*np.nonzero(free))}}
