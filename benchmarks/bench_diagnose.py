@@ -83,7 +83,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=float, default=0.04, help="size of the concealed scenarios")
     parser.add_argument("--max-points", type=int, default=80_000, help="returns used by each concealed diagnosis")
-    parser.add_argument("--budget-points", type=int, default=400_000, help="returns used on the full-size sim6_turn")
+    parser.add_argument("--budget-points", type=int, default=300_000, help="returns used on the full-size sim6_turn")
     parser.add_argument("--cases", nargs="*", default=None, help="effects (or clean, two, budget); default all")
     args = parser.parse_args()
     import sys
