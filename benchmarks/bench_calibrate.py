@@ -66,7 +66,8 @@ def _case(name: str, size: float, max_points: int | None, queue) -> None:
     seconds = time.perf_counter() - started
     evaluation = graphcal.evaluate(result, recording)
     row = {"case": name, "returns": len(recording.points), "max_points": max_points, "calibrate_s": seconds,
-           "peak_gib": peak_gib(),
+           "timings_s": {stage: round(t, 2) for stage, t in result.timings_s.items()},
+           "phases": [f"{row['mode']}/{row['phase']}" for row in result.history], "peak_gib": peak_gib(),
            "outer_iterations": len(result.history), "unobservable": list(result.unobservable),
            "intrinsic_rms_after_cm_deg_deg_cm": evaluation.intrinsic_rms_after.tolist(),
            "lever_arm_error_m": list(evaluation.lever_arm_error_m),
@@ -115,7 +116,7 @@ def main() -> None:
         row = run_in_process(_case, name, args.size, args.max_points)
         figures.append(row)
         print(f"{name}: {row['returns']:,} returns, calibrate {row['calibrate_s']:.1f} s, peak {row['peak_gib']:.2f} GiB, "
-              f"{row['outer_iterations']} outer iterations\n{row['table']}\nunobservable: {row['unobservable']}",
+              f"{row['outer_iterations']} outer iterations\nseconds per step: {row['timings_s']}\n{row['table']}\nunobservable: {row['unobservable']}",
               flush=True)
         if "intrinsic_rms_sigma_cm_deg_deg_cm" in row:
             print(f"RMS 1-sigma (Cramér-Rao when sigma0 is the noise): {row['intrinsic_rms_sigma_cm_deg_deg_cm']}",
