@@ -58,10 +58,12 @@ def test_calibrate_writes_a_complete_run_folder(calibrated):
     manifest = yaml.safe_load((folder / "run.yaml").read_text())
     assert manifest["format"] == "graphcal-run/1" and manifest["recording"] == str(recording.resolve())
     stages = manifest["timings_s"]
-    for stage in ("load and validate the recording", "calibrate: prepare", "calibrate: solve trajectory",
-                  "calibrate: final fit and marginals", "residuals before/after", "evaluate against truth", "viewer file",
-                  "report"):
+    for stage in ("load and validate the recording", "calibrate: prepare", "calibrate: solve trajectory (coarse)",
+                  "calibrate: observability", "calibrate: final fit and marginals", "residuals before/after",
+                  "evaluate against truth", "viewer file", "report"):
         assert stages[stage] >= 0.0, stage
+    # the fine phase, with what the probe named held (label) or not
+    assert [name for name in stages if name.startswith("calibrate: solve trajectory") and name.endswith("(fine)")]
     assert not list(folder.glob(".*.tmp")), "a temporary file was left behind"
 
 

@@ -88,16 +88,16 @@ def residuals_before_after(recording: Recording, result: CalibrationResult) -> B
     """The pairs and residuals of the nominal and of the calibrated cloud (module docstring)."""
     config = result.config
     data = returns_for(result.calibration, recording, config.max_points, config.seed)  # calibrate's returns
-    association = Association.of(data, config)
-    return BeforeAfter(*(pairs_in(data, calibration, association, config)
+    settings = config.fine() if config.fixed_association else config.coarse()  # fixed: the fine phase only
+    association = Association.of(data, settings)
+    return BeforeAfter(*(pairs_in(data, calibration, association, settings)
                          for calibration in (nominal_calibration(recording), result.calibration)))
 
 
-def pairs_in(data: ReturnData, calibration: Calibration, association: Association, config: CalibrationConfig) -> Pairs:
-    """The first outer iteration's association in the cloud of `calibration`."""
-    settings = config.fine() if config.fixed_association else config  # fixed: the fine phase only
+def pairs_in(data: ReturnData, calibration: Calibration, association: Association, settings: CalibrationConfig) -> Pairs:
+    """The first outer iteration's association (settings of its phase) in the cloud of `calibration`."""
     points = world_of(calibration, data) - data.origin_m
-    features = features_at(points, config)
+    features = features_at(points, settings)
     pairs = association.pairs(points, data.fibre, features, settings.gate_start_m, settings)
     residual = np.einsum("ni,ni->n", pairs.normal, points[pairs.index_p] - points[pairs.index_m])
     return Pairs(data.rows[pairs.index_p], data.rows[pairs.index_m], pairs.weight, residual,

@@ -29,7 +29,9 @@ from graphcal.calibration.problem import (
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.calibration.solve import (
     HELD_SIGMA,
+    PHASES,
     E,
+    FeatureCache,
     History,
     I,
     Priors,
@@ -82,11 +84,12 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
         timings[name] = time.perf_counter() - mark
         return out
 
+    cache = FeatureCache(config)
     # a static sensor's pairs are made once, at the start (config.fixed_association; docs/math.md)
-    fixed_pairs = strict_pairs(data, estimate, config)[1] if config.fixed_association else None
+    fixed_pairs = strict_pairs(data, estimate, config, cache)[1] if config.fixed_association else None
     halves = None
     if (config.hold_soft or config.check_halves) and estimated[0]:
-        start_pairs = strict_pairs(data, estimate, config)[1] if fixed_pairs is None else fixed_pairs
+        start_pairs = strict_pairs(data, estimate, config, cache)[1] if fixed_pairs is None else fixed_pairs
         if config.hold_soft:
             soft = timed("soft parameters", soft_intrinsics, data, estimate, config, nominal, priors, start_pairs)
             held, priors = held + soft, holding(priors, soft)
@@ -94,24 +97,39 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
             halves = timed("azimuth halves", halves_check, data, estimate, config, nominal, priors, start_pairs)
             held, priors = held + list(halves.held), holding(priors, halves.held)
 
-    def run_stages(estimate: Estimate, priors: Priors, label: str = "") -> Estimate:
-        for stage in stages:
-            estimate = timed(f"solve {stage}{label}", solve_stage, data, estimate, config, stage + label,
-                             ESTIMATES[stage], nominal, priors, history, quiet, fixed_pairs)
+    def run_stages(estimate: Estimate, priors: Priors, label: str = "", last: tuple[str, ...] = PHASES,
+                   first: int = 0) -> Estimate:
+        """The stages from `first` one by one (successive modes stay successive), the last one's phases `last` only."""
+        for k, stage in enumerate(stages[first:], first):
+            phases = last if k == len(stages) - 1 else PHASES
+            estimate = timed(f"solve {stage}{label} ({', '.join(phases)})", solve_stage, data, estimate, config,
+                             stage + label, ESTIMATES[stage], nominal, priors, history, quiet, fixed_pairs, phases,
+                             cache)
         return estimate
 
-    estimate = run_stages(estimate, priors)
+    # at the switch to the fine phase the Marginals name what the data cannot observe: held at nominal
+    # from there, it cannot drag the others through the fine phase (docs/math.md "Observability")
+    estimate = run_stages(estimate, priors, last=("coarse",))
+    probe = timed("observability", final_fit, data, estimate, config, estimated, nominal, priors, fixed_pairs, cache)
+    named = [name for name in probe.uncertainty.unobservable() if name not in held]
+    label = ""
+    if named:
+        priors, label = holding(priors, named), ", unobservable held"
+        estimate = hold_at_nominal(estimate, priors, nominal)
+        if len(stages) > 1:
+            estimate = run_stages(estimate, priors, label, last=("coarse",))
+    estimate = hold_at_nominal(run_stages(estimate, priors, label, last=("fine",), first=len(stages) - 1), priors,
+                               nominal)
     final = timed("final fit and marginals", final_fit, data, estimate, config, estimated, nominal, priors,
-                  fixed_pairs)
-    unobservable = [name for name in final.uncertainty.unobservable() if name not in held]
-    if unobservable:  # hold them at nominal and run the stages again: they must not drag the others
-        priors = holding(priors, unobservable)
-        # stage by stage still: successive modes must not turn joint here
+                  fixed_pairs, cache)
+    late = [name for name in final.uncertainty.unobservable() if name not in held + named]
+    if late:  # seen only at the fine phase's pairs: hold them too and run the stages again
+        priors = holding(priors, late)
         estimate = hold_at_nominal(run_stages(hold_at_nominal(estimate, priors, nominal), priors, ", unobservable held"),
                                    priors, nominal)
         final = timed("final fit and marginals, unobservable held", final_fit, data, estimate, config, estimated,
-                      nominal, priors, fixed_pairs)
-    unobservable = held + unobservable
+                      nominal, priors, fixed_pairs, cache)
+    unobservable = held + named + late
     check_energy_fell(history.rows, recording)
     if estimated[0]:
         check_fibres_apart(data.sensor.elevation_deg, estimate.offsets[:, 2], recording)
@@ -177,10 +195,11 @@ class FinalFit:
 
 
 def final_fit(data: ReturnData, estimate: Estimate, config: CalibrationConfig, estimated, nominal: gtsam.Pose3,
-              priors: Priors, pairs: Correspondences | None = None) -> FinalFit:
-    """The fit at the estimate on the given pairs (None: the strict association at the estimate)."""
+              priors: Priors, pairs: Correspondences | None = None, cache: FeatureCache | None = None) -> FinalFit:
+    """The fit at the estimate on the given pairs (None: the strict association at the estimate, its
+    features from the cache when the cloud has not moved since)."""
     if pairs is None:
-        points, pairs = strict_pairs(data, estimate, config)
+        points, pairs = strict_pairs(data, estimate, config, cache)
     else:
         points = world_at(data, estimate, config.pose_corrections)
     residual = np.einsum("ni,ni->n", pairs.normal, points[pairs.index_p] - points[pairs.index_m])

@@ -40,6 +40,9 @@ class CalibrationConfig(BaseModel):
     max_points: int | None = Field(None, ge=1000, description="use a random subset of this many returns")
     neighbours: int = Field(2, ge=1, description="N: fibres j in [i-N, i+N] in elevation order")
     refresh_every: int = Field(2, ge=1, description="K: outer iterations between feature refreshes")
+    refresh_above_m: float = Field(0.005, ge=0, description=(
+        "features are refreshed (every K iterations) only once some point has moved more than this since they were "
+        "computed: in the fine phase the cloud moves by millimetres and its normals stay those of the phase's start"))
     feature_radius_m: float = Field(0.5, gt=0)
     feature_neighbours: int = Field(20, ge=5)
     feature_voxel_m: float | None = Field(None, ge=0, description=(
@@ -73,7 +76,13 @@ class CalibrationConfig(BaseModel):
     fine_max_normal_angle_deg: float = Field(10.0, gt=0, le=90)
     fine_max_plane_distance_m: float = Field(0.05, gt=0)
     fine_gate_m: float = Field(0.3, gt=0)
-    max_pairs_per_fibre_pair: int = Field(4000, ge=10)
+    max_pairs_per_fibre_pair: int = Field(4000, ge=10, description="fine phase: pairs drawn per (i, j) fibre pair")
+    coarse_max_points: int | None = Field(250_000, ge=1000, description=(
+        "coarse phase: a random subset of this many of the returns used (None: all); features, association and "
+        "graph cost in proportion"))
+    coarse_pairs_per_fibre_pair: int = Field(1000, ge=10, description=(
+        "coarse phase: pairs drawn per (i, j) fibre pair (at most max_pairs_per_fibre_pair); it only has to reach "
+        "the basin, the fine phase sets the accuracy"))
     sigma0_m: float = Field(0.01, gt=0, description="nominal point noise: residuals are whitened by it")
     control_interval_s: float = Field(1.0, gt=0)
     block_controls: int = Field(4, ge=1, description="control intervals of p grouped in one block factor")
@@ -116,6 +125,11 @@ class CalibrationConfig(BaseModel):
             "hold_soft": static if self.hold_soft is None else self.hold_soft,
             "check_halves": static if self.check_halves is None else self.check_halves,
             "fixed_association": static if self.fixed_association is None else self.fixed_association})
+
+    def coarse(self) -> CalibrationConfig:
+        """The settings of the coarse phase."""
+        return self.model_copy(update={"max_pairs_per_fibre_pair": min(self.max_pairs_per_fibre_pair,
+                                                                       self.coarse_pairs_per_fibre_pair)})
 
     def fine(self) -> CalibrationConfig:
         """The settings of the fine phase."""

@@ -7,7 +7,7 @@ with weight alpha (eq. 5.4).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import gtsam
 import numpy as np
@@ -42,6 +42,14 @@ class ReturnData:
     def static(self) -> bool:
         """The sensor's positions span less than STATIC_BELOW_M (a tripod, a parked car)."""
         return bool(np.ptp(self.X_nav, axis=0).max() < STATIC_BELOW_M)
+
+    def sample(self, n: int, rng: np.random.Generator) -> ReturnData:
+        """A random subset of n of the returns (all of them when there are no more), same control times."""
+        if len(self.rows) <= n:
+            return self
+        keep = np.sort(rng.choice(len(self.rows), n, replace=False))
+        per_return = ("rows", "fibre", "range_m", "azimuth_rad", "time_s", "R_nav", "X_nav", "control", "alpha")
+        return replace(self, **{name: getattr(self, name)[keep] for name in per_return})
 
     def returns(self, rows: np.ndarray) -> Returns:
         """The factor-side view of some rows."""

@@ -37,7 +37,7 @@ I = gtsam.symbol_shorthand.I
 E = gtsam.symbol_shorthand.E  # extrinsic T_body_lidar, Pose3
 X = gtsam.symbol_shorthand.X  # trajectory correction at a control time, Point3 or Pose3
 
-CANDIDATES_PER_FIBRE = 20_000
+CANDIDATES_PER_PAIR = 5  # candidate p's of a fibre per pair drawn for each of its fibre pairs
 MAX_BLOCK_ROWS = 20_000
 HELD_SIGMA = 1e-7  # prior sigma (m or rad) that holds an unobservable parameter at its nominal value
 
@@ -276,6 +276,22 @@ def features_at(points_m: np.ndarray, config: CalibrationConfig) -> Features:
     return local_features(points_m, config.feature_radius_m, config.feature_neighbours, config.feature_voxel_m)
 
 
+class FeatureCache:
+    """The features of a calibration's cloud, computed again only once some point has moved more than
+    config.refresh_above_m [m] since they were: the outer loop, the observability probe and the final
+    fit share them (each computation is a neighbourhood search and an eigen-decomposition at every return)."""
+
+    def __init__(self, config: CalibrationConfig):
+        self.config, self.points_m, self.features = config, None, None
+
+    def at(self, points_m: np.ndarray) -> tuple[Features, bool]:
+        """(features for the points [m], whether they were computed now)."""
+        if moved_m(points_m, self.points_m) <= self.config.refresh_above_m:
+            return self.features, False
+        self.points_m, self.features = points_m, features_at(points_m, self.config)
+        return self.features, True
+
+
 @dataclass(frozen=True)
 class Association:
     """What one association step needs besides the points: fixed across outer iterations."""
@@ -286,7 +302,8 @@ class Association:
 
     @classmethod
     def of(cls, data: ReturnData, config: CalibrationConfig) -> Association:
-        candidates = _candidates(data, np.random.default_rng(config.seed))
+        candidates = _candidates(data, CANDIDATES_PER_PAIR * config.max_pairs_per_fibre_pair,
+                                 np.random.default_rng(config.seed))
         return cls(neighbour_fibres(data.sensor.elevation_deg, config.neighbours), candidates, config.seed)
 
     def pairs(self, points_m: np.ndarray, fibre: np.ndarray, features, gate_m: float,
@@ -298,33 +315,51 @@ class Association:
                          np.random.default_rng(self.seed), self.candidates)
 
 
-def strict_pairs(data: ReturnData, estimate: Estimate, config: CalibrationConfig) -> tuple[np.ndarray, Correspondences]:
+def strict_pairs(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
+                 cache: FeatureCache | None = None) -> tuple[np.ndarray, Correspondences]:
     """(world points [m], pairs) at an estimate with the strict settings of the fine phase."""
     fine = config.fine()
     points = world_at(data, estimate, config.pose_corrections)
-    return points, Association.of(data, fine).pairs(points, data.fibre, features_at(points, config), fine.fine_gate_m,
-                                                    fine)
+    features = (cache or FeatureCache(config)).at(points)[0]
+    return points, Association.of(data, fine).pairs(points, data.fibre, features, fine.fine_gate_m, fine)
+
+
+PHASES = ("coarse", "fine")
 
 
 def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig, stage: str,
                 estimates: tuple[bool, bool, bool], nominal_extrinsic: gtsam.Pose3, priors: Priors,
-                history: History, quiet: bool = False, fixed_pairs: Correspondences | None = None) -> Estimate:
-    """Outer iterations of one stage (which parameter groups move: estimates): coarse phase, then
-    fine phase once max |dX| < fine_below_m, until max |dX| < tolerance or n_max. fixed_pairs
-    (config.fixed_association): the fine phase only, every outer iteration on these pairs and normals."""
+                history: History, quiet: bool = False, fixed_pairs: Correspondences | None = None,
+                phases: tuple[str, ...] = PHASES, cache: FeatureCache | None = None) -> Estimate:
+    """Outer iterations of one stage (which parameter groups move: estimates): coarse phase (its own
+    pair subsample, config.coarse()) until max |dX| < fine_below_m, then fine phase until max |dX| <
+    tolerance, a plateau of J, or n_max (outer iterations of both phases together). phases: the
+    phases to run (("coarse",): stop at the switch; ("fine",): start there). fixed_pairs
+    (config.fixed_association): the fine phase only, every outer iteration on these pairs and normals.
+    Features are refreshed every refresh_every (K) outer iterations, when the cloud has moved (cache)."""
     pose = config.pose_corrections
-    association = Association.of(data, config)
-    phase, settings, features, gate = "coarse", config, None, config.gate_start_m
-    if fixed_pairs is not None:
-        phase, gate = "fine", config.fine_gate_m
+    fine = fixed_pairs is not None or phases[0] == "fine"
+    if fine and "fine" not in phases:
+        return estimate
+    everything = data
+    shared = cache = cache or FeatureCache(config)
+    if fine:
+        phase, settings = "fine", config.fine()
+    else:  # on a subsample of the returns, with its own features
+        phase, settings = "coarse", config.coarse()
+        if config.coarse_max_points is not None and len(data.rows) > config.coarse_max_points:
+            data, cache = data.sample(config.coarse_max_points, np.random.default_rng(config.seed)), FeatureCache(config)
+    gate = settings.gate_start_m
+    association = Association.of(data, settings)
+    features, refreshed = None, False
     fine_energies = []
     since_refresh = config.refresh_every
     for _ in progress(range(config.max_outer_iterations), f"calibrating ({stage})",
                       total=config.max_outer_iterations, quiet=quiet):
         points = world_at(data, estimate, pose)
-        refreshed = fixed_pairs is None and since_refresh >= config.refresh_every
-        if refreshed:
-            features, since_refresh = features_at(points, config), 0
+        if fixed_pairs is None and (features is None or since_refresh >= config.refresh_every):
+            features, refreshed = cache.at(points)
+            since_refresh = 0 if refreshed else since_refresh
         since_refresh += 1
         pairs = fixed_pairs if fixed_pairs is not None else association.pairs(points, data.fibre, features, gate,
                                                                                 settings)
@@ -337,17 +372,27 @@ def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
         history.add(mode=stage, iteration=len(history.rows), phase=phase, energy_cm2=before,
                     energy_after_cm2=after, weight_sum=weight_sum, pairs=len(pairs), gate_m=gate, max_step=step,
                     refreshed=refreshed)
-        estimate = updated
+        estimate, refreshed = updated, False
         if phase == "fine":
             fine_energies.append(before)
             if step < config.tolerance_m or on_plateau(fine_energies, config.plateau_iterations,
                                                        config.plateau_improvement):
                 break
         if phase == "coarse" and step < config.fine_below_m:
-            phase, settings, gate, since_refresh = "fine", config.fine(), config.fine_gate_m, config.refresh_every
+            if "fine" not in phases:
+                break
+            phase, settings, gate, data, cache = "fine", config.fine(), config.fine_gate_m, everything, shared
+            association, since_refresh, features = Association.of(data, settings), config.refresh_every, None
         elif phase == "coarse":
             gate = min(gate * config.gate_growth, config.gate_max_m)
     return estimate
+
+
+def moved_m(points_m: np.ndarray, before_m: np.ndarray | None) -> float:
+    """The largest distance [m] of a point from where it was (inf when there is no before, or another cloud)."""
+    if before_m is None or before_m.shape != points_m.shape:
+        return np.inf
+    return float(np.sqrt(np.einsum("ni,ni->n", points_m - before_m, points_m - before_m).max(initial=0.0)))
 
 
 def on_plateau(energies: list[float], iterations: int, improvement: float) -> bool:
@@ -380,12 +425,12 @@ def _zero_components(correction: gtsam.Pose3, held: np.ndarray) -> gtsam.Pose3:
     return gtsam.Pose3(gtsam.Rot3.Expmap(tangent[:3]), tangent[3:])
 
 
-def _candidates(data: ReturnData, rng: np.random.Generator) -> np.ndarray:
-    """Up to CANDIDATES_PER_FIBRE random returns of each fibre: the p's of eq. 4.4."""
+def _candidates(data: ReturnData, per_fibre: int, rng: np.random.Generator) -> np.ndarray:
+    """Up to per_fibre random returns of each fibre: the p's of eq. 4.4."""
     rows = []
     for fibre in np.unique(data.fibre):
         of_fibre = np.flatnonzero(data.fibre == fibre)
-        if len(of_fibre) > CANDIDATES_PER_FIBRE:
-            of_fibre = np.sort(rng.choice(of_fibre, CANDIDATES_PER_FIBRE, replace=False))
+        if len(of_fibre) > per_fibre:
+            of_fibre = np.sort(rng.choice(of_fibre, per_fibre, replace=False))
         rows.append(of_fibre)
     return np.sort(np.concatenate(rows))
