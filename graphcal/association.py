@@ -94,31 +94,51 @@ def associate(points_m: np.ndarray, fibre: np.ndarray, features: Features, neigh
     max_pairs_per_fibre_pair subsamples each (i, j) pair's correspondences at random (rng)."""
     candidates = np.arange(len(points_m)) if candidates is None else np.asarray(candidates)
     rng = rng or np.random.default_rng(0)
-    by_fibre = {int(f): np.flatnonzero(fibre == f) for f in np.unique(fibre)}
-    trees = {f: cKDTree(points_m[rows]) for f, rows in by_fibre.items() if len(rows)}
+    order = np.argsort(fibre, kind="stable")
+    bounds = np.searchsorted(fibre[order], np.unique(fibre), side="left").tolist() + [len(order)]
+    by_fibre = {int(fibre[order[start]]): order[start:stop] for start, stop in zip(bounds[:-1], bounds[1:])}
+    trees = {f: cKDTree(points_m[rows], balanced_tree=False, compact_nodes=False) for f, rows in by_fibre.items()}
     planar = features.planarity >= min_planarity
+    planar_candidates = candidates[planar[candidates]]
+    candidate_fibre = fibre[planar_candidates]
     parts = []
     for i in by_fibre:
-        p_rows = candidates[(fibre[candidates] == i) & planar[candidates]]
-        if not len(p_rows):
-            continue
+        p_rows = planar_candidates[candidate_fibre == i]
         for j in neighbours.get(i, []):
-            if j not in trees:
-                continue
-            distance, nearest = trees[j].query(points_m[p_rows], k=1, distance_upper_bound=gate_m, workers=-1)
-            found = np.isfinite(distance)
-            p, m = p_rows[found], by_fibre[j][nearest[found]]
-            normal = features.normal[p]
-            same_surface = (planar[m] & (np.abs(np.einsum("ni,ni->n", normal, features.normal[m])) >= min_normal_cos)
-                            & (np.abs(np.einsum("ni,ni->n", normal, points_m[p] - points_m[m])) <= max_plane_distance_m))
-            p, m = p[same_surface], m[same_surface]
-            if max_pairs_per_fibre_pair is not None and len(p) > max_pairs_per_fibre_pair:
-                keep = np.sort(rng.choice(len(p), max_pairs_per_fibre_pair, replace=False))
-                p, m = p[keep], m[keep]
-            parts.append((p, m))
+            if j in trees and len(p_rows):
+                parts.append(_pairs_with(p_rows, points_m, features, planar, by_fibre[j], trees[j], gate_m,
+                                         min_normal_cos, max_plane_distance_m, max_pairs_per_fibre_pair, rng))
     if not parts:
         empty = np.zeros(0, dtype=np.int64)
         return Correspondences(empty, empty, np.zeros((0, 3)), np.zeros(0))
     index_p = np.concatenate([p for p, _ in parts])
     index_m = np.concatenate([m for _, m in parts])
     return Correspondences(index_p, index_m, features.normal[index_p], features.planarity[index_p])
+
+
+def _pairs_with(p_rows: np.ndarray, points_m: np.ndarray, features: Features, planar: np.ndarray,
+                j_rows: np.ndarray, tree: cKDTree, gate_m: float, min_normal_cos: float, max_plane_distance_m: float,
+                most: int | None, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(p, m) rows: the candidates p_rows paired with their nearest return of fibre j (rows j_rows, in
+    tree), as associate keeps them; at most `most`, a uniform random subset of those kept: the
+    candidates are taken in a random order and only as many are searched as it takes to keep `most`."""
+    if most is not None:
+        p_rows = p_rows[rng.permutation(len(p_rows))]
+    chunk = len(p_rows) if most is None else 2 * most
+    kept_p, kept_m, count = [], [], 0
+    for start in range(0, len(p_rows), chunk):
+        p = p_rows[start:start + chunk]
+        distance, nearest = tree.query(points_m[p], k=1, distance_upper_bound=gate_m, workers=-1)
+        found = np.isfinite(distance)
+        p, m = p[found], j_rows[nearest[found]]
+        normal = features.normal[p]
+        same_surface = (planar[m] & (np.abs(np.einsum("ni,ni->n", normal, features.normal[m])) >= min_normal_cos)
+                        & (np.abs(np.einsum("ni,ni->n", normal, points_m[p] - points_m[m])) <= max_plane_distance_m))
+        kept_p.append(p[same_surface])
+        kept_m.append(m[same_surface])
+        count += int(same_surface.sum())
+        if most is not None and count >= most:
+            break
+    p, m = np.concatenate(kept_p)[:most], np.concatenate(kept_m)[:most]
+    order = np.argsort(p, kind="stable")
+    return p[order], m[order]

@@ -78,6 +78,33 @@ def test_associate_pairs_points_of_neighbouring_fibres_on_a_plane():
     assert len(capped) == 100
 
 
+def test_a_capped_association_is_a_uniform_subset_of_the_uncapped_one():
+    """The cap searches only as many candidates as it takes (in a random order): the pairs it keeps
+    are pairs the uncapped association keeps, and every one of those is as likely to be drawn."""
+    rng = np.random.default_rng(2)
+    n = 3000
+    a = np.column_stack([rng.uniform(0, 10, n), rng.uniform(0, 10, n), np.zeros(n)])
+    tilted = np.column_stack([rng.uniform(0, 10, n), rng.uniform(0, 10, n), np.zeros(n)])
+    tilted[:, 2] = 0.01 + np.where(tilted[:, 0] > 5, 2.0 * (tilted[:, 0] - 5), 0.0)  # half of it bends away
+    points, fibre = np.vstack([a, tilted]), np.r_[np.zeros(n, int), np.ones(n, int)]
+    features = local_features(points, radius_m=0.5)
+    settings = dict(gate_m=0.3, min_planarity=0.3, min_normal_cos=np.cos(np.radians(10.0)), max_plane_distance_m=0.05)
+    everything = associate(points, fibre, features, {0: [1]}, **settings)
+    kept = set(zip(everything.index_p.tolist(), everything.index_m.tolist()))
+    assert 500 < len(kept) < 0.9 * n  # the bent half is refused
+    drawn = np.zeros(n)
+    for seed in range(200):
+        capped = associate(points, fibre, features, {0: [1]}, max_pairs_per_fibre_pair=100,
+                           rng=np.random.default_rng(seed), **settings)
+        assert len(capped) == 100 and set(zip(capped.index_p.tolist(), capped.index_m.tolist())) <= kept
+        assert np.all(np.diff(capped.index_p) > 0)
+        drawn[capped.index_p] += 1
+    # each kept p drawn 200 * 100 / len(kept) times on average; binomial spread, no p favoured or left out
+    expected = 200 * 100 / len(kept)
+    counts = drawn[everything.index_p]
+    assert abs(counts.mean() - expected) < 1e-9 and counts.std() < 2 * np.sqrt(expected)
+
+
 def test_pairs_across_an_edge_are_refused():
     """Ground meets a wall: a ground point's nearest neighbour on the other fibre may lie on the
     wall, a pair that would pull the offsets even at the true calibration."""

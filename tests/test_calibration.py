@@ -100,9 +100,12 @@ def test_true_calibration_applied_gives_the_true_cloud(street_with_traffic):
 
 
 def test_level_head_leaves_range_and_height_of_road_only_fibres_unobservable(tmp_path):
-    """Level, each of the lowest fibres sees nothing but the flat road, at one range: its d_range
-    and Hz trade off (d_range sin(phi) + Hz is all the road measures). They must be named, held at
-    nominal, and absent from calibration.yaml; fibres that also see facades stay estimated."""
+    """Level, each of the lowest fibres sees mostly the flat road, at one range: its d_range and Hz
+    trade off (d_range sin(phi) + Hz is all the road measures, and a ring turned about the vertical
+    stays on the road). The height must be named, held at nominal, and absent from calibration.yaml,
+    as may the range and azimuth offsets, never the elevation the road measures; fibres that also
+    see facades stay estimated. (Which of d_range and Hz carries the direction depends on the few
+    pairs off the road: session 10's outer loop names Hz alone on some of these fibres.)"""
     scenario = SIM2(size=0.02, seed=2).model_copy(update={
         "extrinsic": ExtrinsicSpec(boresight_deg=(0.0, 0.0, 90.0)), "intrinsic_errors": IntrinsicErrors()})
     recording = graphcal.simulate(scenario, quiet=True)
@@ -110,13 +113,15 @@ def test_level_head_leaves_range_and_height_of_road_only_fibres_unobservable(tmp
     by_elevation = recording.sensor.fibres_by_elevation()
     lowest = by_elevation[:2]
     for fibre in lowest:
-        assert {f"fibre_{fibre}.d_range_m", f"fibre_{fibre}.h_z_m"} <= set(result.unobservable)
-        assert result.calibration.estimate.offsets[fibre, 0] == 0.0 and result.calibration.estimate.offsets[fibre, 3] == 0.0
-    assert all(name.endswith(("d_range_m", "h_z_m")) for name in result.unobservable)
+        assert f"fibre_{fibre}.h_z_m" in result.unobservable
+        assert result.calibration.estimate.offsets[fibre, 3] == 0.0
+    assert all(name.endswith(("d_range_m", "h_z_m", "d_azimuth_deg")) for name in result.unobservable)
     assert not any(name.startswith(f"fibre_{by_elevation[-1]}.") for name in result.unobservable)
+    held = {name.split(".")[1] for name in result.unobservable if name.startswith(f"fibre_{lowest[0]}.")}
     saved = yaml.safe_load(result.save(tmp_path).read_text())
     row = saved["intrinsics"][int(lowest[0])]
-    assert row["d_range_m"] is None and row["h_z_m"] is None and row["d_elevation_deg"] is not None
+    assert row["h_z_m"] is None and row["d_elevation_deg"] is not None
+    assert all((row[name] is None) == (name in held) for name in ("d_range_m", "d_azimuth_deg"))
     assert f"fibre_{lowest[0]}.h_z_m" in saved["unobservable"]
 
 

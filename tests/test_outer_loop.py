@@ -62,3 +62,45 @@ def test_lm_steps_where_the_default_damping_cannot():
     solved = levenberg_marquardt(graph, values, 20)
     assert np.tanh(solved.atVector(1)[0]) == pytest.approx(0.5, abs=1e-9)
     assert solved.atVector(0)[0] == 0.0
+
+
+def test_features_are_computed_again_only_when_the_cloud_changes_shape():
+    from graphcal.calibration.config import CalibrationConfig
+    from graphcal.calibration.solve import FeatureCache, moved_m
+
+    rng = np.random.default_rng(0)
+    plane = np.column_stack([rng.uniform(0, 5, 2000), rng.uniform(0, 5, 2000), np.zeros(2000)])
+    assert moved_m(plane + [3.0, -2.0, 0.5], plane) == pytest.approx(0.0, abs=1e-12)  # a translation keeps the shape
+    bent = plane.copy()
+    bent[0, 2] += 0.002
+    assert moved_m(bent, plane) == pytest.approx(0.002, rel=1e-3)
+    assert moved_m(plane, None) == np.inf and moved_m(plane[:10], plane) == np.inf
+
+    cache = FeatureCache(CalibrationConfig(refresh_above_m=0.001).for_sensor(False))
+    features, computed = cache.at(plane)
+    assert computed and np.allclose(np.abs(features.normal[:, 2]), 1.0)
+    assert cache.at(plane + [0.0, 0.0, 0.3]) == (features, False)
+    tilted = plane.copy()
+    tilted[:, 2] = 0.01 * tilted[:, 0]  # a 0.57 deg tilt: up to 5 cm
+    features, computed = cache.at(tilted)
+    assert computed and np.allclose(np.abs(features.normal @ [-0.01, 0, 1]) / np.hypot(0.01, 1), 1.0)
+
+
+def test_the_coarse_phase_sample_keeps_each_return_whole():
+    from graphcal.calibration.problem import ReturnData
+    from graphcal.sensor import sensor_from_catalog
+
+    rng = np.random.default_rng(3)
+    n = 5000
+    time_s = np.sort(rng.uniform(0, 3, n))
+    control = np.minimum(time_s.astype(int), 2)
+    data = ReturnData(sensor_from_catalog("HDL-32E"), np.arange(n) * 7, rng.integers(0, 32, n), rng.uniform(1, 50, n),
+                      rng.uniform(0, 6.28, n), time_s, rng.normal(size=(n, 3, 3)), rng.normal(size=(n, 3)), control,
+                      time_s - control, np.arange(4.0), np.zeros(3))
+    sample = data.sample(1000, np.random.default_rng(0))
+    assert len(sample.rows) == 1000 and np.all(np.diff(sample.rows) > 0)
+    k = sample.rows // 7  # the row of each sampled return in data
+    for name in ("fibre", "range_m", "azimuth_rad", "time_s", "R_nav", "X_nav", "control", "alpha"):
+        np.testing.assert_array_equal(getattr(sample, name), getattr(data, name)[k])
+    assert sample.control_times_s is data.control_times_s and sample.sensor is data.sensor
+    assert data.sample(n, np.random.default_rng(0)) is data

@@ -15,12 +15,23 @@ from graphcal.yamlfile import read_yaml
 MONTEREY = Path(__file__).resolve().parents[2] / "shared/data/real/veloview_hdl32e_vlp16_pcap/monterey-first-100-packets.pcap"
 
 
+# The verdict of the halves check on the ground fibres' heights depends on the random draw of the
+# pairs (docs/math.md "A static sensor"): seed 2 fails it (the session 9 verdict), seed 0 passes it.
+# Each branch is tested on the draw that takes it.
+SEED_FAILING, SEED_PASSING = 2, 0
+
+
 @pytest.fixture(scope="module")
-def monterey():
+def imported():
     if not MONTEREY.is_file():
         pytest.skip("shared real data absent")
-    recording = import_pcap(MONTEREY, quiet=True)
-    return recording, graphcal.calibrate(recording, graphcal.CalibrationConfig(mode="intrinsic"), quiet=True)
+    return import_pcap(MONTEREY, quiet=True)
+
+
+@pytest.fixture(scope="module")
+def monterey(imported):
+    config = graphcal.CalibrationConfig(mode="intrinsic", seed=SEED_FAILING)
+    return imported, graphcal.calibrate(imported, config, quiet=True)
 
 
 def test_the_static_recording_is_fitted_on_fixed_pairs_with_what_it_cannot_see_named(monterey):
@@ -38,9 +49,9 @@ def test_the_static_recording_is_fitted_on_fixed_pairs_with_what_it_cannot_see_n
 
 def test_heights_that_fit_one_half_of_the_scene_are_not_returned(monterey, tmp_path):
     """Seven ground fibres' heights are determined by each azimuth half alone and agree within 3 cm,
-    but the fit on [180, 360) deg raises J on the other half's pairs: they follow the ground each
-    half sees, not the sensor. They are held and named, so the calibration is the nominal one, and
-    the report shows the evidence."""
+    but on a draw of the pairs the fit on one half raises J on the other half's pairs: they follow the
+    ground each half sees, not the sensor. They are held and named, so the calibration is the nominal
+    one, and the report shows the evidence."""
     recording, result = monterey
     halves = result.halves
     assert not halves["passed"]
@@ -57,3 +68,21 @@ def test_heights_that_fit_one_half_of_the_scene_are_not_returned(monterey, tmp_p
     assert read_yaml(tmp_path / HALVES_FILE) == halves
     page = write_report(tmp_path).read_text()
     assert "the azimuth-halves check" in page and "failed: a half" in page
+
+
+def test_heights_that_fit_the_other_half_on_every_draw_are_returned(imported):
+    """On the draw that passes, every half's fit (three draws of the pairs, two halves each) lowers J on
+    the other half's pairs, and the heights it fitted are the calibration, with sigmas, and lower J."""
+    result = graphcal.calibrate(imported, graphcal.CalibrationConfig(mode="intrinsic", seed=SEED_PASSING), quiet=True)
+    halves = result.halves
+    assert halves["passed"] and len(halves["folds"]) == 6
+    assert all(fold["held_out_energy_cm2"]["after"] < fold["held_out_energy_cm2"]["before"] for fold in halves["folds"])
+    kept = set(halves["folds"][0]["estimates"])
+    assert kept and not kept & set(result.unobservable) and all(name.endswith(".h_z_m") for name in kept)
+    for name in kept:
+        fibre = int(name.split(".")[0].removeprefix("fibre_"))
+        value_m, sigma_m = result.calibration.estimate.offsets[fibre, 3], result.uncertainty.intrinsics[fibre, 3]
+        fits = [fold["estimates"][name] for fold in halves["folds"]]
+        assert min(fits) - 0.01 <= value_m <= max(fits) + 0.01 and 0 < sigma_m < 0.01  # m
+    start, end = result.energy_cm2
+    assert end < 0.9 * start

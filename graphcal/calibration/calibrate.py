@@ -43,7 +43,7 @@ from graphcal.calibration.solve import (
     solve_stage,
     strict_pairs,
 )
-from graphcal.calibration.static_sensor import halves_check, soft_intrinsics
+from graphcal.calibration.static_sensor import halves_over_draws, pair_draws, soft_over_draws
 from graphcal.errors import CalibrationError, ConfigError
 from graphcal.intrinsics import offsets_to_file_units
 from graphcal.recording import Recording
@@ -90,21 +90,27 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
     halves = None
     if (config.hold_soft or config.check_halves) and estimated[0]:
         start_pairs = strict_pairs(data, estimate, config, cache)[1] if fixed_pairs is None else fixed_pairs
+        draws = timed("pair draws", pair_draws, data, estimate, config, start_pairs, cache)
         if config.hold_soft:
-            soft = timed("soft parameters", soft_intrinsics, data, estimate, config, nominal, priors, start_pairs)
+            soft = timed("soft parameters", soft_over_draws, data, estimate, config, nominal, priors, draws)
             held, priors = held + soft, holding(priors, soft)
         if config.check_halves:
-            halves = timed("azimuth halves", halves_check, data, estimate, config, nominal, priors, start_pairs)
+            halves = timed("azimuth halves", halves_over_draws, data, estimate, config, nominal, priors, draws)
             held, priors = held + list(halves.held), holding(priors, halves.held)
+
+    used = {}  # outer iterations each stage has run: n_max counts both phases of a stage
 
     def run_stages(estimate: Estimate, priors: Priors, label: str = "", last: tuple[str, ...] = PHASES,
                    first: int = 0) -> Estimate:
         """The stages from `first` one by one (successive modes stay successive), the last one's phases `last` only."""
         for k, stage in enumerate(stages[first:], first):
             phases = last if k == len(stages) - 1 else PHASES
+            left = config.max_outer_iterations - (used.get(stage, 0) if phases == ("fine",) else 0)
+            before = len(history.rows)
             estimate = timed(f"solve {stage}{label} ({', '.join(phases)})", solve_stage, data, estimate, config,
                              stage + label, ESTIMATES[stage], nominal, priors, history, quiet, fixed_pairs, phases,
-                             cache)
+                             cache, left)
+            used[stage] = len(history.rows) - before
         return estimate
 
     # at the switch to the fine phase the Marginals name what the data cannot observe: held at nominal

@@ -277,8 +277,8 @@ def features_at(points_m: np.ndarray, config: CalibrationConfig) -> Features:
 
 
 class FeatureCache:
-    """The features of a calibration's cloud, computed again only once some point has moved more than
-    config.refresh_above_m [m] since they were: the outer loop, the observability probe and the final
+    """The features of a calibration's cloud, computed again only once its shape has changed by more than
+    config.refresh_above_m [m] since they were (moved_m): the outer loop, the observability probe and the final
     fit share them (each computation is a neighbourhood search and an eigen-decomposition at every return)."""
 
     def __init__(self, config: CalibrationConfig):
@@ -330,16 +330,19 @@ PHASES = ("coarse", "fine")
 def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig, stage: str,
                 estimates: tuple[bool, bool, bool], nominal_extrinsic: gtsam.Pose3, priors: Priors,
                 history: History, quiet: bool = False, fixed_pairs: Correspondences | None = None,
-                phases: tuple[str, ...] = PHASES, cache: FeatureCache | None = None) -> Estimate:
+                phases: tuple[str, ...] = PHASES, cache: FeatureCache | None = None,
+                max_iterations: int | None = None) -> Estimate:
     """Outer iterations of one stage (which parameter groups move: estimates): coarse phase (its own
     pair subsample, config.coarse()) until max |dX| < fine_below_m, then fine phase until max |dX| <
-    tolerance, a plateau of J, or n_max (outer iterations of both phases together). phases: the
-    phases to run (("coarse",): stop at the switch; ("fine",): start there). fixed_pairs
+    tolerance, a plateau of J, or n_max (max_iterations, else config.max_outer_iterations: outer
+    iterations of both phases together). phases: the phases to run (("coarse",): stop at the
+    switch; ("fine",): start there). fixed_pairs
     (config.fixed_association): the fine phase only, every outer iteration on these pairs and normals.
     Features are refreshed every refresh_every (K) outer iterations, when the cloud has moved (cache)."""
     pose = config.pose_corrections
     fine = fixed_pairs is not None or phases[0] == "fine"
-    if fine and "fine" not in phases:
+    n_max = config.max_outer_iterations if max_iterations is None else max_iterations
+    if (fine and "fine" not in phases) or n_max < 1:
         return estimate
     everything = data
     shared = cache = cache or FeatureCache(config)
@@ -354,8 +357,7 @@ def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
     features, refreshed = None, False
     fine_energies = []
     since_refresh = config.refresh_every
-    for _ in progress(range(config.max_outer_iterations), f"calibrating ({stage})",
-                      total=config.max_outer_iterations, quiet=quiet):
+    for _ in progress(range(n_max), f"calibrating ({stage})", total=n_max, quiet=quiet):
         points = world_at(data, estimate, pose)
         if fixed_pairs is None and (features is None or since_refresh >= config.refresh_every):
             features, refreshed = cache.at(points)
@@ -389,10 +391,14 @@ def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
 
 
 def moved_m(points_m: np.ndarray, before_m: np.ndarray | None) -> float:
-    """The largest distance [m] of a point from where it was (inf when there is no before, or another cloud)."""
+    """How far the cloud's shape has changed [m]: the largest distance of a point from where it was once
+    the common translation is removed (which leaves normals and planarity as they were; inf when there
+    is no before, or another cloud)."""
     if before_m is None or before_m.shape != points_m.shape:
         return np.inf
-    return float(np.sqrt(np.einsum("ni,ni->n", points_m - before_m, points_m - before_m).max(initial=0.0)))
+    moved = points_m - before_m
+    moved -= moved.mean(axis=0)
+    return float(np.sqrt(np.einsum("ni,ni->n", moved, moved).max(initial=0.0)))
 
 
 def on_plateau(energies: list[float], iterations: int, improvement: float) -> bool:

@@ -6,7 +6,8 @@ the surfaces between its rings as well as the sensor. Two checks keep only what 
 the sensor: soft_intrinsics holds what the pairs barely determine, alone or in combination;
 halves_check fits the intrinsics on each azimuth half of the scene, holds those the two halves
 disagree on, and then asks of what is left that the fit on one half lower J on the other half's
-pairs: a sensor's offset is the same in every direction, a surface's shape is not."""
+pairs: a sensor's offset is the same in every direction, a surface's shape is not. It runs on
+several random draws of the pairs (halves_over_draws): a sensor's offset does not depend on the draw."""
 
 from __future__ import annotations
 
@@ -26,8 +27,10 @@ from graphcal.calibration.solve import (
     Priors,
     build_graph,
     energy_cm2,
+    FeatureCache,
     holding,
     solve_stage,
+    strict_pairs,
 )
 from graphcal.intrinsics import offsets_to_file_units
 
@@ -44,6 +47,11 @@ def firm_sigmas(config: CalibrationConfig) -> np.ndarray:
 
 def intrinsic_name(fibre: int, parameter: int) -> str:
     return f"fibre_{fibre}.{INTRINSIC_NAMES[parameter]}"
+
+
+def in_fibre_order(names) -> list[str]:
+    """Intrinsic names sorted by fibre number, then parameter."""
+    return sorted(names, key=lambda name: (int(name.split(".")[0].removeprefix("fibre_")), name))
 
 
 def soft_intrinsics(data: ReturnData, estimate: Estimate, config: CalibrationConfig, nominal: gtsam.Pose3,
@@ -112,6 +120,37 @@ def halves_check(data: ReturnData, estimate: Estimate, config: CalibrationConfig
     if not passed:
         held += [intrinsic_name(i, k) for i, k in zip(*np.nonzero(free))]
     return HalvesCheck(tuple(held), folds, passed)
+
+
+PAIR_DRAWS = 3  # random draws of the strict pairs on which what a static recording determines is judged
+
+
+def pair_draws(data: ReturnData, estimate: Estimate, config: CalibrationConfig, pairs: Correspondences,
+               cache: FeatureCache) -> list[Correspondences]:
+    """`pairs` and PAIR_DRAWS - 1 other random draws of the strict pairs at the estimate (seeds
+    config.seed + k). What a static head determines must not depend on which pairs were drawn: on
+    the real HDL-32E recording the lowest and the eighth ground fibres' heights came out determined
+    (1-sigma just under 1 cm) on some draws and not on others, and with them the halves check
+    passed (eight heights, held-out J -40 %) or failed."""
+    return [pairs] + [strict_pairs(data, estimate, config.model_copy(update={"seed": config.seed + k}), cache)[1]
+                      for k in range(1, PAIR_DRAWS)]
+
+
+def soft_over_draws(data: ReturnData, estimate: Estimate, config: CalibrationConfig, nominal: gtsam.Pose3,
+                    priors: Priors, draws: list[Correspondences]) -> list[str]:
+    """soft_intrinsics on every draw: what any draw leaves undetermined."""
+    return in_fibre_order(set().union(*(soft_intrinsics(data, estimate, config, nominal, priors, draw)
+                                        for draw in draws)))
+
+
+def halves_over_draws(data: ReturnData, estimate: Estimate, config: CalibrationConfig, nominal: gtsam.Pose3,
+                      priors: Priors, draws: list[Correspondences]) -> HalvesCheck:
+    """halves_check on every draw: it passes only if it passes on each, and holds what any held."""
+    checks = [halves_check(data, estimate, config, nominal, priors, draw) for draw in draws]
+    folds = tuple({**fold, "fitted_on": f"{fold['fitted_on']}, pairs draw {k + 1} of {len(checks)}"}
+                  for k, check in enumerate(checks) for fold in check.folds)
+    return HalvesCheck(tuple(in_fibre_order(set().union(*(check.held for check in checks)))), folds,
+                       all(check.passed for check in checks))
 
 
 def _fold(data: ReturnData, estimate: Estimate, fit: Estimate, name: str, train: Correspondences,
