@@ -7,6 +7,8 @@ graph stays on the driver. Points are world coordinates minus a local origin [m]
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -101,13 +103,18 @@ def associate(points_m: np.ndarray, fibre: np.ndarray, features: Features, neigh
     planar = features.planarity >= min_planarity
     planar_candidates = candidates[planar[candidates]]
     candidate_fibre = fibre[planar_candidates]
-    parts = []
-    for i in by_fibre:
-        p_rows = planar_candidates[candidate_fibre == i]
-        for j in neighbours.get(i, []):
-            if j in trees and len(p_rows):
-                parts.append(_pairs_with(p_rows, points_m, features, planar, by_fibre[j], trees[j], gate_m,
-                                         min_normal_cos, max_plane_distance_m, max_pairs_per_fibre_pair, rng))
+    p_of = {i: planar_candidates[candidate_fibre == i] for i in by_fibre}
+    jobs = [(i, j) for i in by_fibre for j in neighbours.get(i, []) if j in trees and len(p_of[i])]
+    streams = rng.spawn(len(jobs))  # one random stream per fibre pair: the same draws in any thread order
+
+    def pairs_of(job: tuple[int, int], stream: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        i, j = job
+        return _pairs_with(p_of[i], points_m, features, planar, by_fibre[j], trees[j], gate_m, min_normal_cos,
+                           max_plane_distance_m, max_pairs_per_fibre_pair, stream)
+
+    # the KD-tree queries and NumPy release the GIL: fibre pairs side by side on the cores
+    with ThreadPoolExecutor(os.cpu_count() or 1) as pool:
+        parts = list(pool.map(pairs_of, jobs, streams))
     if not parts:
         empty = np.zeros(0, dtype=np.int64)
         return Correspondences(empty, empty, np.zeros((0, 3)), np.zeros(0))
@@ -128,7 +135,7 @@ def _pairs_with(p_rows: np.ndarray, points_m: np.ndarray, features: Features, pl
     kept_p, kept_m, count = [], [], 0
     for start in range(0, len(p_rows), chunk):
         p = p_rows[start:start + chunk]
-        distance, nearest = tree.query(points_m[p], k=1, distance_upper_bound=gate_m, workers=-1)
+        distance, nearest = tree.query(points_m[p], k=1, distance_upper_bound=gate_m)
         found = np.isfinite(distance)
         p, m = p[found], j_rows[nearest[found]]
         normal = features.normal[p]

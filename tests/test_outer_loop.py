@@ -70,11 +70,15 @@ def test_features_are_computed_again_only_when_the_cloud_changes_shape():
 
     rng = np.random.default_rng(0)
     plane = np.column_stack([rng.uniform(0, 5, 2000), rng.uniform(0, 5, 2000), np.zeros(2000)])
-    assert moved_m(plane + [3.0, -2.0, 0.5], plane) == pytest.approx(0.0, abs=1e-12)  # a translation keeps the shape
+    assert moved_m(plane + [3.0, -2.0, 0.5], plane, 0.5) == pytest.approx(0.0, abs=1e-12)  # a translation: nothing
     bent = plane.copy()
     bent[0, 2] += 0.002
-    assert moved_m(bent, plane) == pytest.approx(0.002, rel=1e-3)
-    assert moved_m(plane, None) == np.inf and moved_m(plane[:10], plane) == np.inf
+    assert moved_m(bent, plane, 0.5) == pytest.approx(0.002, rel=0.01)  # one point off the plane by 2 mm
+    # a turn of 1 mrad about the vertical moves the far corner by 3.5 mm but leaves the shape: it turns the
+    # normals by 1 mrad, 0.5 mm over a 0.5 m neighbourhood
+    turned = plane @ np.array([[np.cos(1e-3), -np.sin(1e-3), 0], [np.sin(1e-3), np.cos(1e-3), 0], [0, 0, 1]]).T
+    assert moved_m(turned, plane, 0.5) == pytest.approx(0.5e-3, rel=1e-6)
+    assert moved_m(plane, None, 0.5) == np.inf and moved_m(plane[:10], plane, 0.5) == np.inf
 
     cache = FeatureCache(CalibrationConfig(refresh_above_m=0.001).for_sensor(False))
     features, computed = cache.at(plane)

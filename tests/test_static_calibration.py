@@ -16,9 +16,10 @@ MONTEREY = Path(__file__).resolve().parents[2] / "shared/data/real/veloview_hdl3
 
 
 # The verdict of the halves check on the ground fibres' heights depends on the random draw of the
-# pairs (docs/math.md "A static sensor"): seed 2 fails it (the session 9 verdict), seed 0 passes it.
+# pairs (docs/math.md "A static sensor"): seed 0 fails it (the session 9 verdict), seed 1 passes it
+# (seeds 1 to 3 pass; re-pick them if the association's sampler changes).
 # Each branch is tested on the draw that takes it.
-SEED_FAILING, SEED_PASSING = 2, 0
+SEED_FAILING, SEED_PASSING = 0, 1
 
 
 @pytest.fixture(scope="module")

@@ -42,8 +42,8 @@ class CalibrationConfig(BaseModel):
     refresh_every: int = Field(2, ge=1, description="K: outer iterations between feature refreshes")
     refresh_above_m: float = Field(0.001, ge=0, description=(
         "features are refreshed (every K iterations) only once some point has moved more than this since they were "
-        "computed, the cloud's common translation removed: late in the fine phase the cloud moves by fractions of a "
-        "millimetre and its normals stay as they were"))
+        "computed, the cloud's best rigid motion removed (or that motion turned the normals by more than this over "
+        "feature_radius_m): late in the fine phase the cloud's shape changes by fractions of a millimetre"))
     feature_radius_m: float = Field(0.5, gt=0)
     feature_neighbours: int = Field(20, ge=5)
     feature_voxel_m: float | None = Field(None, ge=0, description=(

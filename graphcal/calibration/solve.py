@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from factors.point_to_plane import NO_KEY, Block, BlockKeys, FixedValues, make_factor
 from factors.world_point import normals_to_lidar
@@ -277,8 +278,8 @@ def features_at(points_m: np.ndarray, config: CalibrationConfig) -> Features:
 
 
 class FeatureCache:
-    """The features of a calibration's cloud, computed again only once its shape has changed by more than
-    config.refresh_above_m [m] since they were (moved_m): the outer loop, the observability probe and the final
+    """The features of a calibration's cloud, computed again only once they may have changed by more
+    than config.refresh_above_m [m] (moved_m) since they were: the outer loop, the observability probe and the final
     fit share them (each computation is a neighbourhood search and an eigen-decomposition at every return)."""
 
     def __init__(self, config: CalibrationConfig):
@@ -286,7 +287,7 @@ class FeatureCache:
 
     def at(self, points_m: np.ndarray) -> tuple[Features, bool]:
         """(features for the points [m], whether they were computed now)."""
-        if moved_m(points_m, self.points_m) <= self.config.refresh_above_m:
+        if moved_m(points_m, self.points_m, self.config.feature_radius_m) <= self.config.refresh_above_m:
             return self.features, False
         self.points_m, self.features = points_m, features_at(points_m, self.config)
         return self.features, True
@@ -354,11 +355,11 @@ def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
             data, cache = data.sample(config.coarse_max_points, np.random.default_rng(config.seed)), FeatureCache(config)
     gate = settings.gate_start_m
     association = Association.of(data, settings)
-    features, refreshed = None, False
+    features, refreshed, points = None, False, None
     fine_energies = []
     since_refresh = config.refresh_every
     for _ in progress(range(n_max), f"calibrating ({stage})", total=n_max, quiet=quiet):
-        points = world_at(data, estimate, pose)
+        points = world_at(data, estimate, pose) if points is None else points
         if fixed_pairs is None and (features is None or since_refresh >= config.refresh_every):
             features, refreshed = cache.at(points)
             since_refresh = 0 if refreshed else since_refresh
@@ -369,8 +370,8 @@ def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
         graph, values = build_graph(data, estimate, pairs, config, estimates, nominal_extrinsic, priors)
         updated = read_back(levenberg_marquardt(graph, values, config.lm_iterations), estimate, estimates, data, pose)
         step = step_size(estimate, updated)
-        after, _ = energy_cm2(world_at(data, updated, pose, pairs.index_p),
-                              world_at(data, updated, pose, pairs.index_m), pairs)
+        points = world_at(data, updated, pose)  # the next iteration's too
+        after, _ = energy_cm2(points[pairs.index_p], points[pairs.index_m], pairs)
         history.add(mode=stage, iteration=len(history.rows), phase=phase, energy_cm2=before,
                     energy_after_cm2=after, weight_sum=weight_sum, pairs=len(pairs), gate_m=gate, max_step=step,
                     refreshed=refreshed)
@@ -384,21 +385,25 @@ def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
             if "fine" not in phases:
                 break
             phase, settings, gate, data, cache = "fine", config.fine(), config.fine_gate_m, everything, shared
-            association, since_refresh, features = Association.of(data, settings), config.refresh_every, None
+            association, since_refresh, features, points = Association.of(data, settings), config.refresh_every, None, None
         elif phase == "coarse":
             gate = min(gate * config.gate_growth, config.gate_max_m)
     return estimate
 
 
-def moved_m(points_m: np.ndarray, before_m: np.ndarray | None) -> float:
-    """How far the cloud's shape has changed [m]: the largest distance of a point from where it was once
-    the common translation is removed (which leaves normals and planarity as they were; inf when there
-    is no before, or another cloud)."""
+def moved_m(points_m: np.ndarray, before_m: np.ndarray | None, radius_m: float) -> float:
+    """How much the features of a cloud [m] may have changed since it was at before_m: the largest
+    displacement of a point once the best rigid motion is removed (the shape's change), or the angle
+    of that motion times radius_m (it turns the normals, seen over a neighbourhood of radius_m),
+    whichever is larger. A common translation changes nothing; inf when there is no before, or
+    another cloud."""
     if before_m is None or before_m.shape != points_m.shape:
         return np.inf
-    moved = points_m - before_m
-    moved -= moved.mean(axis=0)
-    return float(np.sqrt(np.einsum("ni,ni->n", moved, moved).max(initial=0.0)))
+    now, then = points_m - points_m.mean(axis=0), before_m - before_m.mean(axis=0)
+    rotation, _ = Rotation.align_vectors(now, then)  # now ~ R then (Kabsch)
+    moved = now - rotation.apply(then)
+    shape_m = float(np.sqrt(np.einsum("ni,ni->n", moved, moved).max(initial=0.0)))
+    return max(shape_m, rotation.magnitude() * radius_m)
 
 
 def on_plateau(energies: list[float], iterations: int, improvement: float) -> bool:
