@@ -34,12 +34,12 @@ def test_a_static_sensor_holds_the_elevations_and_features_from_voxels():
     static, moving = CalibrationConfig().for_sensor(True), CalibrationConfig().for_sensor(False)
     assert static.feature_voxel_m > 0 and moving.feature_voxel_m == 0
     assert moving.hold == () and static.hold == ("fibre_*.d_elevation_deg", "fibre_*.d_range_m",
-                                                 "fibre_*.d_azimuth_deg")
+                                                 "fibre_*.d_azimuth_deg", "fibre_*.h_z_m")
     assert static.hold_soft and static.check_halves and static.fixed_association
     assert not (moving.hold_soft or moving.check_halves or moving.fixed_association)
     held = held_names(static.hold, 32, 15)
     assert held == [f"fibre_{i}.{name}" for i in range(32) if i != 15
-                    for name in ("d_range_m", "d_azimuth_deg", "d_elevation_deg")]
+                    for name in ("d_range_m", "d_azimuth_deg", "d_elevation_deg", "h_z_m")]
     chosen = CalibrationConfig(hold=(), feature_voxel_m=0.2, fixed_association=False).for_sensor(True)
     assert chosen.hold == () and chosen.feature_voxel_m == 0.2 and not chosen.fixed_association  # the user's choice
 

@@ -20,8 +20,9 @@ ESTIMATES = {"intrinsic": (True, False, False), "extrinsic": (False, True, False
              "joint_trajectory": (True, True, True)}
 STATIC_FEATURE_VOXEL_M = 0.1  # spans the HDL-32E's rings on walls within ~10 m
 # a static sensor's fibres can all slide onto one cone, where every pair's distance vanishes; its range and
-# azimuth offsets fit the surfaces between the rings, not the sensor (docs/math.md "A static sensor")
-STATIC_HOLD = ("fibre_*.d_elevation_deg", "fibre_*.d_range_m", "fibre_*.d_azimuth_deg")
+# azimuth offsets fit the surfaces between the rings, not the sensor, and a ring's height cannot be told from
+# the ground's radial shape (docs/math.md "A static sensor"): everything is held; free Hz with `hold` to try it
+STATIC_HOLD = ("fibre_*.d_elevation_deg", "fibre_*.d_range_m", "fibre_*.d_azimuth_deg", "fibre_*.h_z_m")
 MAX_FIBRES = 128  # the most fibres of a supported head: the vocabulary of `hold` before the sensor is known
 STAGES = {"extrinsic_then_intrinsic": ("extrinsic", "intrinsic"),
           "intrinsic_then_extrinsic": ("intrinsic", "extrinsic")}
