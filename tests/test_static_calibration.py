@@ -46,6 +46,7 @@ def test_a_static_recording_is_not_calibrated_by_default(imported):
     for name in ("d_range_m", "d_azimuth_deg", "d_elevation_deg", "h_z_m"):
         assert {f"fibre_{f}.{name}" for f in fibres} <= set(result.unobservable)
     np.testing.assert_allclose(result.calibration.estimate.offsets, 0.0, atol=1e-9)
+    assert result.halves is None  # nothing left free to check: no halves check, no halves table in the report
 
 
 def test_the_static_recording_is_fitted_on_fixed_pairs_with_what_it_cannot_see_named(monterey):

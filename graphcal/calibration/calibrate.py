@@ -43,7 +43,7 @@ from graphcal.calibration.solve import (
     solve_stage,
     strict_pairs,
 )
-from graphcal.calibration.static_sensor import halves_over_draws, pair_draws, soft_over_draws
+from graphcal.calibration.static_sensor import free_intrinsics, halves_over_draws, pair_draws, soft_over_draws
 from graphcal.errors import CalibrationError, ConfigError
 from graphcal.intrinsics import offsets_to_file_units
 from graphcal.recording import Recording
@@ -88,7 +88,9 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
     # a static sensor's pairs are made once, at the start (config.fixed_association; docs/math.md)
     fixed_pairs = strict_pairs(data, estimate, config, cache)[1] if config.fixed_association else None
     halves = None
-    if (config.hold_soft or config.check_halves) and estimated[0]:
+    # the static checks judge the intrinsics left free (by default a static sensor holds them all)
+    if (config.hold_soft or config.check_halves) and estimated[0] and \
+            free_intrinsics(priors, data.sensor.reference_fibre).any():
         start_pairs = strict_pairs(data, estimate, config, cache)[1] if fixed_pairs is None else fixed_pairs
         draws = timed("pair draws", pair_draws, data, estimate, config, start_pairs, cache)
         if config.hold_soft:

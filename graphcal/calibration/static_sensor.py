@@ -49,6 +49,13 @@ def intrinsic_name(fibre: int, parameter: int) -> str:
     return f"fibre_{fibre}.{INTRINSIC_NAMES[parameter]}"
 
 
+def free_intrinsics(priors: Priors, reference_fibre: int) -> np.ndarray:
+    """(n_fibres, 4) True where an intrinsic is estimated: not held, not the reference fibre's."""
+    free = priors.intrinsic > HELD_SIGMA
+    free[reference_fibre] = False
+    return free
+
+
 def in_fibre_order(names) -> list[str]:
     """Intrinsic names sorted by fibre number, then parameter."""
     return sorted(names, key=lambda name: (int(name.split(".")[0].removeprefix("fibre_")), name))
@@ -105,14 +112,13 @@ def halves_check(data: ReturnData, estimate: Estimate, config: CalibrationConfig
     while True:
         fits = [solve_stage(data, estimate, config, f"intrinsic, {name}", ESTIMATES["intrinsic"], nominal, priors,
                             History(), True, half) for name, half in zip(HALVES, halves)]
-        apart = (np.abs(fits[0].offsets - fits[1].offsets) / firm > HALVES_RATIO) & (priors.intrinsic > HELD_SIGMA)
-        apart[data.sensor.reference_fibre] = False
+        apart = ((np.abs(fits[0].offsets - fits[1].offsets) / firm > HALVES_RATIO)
+                 & free_intrinsics(priors, data.sensor.reference_fibre))
         if not apart.any():
             break
         more = [intrinsic_name(i, k) for i, k in zip(*np.nonzero(apart))]
         held, priors = held + more, holding(priors, more)
-    free = priors.intrinsic > HELD_SIGMA
-    free[data.sensor.reference_fibre] = False
+    free = free_intrinsics(priors, data.sensor.reference_fibre)
     folds = tuple(_fold(data, estimate, fit, name, halves[k], halves[1 - k], free, config.pose_corrections)
                   for k, (name, fit) in enumerate(zip(HALVES, fits)))
     passed = not free.any() or all(fold["held_out_energy_cm2"]["after"] < fold["held_out_energy_cm2"]["before"]
