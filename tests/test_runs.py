@@ -37,7 +37,8 @@ def calibrated(tmp_path_factory):
     root = tmp_path_factory.mktemp("runs")
     recording = graphcal.simulate(SIM6(size=0.02, seed=1), quiet=True).save(root / "rec")
     settings = root / "settings.yaml"
-    settings.write_text("max_outer_iterations: 3\nmax_points: 20000\n")
+    # the coarse phase on a subsample: the residuals "before" must be its first iteration's pairs still
+    settings.write_text("max_outer_iterations: 3\nmax_points: 20000\ncoarse_max_points: 10000\n")
     result = CliRunner().invoke(app, ["calibrate", str(recording), "--mode", "trajectory", "--config", str(settings),
                                       "--out", str(root / "run"), "--viewer-points", str(VIEWER_POINTS), "-q"])
     assert result.exit_code == 0, result.output

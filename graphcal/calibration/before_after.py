@@ -24,7 +24,7 @@ from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.evaluate import nominal_calibration, returns_for, world_of
 from graphcal.calibration.problem import ReturnData
 from graphcal.calibration.result import Calibration, CalibrationResult
-from graphcal.calibration.solve import Association, features_at
+from graphcal.calibration.solve import Association, features_at, phase_data
 from graphcal.errors import RecordingError
 from graphcal.recording import Recording
 
@@ -88,7 +88,7 @@ def residuals_before_after(recording: Recording, result: CalibrationResult) -> B
     """The pairs and residuals of the nominal and of the calibrated cloud (module docstring)."""
     config = result.config
     data = returns_for(result.calibration, recording, config.max_points, config.seed)  # calibrate's returns
-    settings = config.fine() if config.fixed_association else config.coarse()  # fixed: the fine phase only
+    data, settings = phase_data(data, config, "fine" if config.fixed_association else "coarse")  # fixed: fine only
     association = Association.of(data, settings)
     return BeforeAfter(*(pairs_in(data, calibration, association, settings)
                          for calibration in (nominal_calibration(recording), result.calibration)))

@@ -347,12 +347,10 @@ def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
         return estimate
     everything = data
     shared = cache = cache or FeatureCache(config)
-    if fine:
-        phase, settings = "fine", config.fine()
-    else:  # on a subsample of the returns, with its own features
-        phase, settings = "coarse", config.coarse()
-        if config.coarse_max_points is not None and len(data.rows) > config.coarse_max_points:
-            data, cache = data.sample(config.coarse_max_points, np.random.default_rng(config.seed)), FeatureCache(config)
+    phase = "fine" if fine else "coarse"
+    data, settings = phase_data(data, config, phase)
+    if data is not everything:  # the coarse subsample has its own features
+        cache = FeatureCache(config)
     gate = settings.gate_start_m
     association = Association.of(data, settings)
     features, refreshed, points = None, False, None
@@ -384,11 +382,23 @@ def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
         if phase == "coarse" and step < config.fine_below_m:
             if "fine" not in phases:
                 break
-            phase, settings, gate, data, cache = "fine", config.fine(), config.fine_gate_m, everything, shared
+            phase, cache = "fine", shared
+            data, settings = phase_data(everything, config, phase)
+            gate = settings.gate_start_m
             association, since_refresh, features, points = Association.of(data, settings), config.refresh_every, None, None
         elif phase == "coarse":
             gate = min(gate * config.gate_growth, config.gate_max_m)
     return estimate
+
+
+def phase_data(data: ReturnData, config: CalibrationConfig, phase: str) -> tuple[ReturnData, CalibrationConfig]:
+    """The returns and settings of a phase: the fine phase's are all returns and config.fine(); the
+    coarse phase's a seeded random subset of config.coarse_max_points returns and config.coarse()."""
+    if phase == "fine":
+        return data, config.fine()
+    if config.coarse_max_points is not None:
+        data = data.sample(config.coarse_max_points, np.random.default_rng(config.seed))
+    return data, config.coarse()
 
 
 def moved_m(points_m: np.ndarray, before_m: np.ndarray | None, radius_m: float) -> float:
