@@ -38,6 +38,8 @@ TURN_4_5_2 = {"start": "section_4_5_2", "piecewise_error_m": 0.0}
 HEADING = {"heading_error_deg": 0.5, "piecewise_error_m": 0.0}
 CASES = {"sim2_intrinsic": ("sim2_street", {}, {"mode": "intrinsic"}),
          "sim2_noise": ("sim2_street", {"range_noise_m": 0.01}, {"mode": "intrinsic", "sigma0_m": 0.01}),
+         "sim2_noise_incidence": ("sim2_street", {"range_noise_m": 0.01},
+                                  {"mode": "intrinsic", "sigma0_m": 0.01, "pair_noise": "incidence"}),
          "sim2_extrinsic_then_intrinsic": ("sim2_street", SECTION_4_5_2, {"mode": "extrinsic_then_intrinsic"}),
          "sim2_intrinsic_then_extrinsic": ("sim2_street", SECTION_4_5_2, {"mode": "intrinsic_then_extrinsic"}),
          "sim2_joint": ("sim2_street", SECTION_4_5_2, {"mode": "joint"}),

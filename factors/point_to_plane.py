@@ -124,7 +124,7 @@ class EffectTerms:
 @dataclass(frozen=True)
 class Block:
     """Correspondences of one block: returns p and m (N each), unit normal at p in p's lidar
-    frame (N,3), weight (N,)."""
+    frame (N,3), weight (N,), noise sigma0_m [m] of every residual n.(p - m) (one, or (N,))."""
 
     p: Returns
     m: Returns
@@ -133,7 +133,7 @@ class Block:
     keys: BlockKeys
     pose_corrections: bool = False
     fixed: FixedValues = field(default_factory=FixedValues)
-    sigma0_m: float = 0.01
+    sigma0_m: float | np.ndarray = 0.01
     effects: EffectTerms | None = None
 
     def __len__(self) -> int:
@@ -155,6 +155,17 @@ class Block:
         """First column of each key in the block's Jacobian."""
         starts = np.cumsum([0] + list(self.widths.values()))
         return dict(zip(self.widths, starts[:-1].tolist()))
+
+
+INCIDENCE_FLOOR = 0.1  # of the range noise: a pair's sigma for normal and plane-model errors
+
+
+def incidence_sigma_m(normal: np.ndarray, ray_p: np.ndarray, ray_m: np.ndarray, range_sigma_m: float) -> np.ndarray:
+    """(N,) sigma [m] of n.(p - m) when the range noise (range_sigma_m) moves p and m along their unit
+    lines of sight ray_p, ray_m (N,3): range_sigma ((n.u_p)^2 + (n.u_m)^2 + INCIDENCE_FLOOR^2)^1/2."""
+    along_p = np.einsum("ni,ni->n", normal, ray_p)
+    along_m = np.einsum("ni,ni->n", normal, ray_m)
+    return range_sigma_m * np.sqrt(along_p ** 2 + along_m ** 2 + INCIDENCE_FLOOR ** 2)
 
 
 def _intrinsics(values: gtsam.Values, keys: BlockKeys, slot: str, fixed: np.ndarray) -> np.ndarray:

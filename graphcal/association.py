@@ -82,11 +82,25 @@ def neighbour_fibres(elevation_deg: np.ndarray, n_steps: int) -> dict[int, list[
                      if order[r] != i] for i in range(len(order))}
 
 
+LINE_CANDIDATES = 16  # nearest stand-ins of fibre j among which m is the one whose line of sight passes nearest p
+PROXY_FIRINGS = 2  # firings on each side of a return whose mean stands in for its range when choosing m
+PROXY_REACH_M = 0.2  # a return further than this from its neighbours' mean (an edge) stands for itself
+
+
 def associate(points_m: np.ndarray, fibre: np.ndarray, features: Features, neighbours: dict[int, list[int]],
               gate_m: float, min_planarity: float = 0.3, min_normal_cos: float = 0.0,
               max_plane_distance_m: float = np.inf, max_pairs_per_fibre_pair: int | None = None, rng: np.random.Generator | None = None,
-              candidates: np.ndarray | None = None) -> Correspondences:
-    """Nearest return m of fibre j for every candidate return p of fibre i (j a neighbour of i).
+              candidates: np.ndarray | None = None, rays: np.ndarray | None = None) -> Correspondences:
+    """A return m of fibre j for every candidate return p of fibre i (j a neighbour of i).
+
+    m is the return of fibre j nearest to p; with rays (unit line-of-sight directions (N,3), world
+    axes; rows of a fibre in firing order), nearest by its stand-in: the point of its line of sight
+    level with the mean of its PROXY_FIRINGS neighbours on each side (line_of_sight_proxies). Range
+    noise moves a return along its own line of sight, so the stand-in does not depend on m's own
+    noise; the nearest return does: on the ground, seen at a grazing angle, noise moves returns
+    mostly along the ground, and the nearest of the many returns of the next ring is the one whose
+    noise brought it closest, whose height is biased by the same noise (measured on sim2_street
+    with 1 cm range noise: the range offsets 3x their Cramér-Rao bound, worse with denser clouds).
 
     A pair is kept when |p - m| < gate_m, both p and m are planar enough (planarity >=
     min_planarity) and lie on the same surface (|n_p . n_m| >= min_normal_cos, and m within
@@ -99,18 +113,20 @@ def associate(points_m: np.ndarray, fibre: np.ndarray, features: Features, neigh
     order = np.argsort(fibre, kind="stable")
     bounds = np.searchsorted(fibre[order], np.unique(fibre), side="left").tolist() + [len(order)]
     by_fibre = {int(fibre[order[start]]): order[start:stop] for start, stop in zip(bounds[:-1], bounds[1:])}
-    trees = {f: cKDTree(points_m[rows], balanced_tree=False, compact_nodes=False) for f, rows in by_fibre.items()}
+    stand_ins = points_m if rays is None else line_of_sight_proxies(points_m, rays, by_fibre)
+    trees = {f: cKDTree(stand_ins[rows], balanced_tree=False, compact_nodes=False) for f, rows in by_fibre.items()}
     planar = features.planarity >= min_planarity
     planar_candidates = candidates[planar[candidates]]
     candidate_fibre = fibre[planar_candidates]
     p_of = {i: planar_candidates[candidate_fibre == i] for i in by_fibre}
     jobs = [(i, j) for i in by_fibre for j in neighbours.get(i, []) if j in trees and len(p_of[i])]
     streams = rng.spawn(len(jobs))  # one random stream per fibre pair: the same draws in any thread order
+    cloud = _Cloud(points_m, features, planar, rays)
+    gates = _Gates(gate_m, min_normal_cos, max_plane_distance_m, max_pairs_per_fibre_pair)
 
     def pairs_of(job: tuple[int, int], stream: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         i, j = job
-        return _pairs_with(p_of[i], points_m, features, planar, by_fibre[j], trees[j], gate_m, min_normal_cos,
-                           max_plane_distance_m, max_pairs_per_fibre_pair, stream)
+        return _pairs_with(p_of[i], by_fibre[j], trees[j], cloud, gates, stream)
 
     # the KD-tree queries and NumPy release the GIL: fibre pairs side by side on the cores
     with ThreadPoolExecutor(os.cpu_count() or 1) as pool:
@@ -123,24 +139,84 @@ def associate(points_m: np.ndarray, fibre: np.ndarray, features: Features, neigh
     return Correspondences(index_p, index_m, features.normal[index_p], features.planarity[index_p])
 
 
-def _pairs_with(p_rows: np.ndarray, points_m: np.ndarray, features: Features, planar: np.ndarray,
-                j_rows: np.ndarray, tree: cKDTree, gate_m: float, min_normal_cos: float, max_plane_distance_m: float,
-                most: int | None, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """(p, m) rows: the candidates p_rows paired with their nearest return of fibre j (rows j_rows, in
-    tree), as associate keeps them; at most `most`, a uniform random subset of those kept: the
-    candidates are taken in a random order and only as many are searched as it takes to keep `most`."""
+@dataclass(frozen=True)
+class _Cloud:
+    """The per-point arrays an association reads: points [m], features, planar mask, rays (or None)."""
+
+    points_m: np.ndarray
+    features: Features
+    planar: np.ndarray
+    rays: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class _Gates:
+    """What a pair must pass (see associate) and the cap of pairs per fibre pair (None: no cap)."""
+
+    gate_m: float
+    min_normal_cos: float
+    max_plane_distance_m: float
+    most: int | None
+
+
+def line_of_sight_proxies(points_m: np.ndarray, rays: np.ndarray, by_fibre: dict[int, np.ndarray]) -> np.ndarray:
+    """(N,3) stand-in of each return [m]: the point of its line of sight (unit rays (N,3)) nearest the
+    mean of its PROXY_FIRINGS neighbours on each side in its fibre (by_fibre: each fibre's rows in
+    firing order), leaving its own range out; the return itself where that mean is further than
+    PROXY_REACH_M (an edge, a gap) or the fibre has too few returns."""
+    proxies = points_m.copy()
+    offsets = [k for k in range(-PROXY_FIRINGS, PROXY_FIRINGS + 1) if k]
+    for rows in by_fibre.values():
+        if len(rows) <= 2 * PROXY_FIRINGS:
+            continue
+        inner = rows[PROXY_FIRINGS:len(rows) - PROXY_FIRINGS]
+        centre = np.arange(PROXY_FIRINGS, len(rows) - PROXY_FIRINGS)
+        mean = sum(points_m[rows[centre + k]] for k in offsets) / len(offsets)
+        to_mean = mean - points_m[inner]
+        along = np.einsum("ni,ni->n", to_mean, rays[inner])
+        near = np.einsum("ni,ni->n", to_mean, to_mean) <= PROXY_REACH_M ** 2
+        proxies[inner[near]] += along[near, None] * rays[inner[near]]
+    return proxies
+
+
+def _nearest(p: np.ndarray, j_rows: np.ndarray, tree: cKDTree, cloud: _Cloud, gate_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(found mask over p, m rows of the found): each p's nearest return of fibre j within gate_m (tree),
+    or with rays, of the LINE_CANDIDATES nearest, the one whose line of sight passes nearest p."""
+    if cloud.rays is None:
+        distance, nearest = tree.query(cloud.points_m[p], k=1, distance_upper_bound=gate_m)
+        found = np.isfinite(distance)
+        return found, j_rows[nearest[found]]
+    k = min(LINE_CANDIDATES, len(j_rows))
+    distance, nearest = tree.query(cloud.points_m[p], k=k, distance_upper_bound=gate_m)
+    distance, nearest = distance.reshape(len(p), k), nearest.reshape(len(p), k)
+    found = np.isfinite(distance[:, 0])
+    inside = np.isfinite(distance[found])
+    m = j_rows[np.where(inside, nearest[found], 0)]  # (n, k); candidates beyond the gate masked below
+    offset = cloud.points_m[p[found]][:, None, :] - cloud.points_m[m]
+    along = np.einsum("nki,nki->nk", offset, cloud.rays[m])
+    off_line = np.where(inside, np.einsum("nki,nki->nk", offset, offset) - along * along, np.inf)
+    return found, m[np.arange(len(m)), np.argmin(off_line, axis=1)]
+
+
+def _pairs_with(p_rows: np.ndarray, j_rows: np.ndarray, tree: cKDTree, cloud: _Cloud, gates: _Gates,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(p, m) rows: the candidates p_rows paired with a return of fibre j (rows j_rows, in tree), as
+    associate keeps them; at most gates.most, a uniform random subset of those kept: the candidates
+    are taken in a random order and only as many are searched as it takes to keep that many."""
+    most = gates.most
     if most is not None:
         p_rows = p_rows[rng.permutation(len(p_rows))]
-    chunk = len(p_rows) if most is None else 2 * most
+    chunk = 100_000 if most is None else 2 * most
     kept_p, kept_m, count = [], [], 0
     for start in range(0, len(p_rows), chunk):
         p = p_rows[start:start + chunk]
-        distance, nearest = tree.query(points_m[p], k=1, distance_upper_bound=gate_m)
-        found = np.isfinite(distance)
-        p, m = p[found], j_rows[nearest[found]]
-        normal = features.normal[p]
-        same_surface = (planar[m] & (np.abs(np.einsum("ni,ni->n", normal, features.normal[m])) >= min_normal_cos)
-                        & (np.abs(np.einsum("ni,ni->n", normal, points_m[p] - points_m[m])) <= max_plane_distance_m))
+        found, m = _nearest(p, j_rows, tree, cloud, gates.gate_m)
+        p = p[found]
+        normal = cloud.features.normal[p]
+        points = cloud.points_m
+        same_surface = (cloud.planar[m]
+                        & (np.abs(np.einsum("ni,ni->n", normal, cloud.features.normal[m])) >= gates.min_normal_cos)
+                        & (np.abs(np.einsum("ni,ni->n", normal, points[p] - points[m])) <= gates.max_plane_distance_m))
         kept_p.append(p[same_surface])
         kept_m.append(m[same_surface])
         count += int(same_surface.sum())

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from graphcal.association import associate, local_features, neighbour_fibres
+from graphcal.association import Features, associate, local_features, neighbour_fibres
 from graphcal.sensor import sensor_from_catalog
 
 
@@ -154,3 +154,40 @@ def test_neighbourhood_is_symmetric(n_steps):
     for i, js in neighbours.items():
         for j in js:
             assert i in neighbours[j]
+
+
+def test_line_of_sight_choice_is_not_biased_by_range_noise():
+    """Two rings on flat ground (HDL-32E azimuth step), 1 cm range noise, many independent sweeps.
+    The nearest return of the outer ring to p is the one whose noise pulled it in towards p, which
+    also lifted it (its line of sight slopes down): the residual n.(p - m) is biased. Chosen by
+    stand-ins that leave each return's own range out, then by the line of sight passing nearest p,
+    m does not depend on its noise: no bias (independent math: the true residual is 0 on a plane)."""
+    rng = np.random.default_rng(3)
+    height_m, noise_m, sweeps = 2.0, 0.01, 200
+    step = np.radians(0.16)
+    azimuth = np.arange(-0.5, 0.5, step)
+    per_ring = len(azimuth)
+    elevation = np.radians(np.repeat([-10.0, -9.0], per_ring * sweeps))
+    azimuth = np.concatenate([np.tile(azimuth, sweeps) + np.repeat(rng.uniform(0, step, sweeps), per_ring)
+                              for _ in range(2)])  # each fibre's returns in firing order, sweep by sweep
+    origin = np.zeros((len(azimuth), 3))
+    origin[:, 1] = np.tile(np.repeat(np.arange(sweeps) * 100.0, per_ring), 2)  # sweeps 100 m apart
+    rays = np.column_stack([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
+                            np.sin(elevation)])
+    range_m = -height_m / rays[:, 2] + rng.normal(0, noise_m, len(rays))
+    points = origin + rays * range_m[:, None]
+    fibre = np.repeat([0, 1], per_ring * sweeps)
+    flat = np.ones(len(points))
+    features = Features(np.tile([0.0, 0.0, 1.0], (len(points), 1)), 0 * flat, flat, 0 * flat)
+
+    def mean_and_error(pairs):
+        r = points[pairs.index_p, 2] - points[pairs.index_m, 2]
+        return r.mean(), r.std() / np.sqrt(len(r))
+
+    nearest = associate(points, fibre, features, {0: [1]}, gate_m=2.0)
+    line_of_sight = associate(points, fibre, features, {0: [1]}, gate_m=2.0, rays=rays)
+    assert len(line_of_sight) > 0.9 * len(nearest) > 0.9 * per_ring * sweeps * 0.9
+    biased, error = mean_and_error(nearest)
+    assert biased < -10 * error  # m lifted
+    unbiased, error = mean_and_error(line_of_sight)
+    assert abs(unbiased) < 3 * error

@@ -22,7 +22,7 @@ import pyarrow.parquet as pq
 from graphcal.atomic import atomic_path
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.evaluate import nominal_calibration, returns_for, world_of
-from graphcal.calibration.problem import ReturnData
+from graphcal.calibration.problem import ReturnData, rays_at
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.calibration.solve import Association, features_at, phase_data
 from graphcal.errors import RecordingError
@@ -98,7 +98,8 @@ def pairs_in(data: ReturnData, calibration: Calibration, association: Associatio
     """The first outer iteration's association (settings of its phase) in the cloud of `calibration`."""
     points = world_of(calibration, data) - data.origin_m
     features = features_at(points, settings)
-    pairs = association.pairs(points, data.fibre, features, settings.gate_start_m, settings)
+    pairs = association.pairs(points, data.fibre, features, settings.gate_start_m, settings,
+                              rays_at(data, calibration.estimate))
     residual = np.einsum("ni,ni->n", pairs.normal, points[pairs.index_p] - points[pairs.index_m])
     return Pairs(data.rows[pairs.index_p], data.rows[pairs.index_m], pairs.weight, residual,
                  points[pairs.index_p] + data.origin_m)

@@ -86,6 +86,11 @@ class CalibrationConfig(BaseModel):
         "coarse phase: pairs drawn per (i, j) fibre pair (at most max_pairs_per_fibre_pair); it only has to reach "
         "the basin, the fine phase sets the accuracy"))
     sigma0_m: float = Field(0.01, gt=0, description="nominal point noise: residuals are whitened by it")
+    pair_noise: Literal["uniform", "incidence"] = Field("uniform", description=(
+        "uniform: every pair's residual whitened by sigma0; incidence: sigma0 is the range noise, which moves a "
+        "return along its line of sight u, so pair k's residual n.(p - m) has sigma0 ((n.u_p)^2 + (n.u_m)^2 + "
+        "f^2)^1/2 (f = INCIDENCE_FLOOR for the model's other errors): the efficient weighting when range noise "
+        "dominates, and the Marginals then the Cramér-Rao bound of the pairs"))
     control_interval_s: float = Field(1.0, gt=0)
     block_controls: int = Field(4, ge=1, description="control intervals of p grouped in one block factor")
     pose_corrections: bool = Field(False, description="Pose3 trajectory corrections (else Point3)")
@@ -134,9 +139,11 @@ class CalibrationConfig(BaseModel):
             "fixed_association": fixed})
 
     def coarse(self) -> CalibrationConfig:
-        """The settings of the coarse phase."""
+        """The settings of the coarse phase: uniform pair noise (far from the solution the residuals are
+        the calibration's errors, not the range noise's)."""
         return self.model_copy(update={"max_pairs_per_fibre_pair": min(self.max_pairs_per_fibre_pair,
-                                                                       self.coarse_pairs_per_fibre_pair)})
+                                                                       self.coarse_pairs_per_fibre_pair),
+                                       "pair_noise": "uniform"})
 
     def fine(self) -> CalibrationConfig:
         """The settings of the fine phase."""

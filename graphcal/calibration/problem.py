@@ -12,6 +12,7 @@ from dataclasses import dataclass, replace
 import gtsam
 import numpy as np
 
+from factors.spherical import beam_rays
 from factors.world_point import Corrections, Returns, world_points
 from graphcal.extrinsic import Extrinsic
 from graphcal.recording import Recording
@@ -131,3 +132,14 @@ def world_at(data: ReturnData, estimate: Estimate, pose: bool, rows: np.ndarray 
     p, _ = world_points(data.returns(rows), estimate.offsets[data.fibre[rows]], R_E, t_E,
                         corrections_at(estimate, data.control[rows], pose), jacobians=False)
     return p
+
+
+def rays_at(data: ReturnData, estimate: Estimate, rows: np.ndarray | None = None) -> np.ndarray:
+    """Unit line-of-sight direction (N,3) of the given rows (all if None) in world axes at an estimate
+    (eq. 4.2's d xyz / d rho turned by the extrinsic and the INS attitude; a trajectory rotation
+    correction, a fraction of a degree, is left out: the association and the noise model only
+    compare these lines with surfaces)."""
+    rows = np.arange(len(data.time_s)) if rows is None else rows
+    fibre = data.fibre[rows]
+    _, direction_lidar = beam_rays(data.azimuth_rad[rows], data.sensor.factory_terms(fibre), estimate.offsets[fibre])
+    return np.einsum("nij,nj->ni", data.R_nav[rows], direction_lidar @ estimate.extrinsic.rotation().matrix().T)

@@ -15,7 +15,7 @@ import gtsam
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from factors.point_to_plane import NO_KEY, Block, BlockKeys, FixedValues, make_factor
+from factors.point_to_plane import NO_KEY, Block, BlockKeys, FixedValues, incidence_sigma_m, make_factor
 from factors.world_point import normals_to_lidar
 from graphcal.association import (
     Correspondences,
@@ -31,7 +31,7 @@ from graphcal.calibration.observability import (
     INTRINSIC_NAMES,
     tangent_to_axes,
 )
-from graphcal.calibration.problem import Estimate, ReturnData, corrections_at, world_at
+from graphcal.calibration.problem import Estimate, ReturnData, corrections_at, rays_at, world_at
 from graphcal.progress import progress
 
 I = gtsam.symbol_shorthand.I
@@ -139,6 +139,10 @@ def make_blocks(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
                                     corrections_at(estimate, data.control[pairs.index_p], pose), pairs.normal)
     fi, fj = data.fibre[pairs.index_p], data.fibre[pairs.index_m]
     cp, cm = data.control[pairs.index_p], data.control[pairs.index_m]
+    sigma = np.full(len(pairs), config.sigma0_m)
+    if config.pair_noise == "incidence":
+        sigma = incidence_sigma_m(pairs.normal, rays_at(data, estimate, pairs.index_p),
+                                  rays_at(data, estimate, pairs.index_m), config.sigma0_m)
     intrinsic_key = np.array([NO_KEY if f == ref else I(f) for f in range(data.sensor.n_fibres)], np.int64)
     control_key = np.array([X(c) for c in range(len(data.control_times_s))], np.int64)
     blocks = []
@@ -157,7 +161,7 @@ def make_blocks(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
                       keys=keys, pose_corrections=pose,
                       fixed=FixedValues(estimate.offsets[data.fibre[p]], estimate.offsets[data.fibre[m]],
                                         estimate.extrinsic),
-                      sigma0_m=config.sigma0_m, effects=None if effects is None else effects.terms(p, m))
+                      sigma0_m=sigma[rows], effects=None if effects is None else effects.terms(p, m))
         blocks.append((rows, block))
     return blocks
 
@@ -308,12 +312,13 @@ class Association:
         return cls(neighbour_fibres(data.sensor.elevation_deg, config.neighbours), candidates, config.seed)
 
     def pairs(self, points_m: np.ndarray, fibre: np.ndarray, features, gate_m: float,
-              config: CalibrationConfig) -> Correspondences:
-        """The same subsample of pairs for the same cloud (a fresh seeded draw each time)."""
+              config: CalibrationConfig, rays: np.ndarray) -> Correspondences:
+        """The same subsample of pairs for the same cloud (a fresh seeded draw each time); rays: the
+        returns' lines of sight (rays_at)."""
         return associate(points_m, fibre, features, self.neighbours, gate_m, config.min_planarity,
                          np.cos(np.radians(config.max_normal_angle_deg)), config.max_plane_distance_m,
                          config.max_pairs_per_fibre_pair,
-                         np.random.default_rng(self.seed), self.candidates)
+                         np.random.default_rng(self.seed), self.candidates, rays)
 
 
 def strict_pairs(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
@@ -322,7 +327,8 @@ def strict_pairs(data: ReturnData, estimate: Estimate, config: CalibrationConfig
     fine = config.fine()
     points = world_at(data, estimate, config.pose_corrections)
     features = (cache or FeatureCache(config)).at(points)[0]
-    return points, Association.of(data, fine).pairs(points, data.fibre, features, fine.fine_gate_m, fine)
+    return points, Association.of(data, fine).pairs(points, data.fibre, features, fine.fine_gate_m, fine,
+                                                 rays_at(data, estimate))
 
 
 PHASES = ("coarse", "fine")
@@ -363,9 +369,9 @@ def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
             since_refresh = 0 if refreshed else since_refresh
         since_refresh += 1
         pairs = fixed_pairs if fixed_pairs is not None else association.pairs(points, data.fibre, features, gate,
-                                                                                settings)
+                                                                                settings, rays_at(data, estimate))
         before, weight_sum = energy_cm2(points[pairs.index_p], points[pairs.index_m], pairs)
-        graph, values = build_graph(data, estimate, pairs, config, estimates, nominal_extrinsic, priors)
+        graph, values = build_graph(data, estimate, pairs, settings, estimates, nominal_extrinsic, priors)
         updated = read_back(levenberg_marquardt(graph, values, config.lm_iterations), estimate, estimates, data, pose)
         step = step_size(estimate, updated)
         points = world_at(data, updated, pose)  # the next iteration's too
