@@ -4,6 +4,8 @@ Cases (each in its own process, so each has its own peak memory):
 - sim2_intrinsic: sim2_street, intrinsics from the Table 4.1 start, noise-free;
 - sim2_noise: the same with 1 cm range noise; the RMS errors next to the Cramér-Rao bound
   (the RMS of the Marginals' sigmas, sigma0 = the true 1 cm);
+- sim2_noise_incidence: the same with pair_noise "incidence" (each pair whitened by the range noise
+  along its two lines of sight, docs/math.md), whose Marginals are the bound of the pairs' model;
 - sim2_extrinsic_then_intrinsic, sim2_intrinsic_then_extrinsic, sim2_joint: the section 4.5.2
   start (extrinsic 50/50/80 cm, 2.5/3/-2 deg; intrinsics 3 cm, 0.3 deg) on sim2's straight drive,
   where the lever arm and roll are unobservable;

@@ -45,6 +45,41 @@ class Correspondences:
         return Correspondences(self.index_p[rows], self.index_m[rows], self.normal[rows], self.weight[rows])
 
 
+@dataclass(frozen=True)
+class Sight:
+    """Per return: its unit line of sight rays (N,3) in the points' axes, and its stand-in (N,3) [m],
+    the point of that line level with the mean of its PROXY_FIRINGS neighbours on each side in its
+    fibre's firing order (its own range left out; itself where that mean is further than
+    PROXY_REACH_M: an edge, a gap). Range noise moves a return along its line of sight, so its
+    stand-in does not depend on its own noise."""
+
+    rays: np.ndarray
+    stand_ins: np.ndarray
+
+    @classmethod
+    def of(cls, points_m: np.ndarray, rays: np.ndarray, fibre: np.ndarray) -> Sight:
+        """From the points [m], their rays and fibres (rows of a fibre in firing order)."""
+        stand_ins = points_m.copy()
+        offsets = [k for k in range(-PROXY_FIRINGS, PROXY_FIRINGS + 1) if k]
+        for rows in rows_by_fibre(fibre).values():
+            if len(rows) <= 2 * PROXY_FIRINGS:
+                continue
+            inner = rows[PROXY_FIRINGS:len(rows) - PROXY_FIRINGS]
+            centre = np.arange(PROXY_FIRINGS, len(rows) - PROXY_FIRINGS)
+            to_mean = sum(points_m[rows[centre + k]] for k in offsets) / len(offsets) - points_m[inner]
+            near = np.einsum("ni,ni->n", to_mean, to_mean) <= PROXY_REACH_M ** 2
+            along = np.einsum("ni,ni->n", to_mean[near], rays[inner[near]])
+            stand_ins[inner[near]] += along[:, None] * rays[inner[near]]
+        return cls(rays, stand_ins)
+
+
+def rows_by_fibre(fibre: np.ndarray) -> dict[int, np.ndarray]:
+    """Each fibre's rows, in row order."""
+    order = np.argsort(fibre, kind="stable")
+    bounds = np.searchsorted(fibre[order], np.unique(fibre), side="left").tolist() + [len(order)]
+    return {int(fibre[order[start]]): order[start:stop] for start, stop in zip(bounds[:-1], bounds[1:])}
+
+
 def local_features(points_m: np.ndarray, radius_m: float = 0.5, max_nn: int = 20, voxel_m: float = 0.0) -> Features:
     """Normals and dimensionality features at every point, from the covariance of its max_nn
     nearest neighbours within radius_m (open3d, multi-threaded). Degenerate neighbourhoods
@@ -82,7 +117,7 @@ def neighbour_fibres(elevation_deg: np.ndarray, n_steps: int) -> dict[int, list[
                      if order[r] != i] for i in range(len(order))}
 
 
-LINE_CANDIDATES = 16  # nearest stand-ins of fibre j among which m is the one whose line of sight passes nearest p
+LINE_CANDIDATES = 16  # stand-ins of fibre j nearest p's among which m is the one whose line of sight passes nearest it
 PROXY_FIRINGS = 2  # firings on each side of a return whose mean stands in for its range when choosing m
 PROXY_REACH_M = 0.2  # a return further than this from its neighbours' mean (an edge) stands for itself
 
@@ -90,17 +125,18 @@ PROXY_REACH_M = 0.2  # a return further than this from its neighbours' mean (an 
 def associate(points_m: np.ndarray, fibre: np.ndarray, features: Features, neighbours: dict[int, list[int]],
               gate_m: float, min_planarity: float = 0.3, min_normal_cos: float = 0.0,
               max_plane_distance_m: float = np.inf, max_pairs_per_fibre_pair: int | None = None, rng: np.random.Generator | None = None,
-              candidates: np.ndarray | None = None, rays: np.ndarray | None = None) -> Correspondences:
+              candidates: np.ndarray | None = None, sight: Sight | None = None) -> Correspondences:
     """A return m of fibre j for every candidate return p of fibre i (j a neighbour of i).
 
-    m is the return of fibre j nearest to p; with rays (unit line-of-sight directions (N,3), world
-    axes; rows of a fibre in firing order), nearest by its stand-in: the point of its line of sight
-    level with the mean of its PROXY_FIRINGS neighbours on each side (line_of_sight_proxies). Range
-    noise moves a return along its own line of sight, so the stand-in does not depend on m's own
-    noise; the nearest return does: on the ground, seen at a grazing angle, noise moves returns
-    mostly along the ground, and the nearest of the many returns of the next ring is the one whose
-    noise brought it closest, whose height is biased by the same noise (measured on sim2_street
-    with 1 cm range noise: the range offsets 3x their Cramér-Rao bound, worse with denser clouds).
+    m is the return of fibre j nearest to p; with sight (Sight.of the points), every return is
+    represented by its stand-in, and m is, of the LINE_CANDIDATES stand-ins of fibre j nearest p's,
+    the one whose line of sight passes nearest p's stand-in. Range noise moves a return along its
+    own line of sight, so neither p's nor m's own noise moves the choice; with the measured points
+    it does: on the ground, seen at a grazing angle, noise moves returns mostly along the ground,
+    the nearest of the many returns of the next ring is the one whose noise brought it closest, and
+    the same noise lifted or lowered it (measured on sim2_street with 1 cm range noise: the range
+    offsets 3x their Cramér-Rao bound, worse with denser clouds); and which m a noisy p finds ties
+    m's range, which weighs its fibre's offsets in the pair's Jacobian, to p's noise.
 
     A pair is kept when |p - m| < gate_m, both p and m are planar enough (planarity >=
     min_planarity) and lie on the same surface (|n_p . n_m| >= min_normal_cos, and m within
@@ -110,10 +146,8 @@ def associate(points_m: np.ndarray, fibre: np.ndarray, features: Features, neigh
     max_pairs_per_fibre_pair subsamples each (i, j) pair's correspondences at random (rng)."""
     candidates = np.arange(len(points_m)) if candidates is None else np.asarray(candidates)
     rng = rng or np.random.default_rng(0)
-    order = np.argsort(fibre, kind="stable")
-    bounds = np.searchsorted(fibre[order], np.unique(fibre), side="left").tolist() + [len(order)]
-    by_fibre = {int(fibre[order[start]]): order[start:stop] for start, stop in zip(bounds[:-1], bounds[1:])}
-    stand_ins = points_m if rays is None else line_of_sight_proxies(points_m, rays, by_fibre)
+    by_fibre = rows_by_fibre(fibre)
+    stand_ins = points_m if sight is None else sight.stand_ins
     trees = {f: cKDTree(stand_ins[rows], balanced_tree=False, compact_nodes=False) for f, rows in by_fibre.items()}
     planar = features.planarity >= min_planarity
     planar_candidates = candidates[planar[candidates]]
@@ -121,7 +155,7 @@ def associate(points_m: np.ndarray, fibre: np.ndarray, features: Features, neigh
     p_of = {i: planar_candidates[candidate_fibre == i] for i in by_fibre}
     jobs = [(i, j) for i in by_fibre for j in neighbours.get(i, []) if j in trees and len(p_of[i])]
     streams = rng.spawn(len(jobs))  # one random stream per fibre pair: the same draws in any thread order
-    cloud = _Cloud(points_m, features, planar, rays)
+    cloud = _Cloud(points_m, features, planar, sight)
     gates = _Gates(gate_m, min_normal_cos, max_plane_distance_m, max_pairs_per_fibre_pair)
 
     def pairs_of(job: tuple[int, int], stream: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -141,12 +175,12 @@ def associate(points_m: np.ndarray, fibre: np.ndarray, features: Features, neigh
 
 @dataclass(frozen=True)
 class _Cloud:
-    """The per-point arrays an association reads: points [m], features, planar mask, rays (or None)."""
+    """The per-point arrays an association reads: points [m], features, planar mask, sight (or None)."""
 
     points_m: np.ndarray
     features: Features
     planar: np.ndarray
-    rays: np.ndarray | None
+    sight: Sight | None
 
 
 @dataclass(frozen=True)
@@ -159,41 +193,23 @@ class _Gates:
     most: int | None
 
 
-def line_of_sight_proxies(points_m: np.ndarray, rays: np.ndarray, by_fibre: dict[int, np.ndarray]) -> np.ndarray:
-    """(N,3) stand-in of each return [m]: the point of its line of sight (unit rays (N,3)) nearest the
-    mean of its PROXY_FIRINGS neighbours on each side in its fibre (by_fibre: each fibre's rows in
-    firing order), leaving its own range out; the return itself where that mean is further than
-    PROXY_REACH_M (an edge, a gap) or the fibre has too few returns."""
-    proxies = points_m.copy()
-    offsets = [k for k in range(-PROXY_FIRINGS, PROXY_FIRINGS + 1) if k]
-    for rows in by_fibre.values():
-        if len(rows) <= 2 * PROXY_FIRINGS:
-            continue
-        inner = rows[PROXY_FIRINGS:len(rows) - PROXY_FIRINGS]
-        centre = np.arange(PROXY_FIRINGS, len(rows) - PROXY_FIRINGS)
-        mean = sum(points_m[rows[centre + k]] for k in offsets) / len(offsets)
-        to_mean = mean - points_m[inner]
-        along = np.einsum("ni,ni->n", to_mean, rays[inner])
-        near = np.einsum("ni,ni->n", to_mean, to_mean) <= PROXY_REACH_M ** 2
-        proxies[inner[near]] += along[near, None] * rays[inner[near]]
-    return proxies
-
-
 def _nearest(p: np.ndarray, j_rows: np.ndarray, tree: cKDTree, cloud: _Cloud, gate_m: float) -> tuple[np.ndarray, np.ndarray]:
     """(found mask over p, m rows of the found): each p's nearest return of fibre j within gate_m (tree),
-    or with rays, of the LINE_CANDIDATES nearest, the one whose line of sight passes nearest p."""
-    if cloud.rays is None:
+    or with a sight, of the LINE_CANDIDATES stand-ins nearest p's stand-in, the one whose line of sight
+    passes nearest p's stand-in: neither p's nor m's own range noise moves the choice."""
+    if cloud.sight is None:
         distance, nearest = tree.query(cloud.points_m[p], k=1, distance_upper_bound=gate_m)
         found = np.isfinite(distance)
         return found, j_rows[nearest[found]]
     k = min(LINE_CANDIDATES, len(j_rows))
-    distance, nearest = tree.query(cloud.points_m[p], k=k, distance_upper_bound=gate_m)
+    stand_ins, rays = cloud.sight.stand_ins, cloud.sight.rays
+    distance, nearest = tree.query(stand_ins[p], k=k, distance_upper_bound=gate_m)
     distance, nearest = distance.reshape(len(p), k), nearest.reshape(len(p), k)
     found = np.isfinite(distance[:, 0])
     inside = np.isfinite(distance[found])
     m = j_rows[np.where(inside, nearest[found], 0)]  # (n, k); candidates beyond the gate masked below
-    offset = cloud.points_m[p[found]][:, None, :] - cloud.points_m[m]
-    along = np.einsum("nki,nki->nk", offset, cloud.rays[m])
+    offset = stand_ins[p[found]][:, None, :] - cloud.points_m[m]
+    along = np.einsum("nki,nki->nk", offset, rays[m])
     off_line = np.where(inside, np.einsum("nki,nki->nk", offset, offset) - along * along, np.inf)
     return found, m[np.arange(len(m)), np.argmin(off_line, axis=1)]
 

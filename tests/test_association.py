@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from graphcal.association import Features, associate, local_features, neighbour_fibres
+from graphcal.association import Features, Sight, associate, local_features, neighbour_fibres
 from graphcal.sensor import sensor_from_catalog
 
 
@@ -185,7 +185,7 @@ def test_line_of_sight_choice_is_not_biased_by_range_noise():
         return r.mean(), r.std() / np.sqrt(len(r))
 
     nearest = associate(points, fibre, features, {0: [1]}, gate_m=2.0)
-    line_of_sight = associate(points, fibre, features, {0: [1]}, gate_m=2.0, rays=rays)
+    line_of_sight = associate(points, fibre, features, {0: [1]}, gate_m=2.0, sight=Sight.of(points, rays, fibre))
     assert len(line_of_sight) > 0.9 * len(nearest) > 0.9 * per_ring * sweeps * 0.9
     biased, error = mean_and_error(nearest)
     assert biased < -10 * error  # m lifted

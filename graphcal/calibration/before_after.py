@@ -22,7 +22,7 @@ import pyarrow.parquet as pq
 from graphcal.atomic import atomic_path
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.evaluate import nominal_calibration, returns_for, world_of
-from graphcal.calibration.problem import ReturnData, rays_at
+from graphcal.calibration.problem import ReturnData, sight_at
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.calibration.solve import Association, features_at, phase_data
 from graphcal.errors import RecordingError
@@ -97,9 +97,9 @@ def residuals_before_after(recording: Recording, result: CalibrationResult) -> B
 def pairs_in(data: ReturnData, calibration: Calibration, association: Association, settings: CalibrationConfig) -> Pairs:
     """The first outer iteration's association (settings of its phase) in the cloud of `calibration`."""
     points = world_of(calibration, data) - data.origin_m
+    sight = sight_at(data, calibration.estimate, points)
     features = features_at(points, settings)
-    pairs = association.pairs(points, data.fibre, features, settings.gate_start_m, settings,
-                              rays_at(data, calibration.estimate))
+    pairs = association.pairs(points, data.fibre, features, settings.gate_start_m, settings, sight)
     residual = np.einsum("ni,ni->n", pairs.normal, points[pairs.index_p] - points[pairs.index_m])
     return Pairs(data.rows[pairs.index_p], data.rows[pairs.index_m], pairs.weight, residual,
                  points[pairs.index_p] + data.origin_m)

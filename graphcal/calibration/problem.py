@@ -14,6 +14,7 @@ import numpy as np
 
 from factors.spherical import beam_rays
 from factors.world_point import Corrections, Returns, world_points
+from graphcal.association import Sight
 from graphcal.extrinsic import Extrinsic
 from graphcal.recording import Recording
 from graphcal.sensor import SensorModel
@@ -143,3 +144,9 @@ def rays_at(data: ReturnData, estimate: Estimate, rows: np.ndarray | None = None
     fibre = data.fibre[rows]
     _, direction_lidar = beam_rays(data.azimuth_rad[rows], data.sensor.factory_terms(fibre), estimate.offsets[fibre])
     return np.einsum("nij,nj->ni", data.R_nav[rows], direction_lidar @ estimate.extrinsic.rotation().matrix().T)
+
+
+def sight_at(data: ReturnData, estimate: Estimate, points_m: np.ndarray) -> Sight:
+    """The lines of sight and stand-ins (association.Sight) of the returns at an estimate, points_m
+    their world points minus the origin [m] there (rows of a fibre are in firing order: time order)."""
+    return Sight.of(points_m, rays_at(data, estimate), data.fibre)

@@ -20,6 +20,7 @@ from factors.world_point import normals_to_lidar
 from graphcal.association import (
     Correspondences,
     Features,
+    Sight,
     associate,
     local_features,
     neighbour_fibres,
@@ -31,7 +32,7 @@ from graphcal.calibration.observability import (
     INTRINSIC_NAMES,
     tangent_to_axes,
 )
-from graphcal.calibration.problem import Estimate, ReturnData, corrections_at, rays_at, world_at
+from graphcal.calibration.problem import Estimate, ReturnData, corrections_at, rays_at, sight_at, world_at
 from graphcal.progress import progress
 
 I = gtsam.symbol_shorthand.I
@@ -312,13 +313,13 @@ class Association:
         return cls(neighbour_fibres(data.sensor.elevation_deg, config.neighbours), candidates, config.seed)
 
     def pairs(self, points_m: np.ndarray, fibre: np.ndarray, features, gate_m: float,
-              config: CalibrationConfig, rays: np.ndarray) -> Correspondences:
-        """The same subsample of pairs for the same cloud (a fresh seeded draw each time); rays: the
-        returns' lines of sight (rays_at)."""
+              config: CalibrationConfig, sight: Sight) -> Correspondences:
+        """The same subsample of pairs for the same cloud (a fresh seeded draw each time); sight: the
+        returns' lines of sight and stand-ins (sight_at)."""
         return associate(points_m, fibre, features, self.neighbours, gate_m, config.min_planarity,
                          np.cos(np.radians(config.max_normal_angle_deg)), config.max_plane_distance_m,
                          config.max_pairs_per_fibre_pair,
-                         np.random.default_rng(self.seed), self.candidates, rays)
+                         np.random.default_rng(self.seed), self.candidates, sight)
 
 
 def strict_pairs(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
@@ -326,9 +327,9 @@ def strict_pairs(data: ReturnData, estimate: Estimate, config: CalibrationConfig
     """(world points [m], pairs) at an estimate with the strict settings of the fine phase."""
     fine = config.fine()
     points = world_at(data, estimate, config.pose_corrections)
+    sight = sight_at(data, estimate, points)
     features = (cache or FeatureCache(config)).at(points)[0]
-    return points, Association.of(data, fine).pairs(points, data.fibre, features, fine.fine_gate_m, fine,
-                                                 rays_at(data, estimate))
+    return points, Association.of(data, fine).pairs(points, data.fibre, features, fine.fine_gate_m, fine, sight)
 
 
 PHASES = ("coarse", "fine")
@@ -364,12 +365,13 @@ def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
     since_refresh = config.refresh_every
     for _ in progress(range(n_max), f"calibrating ({stage})", total=n_max, quiet=quiet):
         points = world_at(data, estimate, pose) if points is None else points
+        sight = None if fixed_pairs is not None else sight_at(data, estimate, points)
         if fixed_pairs is None and (features is None or since_refresh >= config.refresh_every):
             features, refreshed = cache.at(points)
             since_refresh = 0 if refreshed else since_refresh
         since_refresh += 1
         pairs = fixed_pairs if fixed_pairs is not None else association.pairs(points, data.fibre, features, gate,
-                                                                                settings, rays_at(data, estimate))
+                                                                                settings, sight)
         before, weight_sum = energy_cm2(points[pairs.index_p], points[pairs.index_m], pairs)
         graph, values = build_graph(data, estimate, pairs, settings, estimates, nominal_extrinsic, priors)
         updated = read_back(levenberg_marquardt(graph, values, config.lm_iterations), estimate, estimates, data, pose)

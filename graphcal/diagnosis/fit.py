@@ -12,7 +12,7 @@ from graphcal.association import Correspondences, Features
 from graphcal.calibration.calibrate import calibrate
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.observability import TRAJECTORY_GAUGE
-from graphcal.calibration.problem import Estimate, ReturnData, pose_of, prepare, rays_at
+from graphcal.calibration.problem import Estimate, ReturnData, pose_of, prepare, sight_at
 from graphcal.calibration.result import CalibrationResult
 from graphcal.calibration.solve import (
     Association,
@@ -81,9 +81,9 @@ def baseline(recording: Recording, config: CalibrationConfig, quiet: bool = True
 def _associated(recording, data, config, estimated, nominal, priors, estimate, model) -> Fit:
     points = world_with_effects(data, estimate, config.pose_corrections, model)
     fine = config.fine()
+    sight = sight_at(data, estimate, points)
     features = features_at(points, config)
-    pairs = Association.of(data, fine).pairs(points, data.fibre, features, fine.fine_gate_m, fine,
-                                             rays_at(data, estimate))
+    pairs = Association.of(data, fine).pairs(points, data.fibre, features, fine.fine_gate_m, fine, sight)
     if model is None:
         context = ReturnContext.of(data, recording.world.poses, points, features, estimate.extrinsic.translation())
         model = EffectModel((), {}, context)
@@ -100,9 +100,9 @@ def refit(fit: Fit, names: tuple[str, ...], prior_sigma: dict, iterations: int =
     association = Association.of(fit.data, fine)
     for _ in range(iterations):
         points = world_with_effects(fit.data, estimate, config.pose_corrections, model)
+        sight = sight_at(fit.data, estimate, points)
         features = features_at(points, config)
-        pairs = association.pairs(points, fit.data.fibre, features, fine.fine_gate_m, fine,
-                                  rays_at(fit.data, estimate))
+        pairs = association.pairs(points, fit.data.fibre, features, fine.fine_gate_m, fine, sight)
         graph, initial = build_graph(fit.data, estimate, pairs, config, fit.estimated, fit.nominal, fit.priors,
                                      effects=model)
         solved = levenberg_marquardt(graph, initial, config.lm_iterations)

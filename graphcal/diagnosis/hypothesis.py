@@ -20,7 +20,7 @@ import numpy as np
 from scipy import stats
 
 from graphcal.association import associate
-from graphcal.calibration.problem import rays_at
+from graphcal.calibration.problem import sight_at
 from graphcal.calibration.solve import Association
 from graphcal.diagnosis.fit import BLOCK_S, Fit, refit
 
@@ -67,7 +67,7 @@ def truncated_cost(fit: Fit) -> tuple[np.ndarray, np.ndarray, int]:
     candidates, fibre = association.candidates, fit.data.fibre
     pairs = associate(fit.points_m, fibre, fit.features, association.neighbours, fine.fine_gate_m,
                       fine.min_planarity, np.cos(np.radians(fine.max_normal_angle_deg)), fine.max_plane_distance_m,
-                      None, None, candidates, rays_at(fit.data, fit.estimate))
+                      None, None, candidates, sight_at(fit.data, fit.estimate, fit.points_m))
     clip_m = fine.max_plane_distance_m
     r = np.einsum("ni,ni->n", pairs.normal, fit.points_m[pairs.index_p] - fit.points_m[pairs.index_m])
     block = np.floor((fit.data.time_s - fit.data.time_s[0]) / BLOCK_S).astype(np.int64)
