@@ -124,7 +124,11 @@ class EffectTerms:
 @dataclass(frozen=True)
 class Block:
     """Correspondences of one block: returns p and m (N each), unit normal at p in p's lidar
-    frame (N,3), weight (N,), noise sigma0_m [m] of every residual n.(p - m) (one, or (N,))."""
+    frame (N,3), weight (N,), noise sigma0_m [m] of every residual n.(p - m) (one, or (N,)); p_held_l,
+    m_held_l (N,3) [m]: offsets in each return's sensor frame added to p and m and held fixed (None:
+    none), so that the intrinsic offsets move p and m as their ranges' stand-ins while p and m are the
+    measured points where the block was made (graphcal.calibration.problem.on_stand_ins); the offsets
+    turn with the sensor, so a rigid turn of the whole cloud leaves every residual as it was."""
 
     p: Returns
     m: Returns
@@ -135,6 +139,8 @@ class Block:
     fixed: FixedValues = field(default_factory=FixedValues)
     sigma0_m: float | np.ndarray = 0.01
     effects: EffectTerms | None = None
+    p_held_l: np.ndarray | None = None
+    m_held_l: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.weight)
@@ -204,8 +210,8 @@ def residuals(block: Block, values: gtsam.Values, jacobians: bool = True):
     p, m = effects.returns(block.p, "p"), effects.returns(block.m, "m")
     turn_p = Turn.of(at_p, p.alpha, jacobians)  # p's point and normal turn alike
     turn_m = Turn.of(at_m, m.alpha, jacobians)
-    p_w, J_p = world_points(p, offsets_p, R_E, t_E + effects.body("p"), at_p, jacobians, turn_p)
-    m_w, J_m = world_points(m, offsets_m, R_E, t_E + effects.body("m"), at_m, jacobians, turn_m)
+    p_w, J_p = world_points(p, offsets_p, R_E, t_E + effects.body("p"), at_p, jacobians, turn_p, block.p_held_l)
+    m_w, J_m = world_points(m, offsets_m, R_E, t_E + effects.body("m"), at_m, jacobians, turn_m, block.m_held_l)
     n_w, J_n = world_normals(p, R_E, at_p, block.normal, jacobians, turn_p)
     scale = np.sqrt(block.weight) / block.sigma0_m
     r = scale * np.einsum("ni,ni->n", n_w, p_w - m_w)

@@ -111,10 +111,14 @@ class Turn:
 
 def world_points(returns: Returns, offsets: np.ndarray, R_E: np.ndarray, t_E: np.ndarray,
                  corrections: Corrections, jacobians: bool = True,
-                 turn: Turn | None = None) -> tuple[np.ndarray, WorldJacobians | None]:
+                 turn: Turn | None = None, held_lidar: np.ndarray | None = None) -> tuple[np.ndarray, WorldJacobians | None]:
     """(N,3) world points [m] and, if asked, their Jacobians. offsets: (N,4) per return; turn:
-    Turn.of(corrections, returns.alpha, jacobians) when the caller already has it."""
+    Turn.of(corrections, returns.alpha, jacobians) when the caller already has it; held_lidar (N,3)
+    [m]: added to eq. 4.2's point in the sensor frame, held fixed (it turns with the sensor, not with
+    the intrinsic offsets)."""
     p_l, J_intrinsic = to_xyz_with_jacobian(returns.range_m, returns.azimuth_rad, returns.factory, offsets, jacobians)
+    if held_lidar is not None:
+        p_l = p_l + held_lidar
     p_b = p_l @ R_E.T + t_E
     q = np.einsum("nij,nj->ni", returns.R_nav, p_b)
     a = returns.alpha[:, None]

@@ -30,19 +30,24 @@ class Features:
 
 @dataclass(frozen=True)
 class Correspondences:
-    """Pairs (p, m) as row indices into the cloud, with the normal at p and a weight in [0, 1]."""
+    """Pairs (p, m) as row indices into the cloud, with the normal at p and a weight in [0, 1]; with a
+    Sight, the shift [m] along each return's line of sight from it to its stand-in (shift_p_m,
+    shift_m_m; None without)."""
 
     index_p: np.ndarray
     index_m: np.ndarray
     normal: np.ndarray
     weight: np.ndarray
+    shift_p_m: np.ndarray | None = None
+    shift_m_m: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.index_p)
 
     def take(self, rows: np.ndarray) -> Correspondences:
         """The pairs at rows (indices or a boolean mask)."""
-        return Correspondences(self.index_p[rows], self.index_m[rows], self.normal[rows], self.weight[rows])
+        shifts = (None, None) if self.shift_p_m is None else (self.shift_p_m[rows], self.shift_m_m[rows])
+        return Correspondences(self.index_p[rows], self.index_m[rows], self.normal[rows], self.weight[rows], *shifts)
 
 
 @dataclass(frozen=True)
@@ -50,16 +55,18 @@ class Sight:
     """Per return: its unit line of sight rays (N,3) in the points' axes, and its stand-in (N,3) [m],
     the point of that line level with the mean of its PROXY_FIRINGS neighbours on each side in its
     fibre's firing order (its own range left out; itself where that mean is further than
-    PROXY_REACH_M: an edge, a gap). Range noise moves a return along its line of sight, so its
-    stand-in does not depend on its own noise."""
+    PROXY_REACH_M: an edge, a gap), shift_m (N,) [m] along the line from the return to it (the
+    stand-in of its range is range + shift). Range noise moves a return along its line of sight,
+    so its stand-in does not depend on its own noise."""
 
     rays: np.ndarray
     stand_ins: np.ndarray
+    shift_m: np.ndarray
 
     @classmethod
     def of(cls, points_m: np.ndarray, rays: np.ndarray, fibre: np.ndarray) -> Sight:
         """From the points [m], their rays and fibres (rows of a fibre in firing order)."""
-        stand_ins = points_m.copy()
+        shift = np.zeros(len(points_m))
         offsets = [k for k in range(-PROXY_FIRINGS, PROXY_FIRINGS + 1) if k]
         for rows in rows_by_fibre(fibre).values():
             if len(rows) <= 2 * PROXY_FIRINGS:
@@ -68,9 +75,8 @@ class Sight:
             centre = np.arange(PROXY_FIRINGS, len(rows) - PROXY_FIRINGS)
             to_mean = sum(points_m[rows[centre + k]] for k in offsets) / len(offsets) - points_m[inner]
             near = np.einsum("ni,ni->n", to_mean, to_mean) <= PROXY_REACH_M ** 2
-            along = np.einsum("ni,ni->n", to_mean[near], rays[inner[near]])
-            stand_ins[inner[near]] += along[:, None] * rays[inner[near]]
-        return cls(rays, stand_ins)
+            shift[inner[near]] = np.einsum("ni,ni->n", to_mean[near], rays[inner[near]])
+        return cls(rays, points_m + shift[:, None] * rays, shift)
 
 
 def rows_by_fibre(fibre: np.ndarray) -> dict[int, np.ndarray]:
@@ -170,7 +176,8 @@ def associate(points_m: np.ndarray, fibre: np.ndarray, features: Features, neigh
         return Correspondences(empty, empty, np.zeros((0, 3)), np.zeros(0))
     index_p = np.concatenate([p for p, _ in parts])
     index_m = np.concatenate([m for _, m in parts])
-    return Correspondences(index_p, index_m, features.normal[index_p], features.planarity[index_p])
+    shifts = (None, None) if sight is None else (sight.shift_m[index_p], sight.shift_m[index_m])
+    return Correspondences(index_p, index_m, features.normal[index_p], features.planarity[index_p], *shifts)
 
 
 @dataclass(frozen=True)

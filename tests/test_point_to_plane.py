@@ -38,14 +38,16 @@ def _keys(layout: str, rng) -> BlockKeys:
                         p_lo=control(c_p), p_hi=control(c_p + 1), m_lo=control(c_m), m_hi=control(c_m + 1))
 
 
-def _problem(pose: bool, layout: str = "shared-control"):
+def _problem(pose: bool, layout: str = "shared-control", held: bool = False):
     rng = np.random.default_rng(11)
     sensor = sensor_from_catalog("HDL-32E")
     normal = rng.normal(0, 1, (N, 3))
     keys = _keys(layout, rng)
+    offsets = (rng.normal(0, 0.01, (N, 3)), rng.normal(0, 0.01, (N, 3))) if held else (None, None)
     block = Block(p=_returns(rng, sensor, 3), m=_returns(rng, sensor, 5),
                   normal=normal / np.linalg.norm(normal, axis=1, keepdims=True),
-                  weight=rng.uniform(0.2, 1.0, N), keys=keys, pose_corrections=pose)
+                  weight=rng.uniform(0.2, 1.0, N), keys=keys, pose_corrections=pose,
+                  p_held_l=offsets[0], m_held_l=offsets[1])
     values = gtsam.Values()
     for fibre in (3, 5, 7):
         values.insert(I(fibre), rng.normal(0, 0.02, 4))
@@ -66,9 +68,9 @@ def _perturbed(values, key, delta):
 
 
 @pytest.mark.parametrize("pose", [False, True], ids=["translation", "pose"])
-@pytest.mark.parametrize("layout", ["shared-control", "distinct-controls", "rows-vary"])
+@pytest.mark.parametrize("layout", ["shared-control", "distinct-controls", "rows-vary", "held-offsets"])
 def test_block_jacobians_match_finite_differences(pose, layout):
-    block, values = _problem(pose, layout)
+    block, values = _problem(pose, "rows-vary" if layout == "held-offsets" else layout, held=layout == "held-offsets")
     _, A = residuals(block, values)
     J = jacobian_by_key(block, A)
     assert set(J) == set(block.keys.unique)

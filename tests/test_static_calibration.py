@@ -18,9 +18,9 @@ MONTEREY = Path(__file__).resolve().parents[2] / "shared/data/real/veloview_hdl3
 
 # With the nearest return of a neighbouring fibre, the halves check on the ground fibres' heights
 # passed or failed with the random draw of the pairs (session 10); with the line-of-sight choice of
-# m (graphcal/association.py) it passes on every seed tried (0 to 15). The failing branch is tested on
-# the recording with one half's ground changed.
-SEEDS = (0, 1)
+# m (graphcal/association.py) it passed on every seed tried (0 to 15, session 11); the suite runs seed 0.
+# The failing branch is tested on the recording with one half's ground changed.
+SEED = 0
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +36,7 @@ HEIGHTS_FREE = ("fibre_*.d_elevation_deg", "fibre_*.d_range_m", "fibre_*.d_azimu
 
 @pytest.fixture(scope="module")
 def monterey(imported):
-    config = graphcal.CalibrationConfig(mode="intrinsic", seed=SEEDS[0], hold=HEIGHTS_FREE)
+    config = graphcal.CalibrationConfig(mode="intrinsic", seed=SEED, hold=HEIGHTS_FREE)
     return imported, graphcal.calibrate(imported, config, quiet=True)
 
 
@@ -80,7 +80,7 @@ def test_heights_that_fit_one_half_of_the_scene_are_not_returned(imported, tmp_p
     half sees, not the sensor. They are held and named, so the calibration is the nominal one, and
     the report shows the evidence."""
     recording = one_half_lowered(imported)
-    result = graphcal.calibrate(recording, graphcal.CalibrationConfig(mode="intrinsic", seed=SEEDS[0],
+    result = graphcal.calibrate(recording, graphcal.CalibrationConfig(mode="intrinsic", seed=SEED,
                                                                       hold=HEIGHTS_FREE), quiet=True)
     halves = result.halves
     assert not halves["passed"]
@@ -99,12 +99,10 @@ def test_heights_that_fit_one_half_of_the_scene_are_not_returned(imported, tmp_p
     assert "the azimuth-halves check" in page and "failed: a half" in page
 
 
-@pytest.mark.parametrize("seed", SEEDS)
-def test_heights_that_fit_the_other_half_on_every_draw_are_returned(imported, monterey, seed):
+def test_heights_that_fit_the_other_half_on_every_draw_are_returned(monterey):
     """Every half's fit (three draws of the pairs, two halves each) lowers J on the other half's pairs,
-    and the heights it fitted are the calibration, with sigmas, and lower J: on two seeds."""
-    result = monterey[1] if seed == SEEDS[0] else graphcal.calibrate(
-        imported, graphcal.CalibrationConfig(mode="intrinsic", seed=seed, hold=HEIGHTS_FREE), quiet=True)
+    and the heights it fitted are the calibration, with sigmas, and lower J."""
+    result = monterey[1]
     halves = result.halves
     assert halves["passed"] and len(halves["folds"]) == 6
     assert all(fold["held_out_energy_cm2"]["after"] < fold["held_out_energy_cm2"]["before"] for fold in halves["folds"])

@@ -161,3 +161,40 @@ def test_right_jacobians_are_inverse_and_match_the_exponential():
     rhs = so3.exp(w) @ so3.exp(np.einsum("nij,nj->ni", so3.right_jacobian(w), d))
     np.testing.assert_allclose(lhs, rhs, atol=1e-13)
     np.testing.assert_allclose(so3.log(so3.exp(w[:20])), w[:20], atol=1e-12)
+
+
+def test_returns_on_stand_ins_are_the_measured_points_with_offsets_held():
+    """on_stand_ins: the returns with their ranges' stand-ins plus the held sensor-frame offsets are the
+    measured world points (at the estimate), and without the offsets they are the stand-ins; the
+    stand-in of a return's range does not move with its own range, it moves with its neighbours'
+    (independent check: change one range, recompute)."""
+    import dataclasses
+
+    import graphcal
+    from graphcal.calibration.problem import corrections_at, initial_estimate, on_stand_ins, prepare, sight_at, world_at
+    from graphcal.sim.script import load_scenario_builder
+
+    recording = graphcal.simulate(load_scenario_builder("sim2_street")(size=0.1, seed=2, range_noise_m=0.01),
+                                  quiet=True)
+    data = prepare(recording, 1.0)
+    estimate = initial_estimate(recording, data)
+    estimate = dataclasses.replace(estimate, offsets=np.random.default_rng(0).normal(0, 0.01, estimate.offsets.shape))
+    points = world_at(data, estimate, pose=False)
+    sight = sight_at(data, estimate, points)
+    rows = np.arange(0, len(points), 97)
+    returns, held = on_stand_ins(data, estimate, rows, sight.shift_m[rows])
+    np.testing.assert_allclose(returns.range_m, data.range_m[rows] + sight.shift_m[rows])
+    R_E, t_E = estimate.extrinsic.rotation().matrix(), estimate.extrinsic.translation()
+    corrections = corrections_at(estimate, data.control[rows], False)
+    offsets = estimate.offsets[data.fibre[rows]]
+    with_held, _ = world_points(returns, offsets, R_E, t_E, corrections, jacobians=False, held_lidar=held)
+    np.testing.assert_allclose(with_held, points[rows], atol=1e-9)
+    at_stand_ins, _ = world_points(returns, offsets, R_E, t_E, corrections, jacobians=False)
+    np.testing.assert_allclose(at_stand_ins, sight.stand_ins[rows], atol=1e-6)
+    assert np.mean(sight.shift_m != 0) > 0.5  # most returns have firing neighbours near enough
+    row = int(np.flatnonzero(sight.shift_m != 0)[100])
+    bumped = dataclasses.replace(data, range_m=data.range_m + 0.05 * (np.arange(len(points)) == row))
+    again = sight_at(bumped, estimate, world_at(bumped, estimate, pose=False))
+    assert data.range_m[row] + sight.shift_m[row] == pytest.approx(bumped.range_m[row] + again.shift_m[row], abs=1e-9)
+    neighbour = row + int(np.flatnonzero(data.fibre[row + 1:] == data.fibre[row])[0]) + 1
+    assert again.shift_m[neighbour] != pytest.approx(sight.shift_m[neighbour], abs=1e-4)

@@ -32,7 +32,7 @@ from graphcal.calibration.observability import (
     INTRINSIC_NAMES,
     tangent_to_axes,
 )
-from graphcal.calibration.problem import Estimate, ReturnData, corrections_at, rays_at, sight_at, world_at
+from graphcal.calibration.problem import Estimate, ReturnData, corrections_at, on_stand_ins, rays_at, sight_at, world_at
 from graphcal.progress import progress
 
 I = gtsam.symbol_shorthand.I
@@ -158,11 +158,17 @@ def make_blocks(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
                             m_hi=control_key[cm[rows] + 1] if est_traj else None)
         if not keys.unique and effects is None:
             continue
-        block = Block(p=data.returns(p), m=data.returns(m), normal=normal_lidar[rows], weight=pairs.weight[rows],
+        p_returns, m_returns, held = data.returns(p), data.returns(m), (None, None)
+        if pairs.shift_p_m is not None:
+            (p_returns, p_held), (m_returns, m_held) = (on_stand_ins(data, estimate, p, pairs.shift_p_m[rows]),
+                                                         on_stand_ins(data, estimate, m, pairs.shift_m_m[rows]))
+            held = p_held, m_held
+        block = Block(p=p_returns, m=m_returns, normal=normal_lidar[rows], weight=pairs.weight[rows],
                       keys=keys, pose_corrections=pose,
                       fixed=FixedValues(estimate.offsets[data.fibre[p]], estimate.offsets[data.fibre[m]],
                                         estimate.extrinsic),
-                      sigma0_m=sigma[rows], effects=None if effects is None else effects.terms(p, m))
+                      sigma0_m=sigma[rows], effects=None if effects is None else effects.terms(p, m),
+                      p_held_l=held[0], m_held_l=held[1])
         blocks.append((rows, block))
     return blocks
 
