@@ -371,7 +371,9 @@ def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
     since_refresh = config.refresh_every
     for _ in progress(range(n_max), f"calibrating ({stage})", total=n_max, quiet=quiet):
         points = world_at(data, estimate, pose) if points is None else points
-        sight = None if fixed_pairs is not None else sight_at(data, estimate, points)
+        # the coarse phase only has to reach the basin: plain nearest returns (the subsample leaves most
+        # returns without firing neighbours near enough for a stand-in anyway)
+        sight = sight_at(data, estimate, points) if fixed_pairs is None and phase == "fine" else None
         if fixed_pairs is None and (features is None or since_refresh >= config.refresh_every):
             features, refreshed = cache.at(points)
             since_refresh = 0 if refreshed else since_refresh
