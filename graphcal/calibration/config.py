@@ -89,8 +89,9 @@ class CalibrationConfig(BaseModel):
     pair_noise: Literal["uniform", "incidence"] = Field("uniform", description=(
         "uniform: every pair's residual whitened by sigma0; incidence: sigma0 is the range noise, which moves a "
         "return along its line of sight u, so pair k's residual n.(p - m) has sigma0 ((n.u_p)^2 + (n.u_m)^2 + "
-        "f^2)^1/2 (f = INCIDENCE_FLOOR for the model's other errors): the efficient weighting when range noise "
-        "dominates, and the Marginals then the Cramér-Rao bound of the pairs"))
+        "f^2)^1/2 (f = INCIDENCE_FLOOR for the model's other errors), in the fine phase: the efficient weighting "
+        "when range noise dominates, and the Marginals then the Cramér-Rao bound of the pairs (with "
+        "feature_voxel_m 0.1, docs/math.md)"))
     control_interval_s: float = Field(1.0, gt=0)
     block_controls: int = Field(4, ge=1, description="control intervals of p grouped in one block factor")
     pose_corrections: bool = Field(False, description="Pose3 trajectory corrections (else Point3)")
