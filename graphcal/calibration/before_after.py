@@ -22,9 +22,9 @@ import pyarrow.parquet as pq
 from graphcal.atomic import atomic_path
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.evaluate import nominal_calibration, returns_for, world_of
-from graphcal.calibration.problem import ReturnData, sight_at
+from graphcal.calibration.problem import ReturnData
 from graphcal.calibration.result import Calibration, CalibrationResult
-from graphcal.calibration.solve import Association, features_at, phase_data
+from graphcal.calibration.solve import Association, features_at, phase_data, phase_sight
 from graphcal.errors import RecordingError
 from graphcal.recording import Recording
 
@@ -88,16 +88,19 @@ def residuals_before_after(recording: Recording, result: CalibrationResult) -> B
     """The pairs and residuals of the nominal and of the calibrated cloud (module docstring)."""
     config = result.config
     data = returns_for(result.calibration, recording, config.max_points, config.seed)  # calibrate's returns
-    data, settings = phase_data(data, config, "fine" if config.fixed_association else "coarse")  # fixed: fine only
+    phase = "fine" if config.fixed_association else "coarse"  # fixed: fine only
+    data, settings = phase_data(data, config, phase)
     association = Association.of(data, settings)
-    return BeforeAfter(*(pairs_in(data, calibration, association, settings)
+    return BeforeAfter(*(pairs_in(data, calibration, association, settings, phase)
                          for calibration in (nominal_calibration(recording), result.calibration)))
 
 
-def pairs_in(data: ReturnData, calibration: Calibration, association: Association, settings: CalibrationConfig) -> Pairs:
-    """The first outer iteration's association (settings of its phase) in the cloud of `calibration`."""
+def pairs_in(data: ReturnData, calibration: Calibration, association: Association, settings: CalibrationConfig,
+             phase: str) -> Pairs:
+    """The first outer iteration's association (settings and choice of m of its phase) in the cloud of
+    `calibration`."""
     points = world_of(calibration, data) - data.origin_m
-    sight = sight_at(data, calibration.estimate, points)
+    sight = phase_sight(data, calibration.estimate, points, phase)
     features = features_at(points, settings)
     pairs = association.pairs(points, data.fibre, features, settings.gate_start_m, settings, sight)
     residual = np.einsum("ni,ni->n", pairs.normal, points[pairs.index_p] - points[pairs.index_m])

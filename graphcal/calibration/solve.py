@@ -371,9 +371,7 @@ def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
     since_refresh = config.refresh_every
     for _ in progress(range(n_max), f"calibrating ({stage})", total=n_max, quiet=quiet):
         points = world_at(data, estimate, pose) if points is None else points
-        # the coarse phase only has to reach the basin: plain nearest returns (the subsample leaves most
-        # returns without firing neighbours near enough for a stand-in anyway)
-        sight = sight_at(data, estimate, points) if fixed_pairs is None and phase == "fine" else None
+        sight = None if fixed_pairs is not None else phase_sight(data, estimate, points, phase)
         if fixed_pairs is None and (features is None or since_refresh >= config.refresh_every):
             features, refreshed = cache.at(points)
             since_refresh = 0 if refreshed else since_refresh
@@ -405,6 +403,13 @@ def solve_stage(data: ReturnData, estimate: Estimate, config: CalibrationConfig,
         elif phase == "coarse":
             gate = min(gate * config.gate_growth, config.gate_max_m)
     return estimate
+
+
+def phase_sight(data: ReturnData, estimate: Estimate, points_m: np.ndarray, phase: str) -> Sight | None:
+    """What the association of a phase chooses m by: stand-ins (sight_at) in the fine phase; plain
+    nearest returns in the coarse phase, which only has to reach the basin (and whose subsample leaves
+    most returns without firing neighbours near enough for a stand-in)."""
+    return sight_at(data, estimate, points_m) if phase == "fine" else None
 
 
 def phase_data(data: ReturnData, config: CalibrationConfig, phase: str) -> tuple[ReturnData, CalibrationConfig]:
