@@ -129,7 +129,7 @@ class Block:
     frame (N,3), weight (N,), noise sigma0_m [m] of every residual n.(p - m) (one, or (N,)); p_held_l,
     m_held_l (N,3) [m]: offsets in each return's sensor frame added to p and m and held fixed (None:
     none), so that the intrinsic offsets move p and m as their ranges' stand-ins while p and m are the
-    measured points where the block was made (graphcal.calibration.problem.on_stand_ins); the offsets
+    measured points where the block was made (factors.world_point.on_stand_ins); the offsets
     turn with the sensor, so a rigid turn of the whole cloud leaves every residual as it was."""
 
     p: Returns

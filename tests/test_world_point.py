@@ -9,6 +9,7 @@ from factors.world_point import (
     Corrections,
     Returns,
     normals_to_lidar,
+    on_stand_ins,
     world_normals,
     world_points,
 )
@@ -171,7 +172,7 @@ def test_returns_on_stand_ins_are_the_measured_points_with_offsets_held():
     import dataclasses
 
     import graphcal
-    from graphcal.calibration.problem import corrections_at, initial_estimate, on_stand_ins, prepare, sight_at, world_at
+    from graphcal.calibration.problem import corrections_at, initial_estimate, prepare, sight_at, world_at
     from graphcal.sim.script import load_scenario_builder
 
     recording = graphcal.simulate(load_scenario_builder("sim2_street")(size=0.1, seed=2, range_noise_m=0.01),
@@ -182,11 +183,11 @@ def test_returns_on_stand_ins_are_the_measured_points_with_offsets_held():
     points = world_at(data, estimate, pose=False)
     sight = sight_at(data, estimate, points)
     rows = np.arange(0, len(points), 97)
-    returns, held = on_stand_ins(data, estimate, rows, sight.shift_m[rows])
+    offsets = estimate.offsets[data.fibre[rows]]
+    returns, held = on_stand_ins(data.returns(rows), offsets, sight.shift_m[rows])
     np.testing.assert_allclose(returns.range_m, data.range_m[rows] + sight.shift_m[rows])
     R_E, t_E = estimate.extrinsic.rotation().matrix(), estimate.extrinsic.translation()
     corrections = corrections_at(estimate, data.control[rows], False)
-    offsets = estimate.offsets[data.fibre[rows]]
     with_held, _ = world_points(returns, offsets, R_E, t_E, corrections, jacobians=False, held_lidar=held)
     np.testing.assert_allclose(with_held, points[rows], atol=1e-9)
     at_stand_ins, _ = world_points(returns, offsets, R_E, t_E, corrections, jacobians=False)

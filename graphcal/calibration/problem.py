@@ -12,7 +12,7 @@ from dataclasses import dataclass, replace
 import gtsam
 import numpy as np
 
-from factors.spherical import beam_rays, to_xyz
+from factors.spherical import beam_rays
 from factors.world_point import Corrections, Returns, world_points
 from graphcal.association import Sight
 from graphcal.extrinsic import Extrinsic
@@ -133,22 +133,6 @@ def world_at(data: ReturnData, estimate: Estimate, pose: bool, rows: np.ndarray 
     p, _ = world_points(data.returns(rows), estimate.offsets[data.fibre[rows]], R_E, t_E,
                         corrections_at(estimate, data.control[rows], pose), jacobians=False)
     return p
-
-
-def on_stand_ins(data: ReturnData, estimate: Estimate, rows: np.ndarray, shift_m: np.ndarray) -> tuple[Returns, np.ndarray]:
-    """The returns of rows with their ranges' stand-ins (range + shift_m, association.Sight), and the
-    offset (N,3) [m] in each one's sensor frame from eq. 4.2's point at the stand-in range to the
-    measured one at the estimate's intrinsics: a factor that adds the offset, held fixed, has the
-    measured points at the estimate, but the Jacobians of the intrinsic angles, which scale with the
-    range, do not carry each return's own range noise (with it, the noise times itself biases the
-    angles: measured on sim2_street, 1 cm noise, pairs made on the true cloud, the elevation errors 9x
-    their spread under the same noise values shuffled among the returns; 1.3x with the stand-ins)."""
-    measured = data.returns(rows)
-    stand_in = replace(measured, range_m=measured.range_m + shift_m)
-    offsets = estimate.offsets[data.fibre[rows]]
-    held = (to_xyz(measured.range_m, measured.azimuth_rad, measured.factory, offsets)
-            - to_xyz(stand_in.range_m, stand_in.azimuth_rad, stand_in.factory, offsets))
-    return stand_in, held
 
 
 def rays_at(data: ReturnData, estimate: Estimate, rows: np.ndarray | None = None) -> np.ndarray:

@@ -16,7 +16,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from factors.point_to_plane import NO_KEY, Block, BlockKeys, FixedValues, incidence_sigma_m, make_factor
-from factors.world_point import normals_to_lidar
+from factors.world_point import normals_to_lidar, on_stand_ins
 from graphcal.association import (
     Correspondences,
     Features,
@@ -32,7 +32,7 @@ from graphcal.calibration.observability import (
     INTRINSIC_NAMES,
     tangent_to_axes,
 )
-from graphcal.calibration.problem import Estimate, ReturnData, corrections_at, on_stand_ins, rays_at, sight_at, world_at
+from graphcal.calibration.problem import Estimate, ReturnData, corrections_at, rays_at, sight_at, world_at
 from graphcal.progress import progress
 
 I = gtsam.symbol_shorthand.I
@@ -158,15 +158,15 @@ def make_blocks(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
                             m_hi=control_key[cm[rows] + 1] if est_traj else None)
         if not keys.unique and effects is None:
             continue
+        offsets_p, offsets_m = estimate.offsets[data.fibre[p]], estimate.offsets[data.fibre[m]]
         p_returns, m_returns, held = data.returns(p), data.returns(m), (None, None)
         if pairs.shift_p_m is not None:
-            (p_returns, p_held), (m_returns, m_held) = (on_stand_ins(data, estimate, p, pairs.shift_p_m[rows]),
-                                                         on_stand_ins(data, estimate, m, pairs.shift_m_m[rows]))
+            (p_returns, p_held), (m_returns, m_held) = (on_stand_ins(p_returns, offsets_p, pairs.shift_p_m[rows]),
+                                                         on_stand_ins(m_returns, offsets_m, pairs.shift_m_m[rows]))
             held = p_held, m_held
         block = Block(p=p_returns, m=m_returns, normal=normal_lidar[rows], weight=pairs.weight[rows],
                       keys=keys, pose_corrections=pose,
-                      fixed=FixedValues(estimate.offsets[data.fibre[p]], estimate.offsets[data.fibre[m]],
-                                        estimate.extrinsic),
+                      fixed=FixedValues(offsets_p, offsets_m, estimate.extrinsic),
                       sigma0_m=sigma[rows], effects=None if effects is None else effects.terms(p, m),
                       p_held_l=held[0], m_held_l=held[1])
         blocks.append((rows, block))
@@ -319,9 +319,9 @@ class Association:
         return cls(neighbour_fibres(data.sensor.elevation_deg, config.neighbours), candidates, config.seed)
 
     def pairs(self, points_m: np.ndarray, fibre: np.ndarray, features, gate_m: float,
-              config: CalibrationConfig, sight: Sight) -> Correspondences:
+              config: CalibrationConfig, sight: Sight | None) -> Correspondences:
         """The same subsample of pairs for the same cloud (a fresh seeded draw each time); sight: the
-        returns' lines of sight and stand-ins (sight_at)."""
+        returns' lines of sight and stand-ins (sight_at), or None for plain nearest returns."""
         return associate(points_m, fibre, features, self.neighbours, gate_m, config.min_planarity,
                          np.cos(np.radians(config.max_normal_angle_deg)), config.max_plane_distance_m,
                          config.max_pairs_per_fibre_pair,
