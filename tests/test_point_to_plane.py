@@ -142,3 +142,18 @@ def test_reference_fibre_and_fixed_slots_have_no_key():
     assert list(factor.keys()) == [I(5)]
     A, _ = factor.linearize(values).jacobian()
     assert A.shape[1] == 4
+
+
+def test_incidence_sigma_is_the_spread_of_range_noise_along_the_lines_of_sight():
+    """incidence_sigma_m against a Monte Carlo of n.(p - m) when p and m move along their lines of sight by
+    independent range noise (plus the floor, drawn as its own independent term)."""
+    from factors.point_to_plane import INCIDENCE_FLOOR, incidence_sigma_m
+
+    rng = np.random.default_rng(5)
+    unit = lambda v: v / np.linalg.norm(v, axis=-1, keepdims=True)  # noqa: E731
+    normal, ray_p, ray_m = (unit(rng.normal(0, 1, (1, 3))) for _ in range(3))
+    draws, sigma_m = 200_000, 0.01
+    eps_p, eps_m, floor = (rng.normal(0, sigma_m, draws) for _ in range(3))
+    r = (normal @ ray_p.T) * eps_p - (normal @ ray_m.T) * eps_m + INCIDENCE_FLOOR * floor
+    expected = incidence_sigma_m(normal, ray_p, ray_m, sigma_m)[0]
+    assert r.std() == pytest.approx(expected, rel=0.01)
