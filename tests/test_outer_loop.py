@@ -100,7 +100,7 @@ def test_the_coarse_phase_sample_keeps_each_return_whole():
     control = np.minimum(time_s.astype(int), 2)
     data = ReturnData(sensor_from_catalog("HDL-32E"), np.arange(n) * 7, rng.integers(0, 32, n), rng.uniform(1, 50, n),
                       rng.uniform(0, 6.28, n), time_s, rng.normal(size=(n, 3, 3)), rng.normal(size=(n, 3)), control,
-                      time_s - control, np.arange(4.0), np.zeros(3))
+                      time_s - control, np.arange(4.0), np.zeros(3), 0.01)
     sample = data.sample(1000, np.random.default_rng(0))
     assert len(sample.rows) == 1000 and np.all(np.diff(sample.rows) > 0)
     k = sample.rows // 7  # the row of each sampled return in data

@@ -63,8 +63,9 @@ def calibrate(recording: Recording, config: CalibrationConfig | None = None, qui
 def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> CalibrationResult:
     started = time.perf_counter()
     timings = {}  # stage -> seconds
-    data = prepare(recording, config.control_interval_s, config.max_points, np.random.default_rng(config.seed))
-    config = config.for_sensor(data.static)
+    data = prepare(recording, config.control_interval_s, config.max_points, np.random.default_rng(config.seed),
+                   range_noise_m=config.range_noise_m)
+    config = config.for_sensor(data.static, data.range_noise_m)
     timings["prepare"] = time.perf_counter() - started
     estimate = initial_estimate(recording, data)
     nominal = estimate.extrinsic

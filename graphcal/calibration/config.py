@@ -86,6 +86,10 @@ class CalibrationConfig(BaseModel):
         "coarse phase: pairs drawn per (i, j) fibre pair (at most max_pairs_per_fibre_pair); it only has to reach "
         "the basin, the fine phase sets the accuracy"))
     sigma0_m: float = Field(0.01, gt=0, description="nominal point noise: residuals are whitened by it")
+    range_noise_m: float | None = Field(None, ge=0, description=(
+        "the head's range noise (1-sigma); None: measured from the recording's returns (range_noise.py), and "
+        "written here in the results' config.yaml. From 1 mm on, m is chosen by the returns' stand-ins, "
+        "which its noise does not move; below, by nearest returns (docs/math.md \"Which m\")"))
     pair_noise: Literal["uniform", "incidence"] = Field("uniform", description=(
         "uniform: every pair's residual whitened by sigma0; incidence: sigma0 is the range noise, which moves a "
         "return along its line of sight u, so pair k's residual n.(p - m) has sigma0 ((n.u_p)^2 + (n.u_m)^2 + "
@@ -127,8 +131,9 @@ class CalibrationConfig(BaseModel):
             held_names(hold, MAX_FIBRES, None)
         return hold
 
-    def for_sensor(self, static: bool) -> CalibrationConfig:
-        """The settings left to the recording (None) resolved for a static or a moving sensor."""
+    def for_sensor(self, static: bool, range_noise_m: float = np.nan) -> CalibrationConfig:
+        """The settings left to the recording (None) resolved for a static or a moving sensor whose
+        range noise is range_noise_m (as measured when it was not set; NaN: unknown, left as set)."""
         voxel_m = (STATIC_FEATURE_VOXEL_M if static else 0.0) if self.feature_voxel_m is None else self.feature_voxel_m
         hold = (STATIC_HOLD if static else ()) if self.hold is None else self.hold
         fixed = static if self.fixed_association is None else self.fixed_association
@@ -137,7 +142,8 @@ class CalibrationConfig(BaseModel):
             "feature_voxel_m": voxel_m, "hold": hold,
             "hold_soft": static if self.hold_soft is None else self.hold_soft,
             "check_halves": static if self.check_halves is None else self.check_halves,
-            "fixed_association": fixed})
+            "fixed_association": fixed,
+            "range_noise_m": self.range_noise_m if np.isnan(range_noise_m) else float(range_noise_m)})
 
     def coarse(self) -> CalibrationConfig:
         """The settings of the coarse phase: uniform pair noise (far from the solution the residuals are

@@ -16,16 +16,23 @@ from factors.spherical import beam_rays
 from factors.world_point import Corrections, Returns, world_points
 from graphcal.association import Sight
 from graphcal.extrinsic import Extrinsic
+from graphcal.range_noise import measured_range_noise_m
 from graphcal.recording import Recording
 from graphcal.sensor import SensorModel
 
 STATIC_BELOW_M = 1.0  # a sensor whose positions span less than this is static
+# range noise [m] from which m is chosen by stand-ins (docs/math.md "Which m"): without noise the nearest
+# return pairs better (sim2_street noise-free, full size: d_elevation 5.3e-4 / 8.0e-4 deg, Hz 0.0113 cm against
+# 7.9e-4 / 1.0e-3 deg, 0.0153 / 0.0145 cm with stand-ins, seeds 0 / 1), and the nearest's own bias grows with the
+# noise (1 cm: -2.4 mm a pair). Real heads: 5 mm and more (monterey's HDL-32E 7.4 mm); a noise-free simulation
+# decimated to every 20th firing measures 0.7 mm (its surfaces are not cubic over five firings 3.3 deg apart)
+STAND_INS_ABOVE_M = 1e-3
 
 
 @dataclass(frozen=True)
 class ReturnData:
-    """Per-return arrays (N) of the returns used (rows: their row in points.parquet), and the
-    control times [s]."""
+    """Per-return arrays (N) of the returns used (rows: their row in points.parquet), the control
+    times [s], and the head's range noise [m] (1-sigma; NaN: unknown)."""
 
     sensor: SensorModel
     rows: np.ndarray
@@ -39,6 +46,7 @@ class ReturnData:
     alpha: np.ndarray
     control_times_s: np.ndarray
     origin_m: np.ndarray
+    range_noise_m: float
 
     @property
     def static(self) -> bool:
@@ -70,12 +78,16 @@ class Estimate:
 
 
 def prepare(recording: Recording, control_interval_s: float, max_points: int | None = None,
-            rng: np.random.Generator | None = None, control_times_s: np.ndarray | None = None) -> ReturnData:
+            rng: np.random.Generator | None = None, control_times_s: np.ndarray | None = None,
+            range_noise_m: float | None = None) -> ReturnData:
     """Read the returns (a random subset of max_points if given) and the INS pose at each one's
     time; control times control_interval_s apart from the trajectory's first pose span them,
+    unless given; the head's range noise [m] measured from all the returns (range_noise.measured_range_noise_m)
     unless given."""
     columns = recording.points.read(["time", "fibre", "range", "azimuth"])
     rows = np.arange(len(columns["time"]))
+    if range_noise_m is None:
+        range_noise_m = measured_range_noise_m(columns["fibre"], columns["range"])
     if max_points is not None and len(rows) > max_points:
         rows = np.sort((rng or np.random.default_rng(0)).choice(len(rows), max_points, replace=False))
     time = columns["time"][rows]
@@ -89,7 +101,7 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
     alpha = np.clip((time - control_times[control]) / (control_times[control + 1] - control_times[control]), 0, 1)
     return ReturnData(recording.sensor, rows, columns["fibre"][rows].astype(np.int64),
                       columns["range"][rows].astype(np.float64), columns["azimuth"][rows].astype(np.float64),
-                      time, rotation.as_matrix(), position - origin, control, alpha, control_times, origin)
+                      time, rotation.as_matrix(), position - origin, control, alpha, control_times, origin, range_noise_m)
 
 
 def control_grid(anchor_s: float, first_s: float, last_s: float, interval_s: float) -> np.ndarray:
@@ -146,7 +158,11 @@ def rays_at(data: ReturnData, estimate: Estimate, rows: np.ndarray | None = None
     return np.einsum("nij,nj->ni", data.R_nav[rows], direction_lidar @ estimate.extrinsic.rotation().matrix().T)
 
 
-def sight_at(data: ReturnData, estimate: Estimate, points_m: np.ndarray) -> Sight:
+def sight_at(data: ReturnData, estimate: Estimate, points_m: np.ndarray) -> Sight | None:
     """The lines of sight and stand-ins (association.Sight) of the returns at an estimate, points_m
-    their world points minus the origin [m] there (rows of a fibre are in firing order: time order)."""
+    their world points minus the origin [m] there (rows of a fibre are in firing order: time order);
+    None when the head's range noise is known to be below STAND_INS_ABOVE_M: the measured points are
+    then their own best stand-ins (docs/math.md "Which m")."""
+    if data.range_noise_m < STAND_INS_ABOVE_M:
+        return None
     return Sight.of(points_m, rays_at(data, estimate), data.fibre)

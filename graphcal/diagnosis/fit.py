@@ -70,7 +70,8 @@ def baseline(recording: Recording, config: CalibrationConfig, quiet: bool = True
     """Calibrate with the current model (no effect), then associate strictly at the estimate."""
     result = calibrate(recording, config, quiet=quiet)
     config = result.config  # with the settings calibrate resolved for the recording
-    data = prepare(recording, config.control_interval_s, config.max_points, np.random.default_rng(config.seed))
+    data = prepare(recording, config.control_interval_s, config.max_points, np.random.default_rng(config.seed),
+                   range_noise_m=config.range_noise_m)
     priors = holding(Priors.of(config, data.sensor.n_fibres, len(data.control_times_s)),
                      [name for name in result.unobservable if name not in TRAJECTORY_GAUGE])
     fit = _associated(recording, data, config, result.estimated, pose_of(recording.extrinsic), priors,
