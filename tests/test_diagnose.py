@@ -127,6 +127,19 @@ def test_recording_against_a_simulation_of_the_same_drive(clean, tmp_path_factor
     assert saved["findings"][0]["magnitude"] == pytest.approx(CONCEALED["time_offset"].magnitude, rel=0.2)
 
 
+def test_revolution_stamps_named_alone_once_a_linear_stand_in_is_re_solved(tmp_path_factory):
+    """Returns stamped with their revolution's start (bench_diagnose's settings): intra_sweep_motion is
+    named at its size; time_offset, significant by its linear step once it is modelled (chi2 21 for
+    1.97 ms), is re-solved to a size within its sigma and withdrawn, not named."""
+    rec = graphcal.simulate(CONCEALED_SCENARIO(size=0.04, seed=1, effect="intra_sweep_motion"), quiet=True)
+    settings = CalibrationConfig(mode="joint", max_outer_iterations=6, max_points=80_000, tolerance_m=1e-4)
+    diagnosis = graphcal.diagnose(rec, settings, max_effects=2, quiet=True)
+    assert [f["effect"] for f in diagnosis.findings] == ["intra_sweep_motion"], diagnosis.summary()
+    assert diagnosis.findings[0]["magnitude"] == pytest.approx(CONCEALED["intra_sweep_motion"].magnitude, rel=0.2)
+    for row in diagnosis.withdrawn:
+        assert row["refit_p_value"] > 1e-3 and abs(row["magnitude"]) < 3 * row["sigma"]
+
+
 def test_bad_mode_is_a_clear_error(clean, tmp_path):
     result = CliRunner().invoke(app, ["diagnose", str(clean.path), "--mode", "sideways", "--out", str(tmp_path)])
     assert result.exit_code == 2 and "mode" in result.output

@@ -11,6 +11,7 @@ from graphcal.diagnosis.score import (
     linearisation_of_rows,
     noncentrality,
     score_candidate,
+    wald_at_refit,
 )
 
 K_ROWS, CLUSTERS = 2000, 200
@@ -38,6 +39,20 @@ def test_estimate_sigma_concealment_and_absorbing_parameter():
     assert test.absorbed_by[0][0] == "x1" and test.absorbed_by[0][1] < -0.5
     assert abs(test.magnitude - 0.5) < 4 * test.sigma and test.p_value < 1e-10
     assert test.held_out_cm2[1] < test.held_out_cm2[0]
+
+
+def test_the_refit_check_is_the_wald_statistic_of_the_re_solved_size():
+    """At the refit the effect is estimated with the rest: v^T C^-1 v with the score test's robust
+    covariance there; for this problem, theta fitted with everything by least squares."""
+    rng = np.random.default_rng(4)
+    lin, A, r = _problem(rng, theta_true=0.5)
+    test = score_candidate(lin, "range_scale", ["range_scale"])
+    value = np.linalg.lstsq(A, -r, rcond=None)[0][2:]  # the size re-solved with the others
+    statistic, p_value = wald_at_refit(value, test)
+    assert statistic == pytest.approx(value[0] ** 2 / test.covariance[0, 0], rel=1e-9)
+    assert p_value == pytest.approx(stats.chi2.sf(statistic, 1), rel=1e-9) and p_value < 1e-10
+    _, p_small = wald_at_refit(0.3 * np.sqrt(test.covariance[0, 0]) * np.ones(1), test)
+    assert p_small == pytest.approx(2 * stats.norm.sf(0.3), rel=1e-9)  # 0.3 sigma: nothing
 
 
 def test_lambda0_is_baardas():

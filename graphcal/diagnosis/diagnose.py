@@ -37,6 +37,7 @@ from graphcal.diagnosis.score import (
     linearise,
     score_candidate,
     separation,
+    wald_at_refit,
 )
 from graphcal.progress import progress
 from graphcal.recording import Recording
@@ -110,7 +111,8 @@ class Diagnosis:
     """What graphcal.diagnose found: findings (strongest first; diagnosis.json of RECORDING.md),
     candidates the data could not tell apart, the residual field's top locations, every candidate's
     first-round test, the candidates the model already mimics entirely, the tests of candidates at
-    their known size (graphcal.diagnosis.hypothesis), and J before/after [cm^2].
+    their known size (graphcal.diagnosis.hypothesis), J before/after [cm^2], and the effects withdrawn:
+    significant by their score test, not once re-solved with the model (score.wald_at_refit).
     locations are those of the final fit, locations_baseline those of the fit without any effect."""
 
     findings: list[dict]
@@ -124,11 +126,12 @@ class Diagnosis:
     at_known_size: list[dict] = field(default_factory=list)
     calibration: CalibrationResult | None = field(default=None, repr=False)
     fit: Fit | None = field(default=None, repr=False)
+    withdrawn: list[dict] = field(default_factory=list)
 
     def to_json(self) -> dict:
         return {"format": FORMAT, "findings": self.findings, "not_separable": self.not_separable,
                 "locations": self.locations, "locations_baseline": self.locations_baseline, "candidates": self.candidates, "concealed": self.concealed,
-                "at_known_size": self.at_known_size, "energy_cm2": self.energy_cm2, "seconds": round(self.seconds, 2)}
+                "at_known_size": self.at_known_size, "withdrawn": self.withdrawn, "energy_cm2": self.energy_cm2, "seconds": round(self.seconds, 2)}
 
     def save(self, directory: str | Path, command: str = "graphcal.diagnose") -> Path:
         """diagnosis.json, and when there is one, the re-solved calibration (calibration/calibration.yaml,
@@ -143,7 +146,7 @@ class Diagnosis:
 
     def summary(self) -> str:
         if self.findings:
-            return "\n".join(f["statement"] for f in self.findings)
+            return "\n".join([f["statement"] for f in self.findings] + [w["statement"] for w in self.withdrawn])
         rejected = [c for c in self.candidates if c["significant"] and not c["plausible"]]
         tested = [c for c in self.candidates if np.isfinite(c["mdb"]) and not _blind(c) and c not in rejected]
         blind = [c["effect"] for c in self.candidates if not np.isfinite(c["mdb"]) or _blind(c)]
@@ -151,7 +154,8 @@ class Diagnosis:
             f"{c['effect']} < {display(c['effect'], c['mdb'])} (MDB)" for c in tested) or "no candidate could be tested")
             + "".join(f"; {c['effect']} significant but its estimate {display(c['effect'], c['magnitude'])} is beyond "
                       "its physical size (a degenerate fit, not a finding)" for c in rejected)
-            + (f"; not observable in this recording: {', '.join(blind)}" if blind else ""))
+            + (f"; not observable in this recording: {', '.join(blind)}" if blind else "")
+            + "".join(f"; {w['statement']}" for w in self.withdrawn))
 
 
 def _blind(row: dict) -> bool:
@@ -219,13 +223,23 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
     fit, result = baseline(recording, config, quiet=quiet)
     energy, located = {"before": fit.energy_cm2}, locate(fit)
     findings, not_separable, first_round, concealed, added, at_known_size = [], [], None, [], None, []
-    for _ in progress(range(max_effects + 1), "diagnosing", total=max_effects + 1, quiet=quiet):
+    withdrawn, previous = [], None
+    # a round adds a finding, withdraws one (at most every candidate once) or ends the diagnosis
+    rounds = max_effects + 1 + len(CANDIDATES)
+    for _ in progress(range(rounds), "diagnosing (rounds)", total=rounds, quiet=quiet):
         names = candidate_names(fit, candidates)
         tests, lin = score_all(fit, names)
         if added is not None:  # the effect added last, with its sigma at the refit
             winner, before, hypothesis = added
-            sigma = score_candidate(lin, winner.name, names + [winner.name]).sigma
-            findings.append(_finding(winner, fit, before, sigma, hypothesis))
+            at_refit = score_candidate(lin, winner.name, names + [winner.name])
+            statistic, p_value = wald_at_refit(fit.model.values[winner.name], at_refit)
+            if hypothesis is None and p_value >= ALPHA / (len(names) + 1):
+                # not significant once re-solved: withdrawn, back to the fit without it
+                withdrawn.append(_withdrawn(winner, fit, at_refit.sigma, statistic, p_value))
+                fit, names, tests, lin = previous
+                not_separable = [n for n in not_separable if n["named"] != winner.name]
+            else:
+                findings.append(_finding(winner, fit, before, at_refit.sigma, hypothesis))
             added = None
         if first_round is None:
             first_round = [_row(t, recording, len(names)) for t in sorted(tests.values(), key=lambda t: t.log10_p)]
@@ -241,7 +255,8 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
                 hypothesis = max(accepted, key=lambda h: h.statistic)
                 added, fit = (tests[hypothesis.name], fit.energy_cm2, hypothesis), hypothesis.fit
                 continue
-        significant = [t for t in tests.values() if t.identifiable and t.significant(len(names))]
+        significant = [t for t in tests.values() if t.identifiable and t.significant(len(names))
+                       and t.name not in {w["effect"] for w in withdrawn}]
         eligible = sorted((t for t in significant if plausible(t, recording)), key=lambda t: -t.bic_gain)
         if not eligible or len(findings) == max_effects:
             break
@@ -256,7 +271,7 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
                 not_separable.append({"effects": pair, "correlation": separation(lin, winner.name, other.name, names),
                                       "named": winner.name, "would_separate": SEPARATING_DATA.get(
                                           frozenset(pair), DEFAULT_SEPARATING_DATA)})
-        before = fit.energy_cm2
+        before, previous = fit.energy_cm2, (fit, names, tests, lin)
         active = fit.model.names + (winner.name,)
         prior = {n: float(max(10 * np.abs(fit.model.values.get(n, winner.theta)).max(), 10 * np.sqrt(
             np.max(np.diag(winner.covariance))))) for n in active}
@@ -267,7 +282,7 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
     final = locate(fit) if findings else located
     findings += unexplained(final)
     return Diagnosis(findings, not_separable, final, located, first_round, concealed, energy,
-                     time.perf_counter() - started, at_known_size, calibration, fit)
+                     time.perf_counter() - started, at_known_size, calibration, fit, withdrawn)
 
 
 def unexplained(locations: list[dict]) -> list[dict]:
@@ -319,6 +334,17 @@ def _finding(test: CandidateTest, fit: Fit, energy_before: float, sigma: float,
             "evidence": evidence,
             "energy_cm2": {"before": energy_before, "after": fit.energy_cm2, "held_out_before": held_before,
                            "held_out_after": held_after}}
+
+
+def _withdrawn(test: CandidateTest, fit: Fit, sigma: float, statistic: float, p_value: float) -> dict:
+    """An effect significant by its score test but not at its refit (fit): its size there, both tests."""
+    magnitude = CANDIDATES[test.name].magnitude(fit.model.values[test.name])
+    statement = (f"{test.name} was significant in the linear test ({display(test.name, test.magnitude)}, chi2 "
+                 f"{test.statistic:.3g}) but not once re-solved with it ({display(test.name, magnitude)} ± "
+                 f"{display(test.name, sigma)}, chi2 {statistic:.3g}, p {p_value:.2g}): withdrawn")
+    return {"effect": test.name, "magnitude": magnitude, "sigma": sigma, "unit": CANDIDATES[test.name].unit,
+            "statement": statement, "score_statistic": test.statistic, "refit_statistic": statistic,
+            "refit_p_value": p_value}
 
 
 def _calibration(result: CalibrationResult, fit: Fit, findings: list[dict]) -> CalibrationResult:

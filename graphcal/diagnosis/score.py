@@ -239,6 +239,16 @@ def _headline_sigma(name: str, theta: np.ndarray, covariance: np.ndarray) -> tup
     return float(sigma), float(mdb)
 
 
+def wald_at_refit(value: np.ndarray, test: CandidateTest) -> tuple[float, float]:
+    """(statistic, p-value) of an added effect at its refit: value (its SI parameters there) against
+    its robust covariance there (test: score_candidate at the refit, the effect among the candidates):
+    v^T C^-1 v ~ chi2(d) if the effect is not there. The score test judges a linear step from the
+    fit without the effect; the re-solved fit (re-associated) can leave far less of it."""
+    value = np.atleast_1d(np.asarray(value, dtype=np.float64))
+    statistic = float(value @ _solve(test.covariance, value))
+    return statistic, float(stats.chi2.sf(statistic, len(value)))
+
+
 def score_candidate(lin: Linearisation, name: str, candidates: list[str]) -> CandidateTest:
     """The score test of one candidate against a base of every parameter but the candidates'."""
     k = lin.effect_columns[name]
