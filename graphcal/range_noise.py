@@ -9,6 +9,19 @@ import numpy as np
 FOURTH_DIFFERENCE = np.array([1.0, -4.0, 6.0, -4.0, 1.0]) / np.sqrt(70.0)
 SAMPLE_ROWS = 1_000_000  # the first rows of a recording say as much as all of them
 MIN_DIFFERENCES = 100
+# range noise [m] from which a head is treated as noisy (docs/math.md "Which m"): m chosen by stand-ins, pairs
+# whitened by the noise along their lines of sight, features from voxels. Without noise the nearest return
+# pairs better (sim2_street noise-free, full size: d_elevation 5.3e-4 / 8.0e-4 deg, Hz 0.0113 cm against
+# 7.9e-4 / 1.0e-3 deg, 0.0153 / 0.0145 cm with stand-ins, seeds 0 / 1), and the nearest's own bias grows with
+# the noise (1 cm: -2.4 mm a pair). Real heads: 5 mm and more (monterey's HDL-32E 7.4 mm); a noise-free
+# simulation decimated to every 20th firing measures 0.7 mm (its surfaces are not cubic over five firings 3.3
+# deg apart)
+NOISY_ABOVE_M = 1e-3
+
+
+def noisy(range_noise_m: float) -> bool:
+    """Whether a head with this range noise [m] is treated as noisy (NaN, unknown: it is)."""
+    return not range_noise_m < NOISY_ABOVE_M
 
 
 def measured_range_noise_m(fibre: np.ndarray, range_m: np.ndarray) -> float:

@@ -31,8 +31,15 @@ def test_fibres_pushed_onto_the_reference_are_refused():
 
 
 def test_a_static_sensor_holds_the_elevations_and_features_from_voxels():
-    static, moving = CalibrationConfig().for_sensor(True), CalibrationConfig().for_sensor(False)
+    static, moving = CalibrationConfig().for_sensor(True, 0.0), CalibrationConfig().for_sensor(False, 0.0)
     assert static.feature_voxel_m > 0 and moving.feature_voxel_m == 0
+    # a noisy head (range noise measured at 1 mm or more, or unknown): voxel features and pairs whitened along
+    # their lines of sight; a noise-free one keeps every return's features and uniform pairs
+    for noise_m in (0.01, np.nan):
+        noisy_moving = CalibrationConfig().for_sensor(False, noise_m)
+        assert noisy_moving.feature_voxel_m > 0 and noisy_moving.pair_noise == "incidence"
+    assert moving.pair_noise == "uniform" and moving.range_noise_m == 0.0
+    assert CalibrationConfig(pair_noise="uniform", feature_voxel_m=0.0).for_sensor(False, 0.01).pair_noise == "uniform"
     assert moving.hold == () and static.hold == ("fibre_*.d_elevation_deg", "fibre_*.d_range_m",
                                                  "fibre_*.d_azimuth_deg", "fibre_*.h_z_m")
     assert static.hold_soft and static.check_halves and static.fixed_association

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import graphcal
-from graphcal.calibration.problem import STAND_INS_ABOVE_M, initial_estimate, prepare, sight_at, world_at
-from graphcal.range_noise import measured_range_noise_m
+from graphcal.calibration.problem import initial_estimate, prepare, sight_at, world_at
+from graphcal.range_noise import NOISY_ABOVE_M, measured_range_noise_m
 from graphcal.sim.script import load_scenario_builder
 
 
@@ -40,13 +40,13 @@ def test_too_few_returns_leave_the_noise_unknown():
 
 
 def test_stand_ins_only_for_a_noisy_head():
-    """m is chosen by stand-ins only when the range noise is at least STAND_INS_ABOVE_M (or unknown)."""
+    """m is chosen by stand-ins only when the range noise is at least NOISY_ABOVE_M (or unknown)."""
 
     recording = graphcal.simulate(load_scenario_builder("sim2_street")(size=0.1, seed=0), quiet=True)
     data, estimate, points = _at(recording)
-    assert data.range_noise_m < STAND_INS_ABOVE_M  # noise-free: measured as such
+    assert data.range_noise_m < NOISY_ABOVE_M  # noise-free: measured as such
     assert sight_at(data, estimate, points) is None
-    for noise_m in (STAND_INS_ABOVE_M, np.nan):
+    for noise_m in (NOISY_ABOVE_M, np.nan):
         sight = sight_at(replace(data, range_noise_m=noise_m), estimate, points)
         assert sight is not None and sight.stand_ins.shape == points.shape
     noisy = graphcal.simulate(load_scenario_builder("sim2_street")(size=0.1, seed=0, range_noise_m=0.01), quiet=True)

@@ -10,6 +10,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from graphcal.calibration.observability import EXTRINSIC_NAMES, INTRINSIC_NAMES
 from graphcal.errors import ConfigError
+from graphcal.range_noise import noisy
 
 Mode = Literal["intrinsic", "extrinsic", "trajectory", "joint", "joint_trajectory",
                "extrinsic_then_intrinsic", "intrinsic_then_extrinsic"]
@@ -18,7 +19,7 @@ Mode = Literal["intrinsic", "extrinsic", "trajectory", "joint", "joint_trajector
 ESTIMATES = {"intrinsic": (True, False, False), "extrinsic": (False, True, False),
              "trajectory": (False, False, True), "joint": (True, True, False),
              "joint_trajectory": (True, True, True)}
-STATIC_FEATURE_VOXEL_M = 0.1  # spans the HDL-32E's rings on walls within ~10 m
+FEATURE_VOXEL_M = 0.1  # static sensors and noisy heads; spans the HDL-32E's rings on walls within ~10 m
 # a static sensor's fibres can all slide onto one cone, where every pair's distance vanishes; its range and
 # azimuth offsets fit the surfaces between the rings, not the sensor, and a ring's height cannot be told from
 # the ground's radial shape (docs/math.md "A static sensor"): everything is held; free Hz with `hold` to try it
@@ -49,7 +50,8 @@ class CalibrationConfig(BaseModel):
     feature_neighbours: int = Field(20, ge=5)
     feature_voxel_m: float | None = Field(None, ge=0, description=(
         "features from the cloud averaged in voxels of this size (0: from every return); None: "
-        f"{STATIC_FEATURE_VOXEL_M} m for a static sensor (it sees the same spots every revolution), else 0"))
+        f"{FEATURE_VOXEL_M} m for a static sensor (it sees the same spots every revolution) or a noisy head "
+        "(range_noise_m; normals of 20 returns near the head are mostly noise), else 0"))
     hold: tuple[str, ...] | None = Field(None, description=(
         "parameters held at nominal and named unobservable, e.g. 'fibre_*.d_elevation_deg' (shell wildcards); "
         f"None: {', '.join(STATIC_HOLD)} for a static sensor (docs/math.md \"A static sensor\"), else none"))
@@ -88,14 +90,15 @@ class CalibrationConfig(BaseModel):
     sigma0_m: float = Field(0.01, gt=0, description="nominal point noise: residuals are whitened by it")
     range_noise_m: float | None = Field(None, ge=0, description=(
         "the head's range noise (1-sigma); None: measured from the recording's returns (range_noise.py), and "
-        "written here in the results' config.yaml. From 1 mm on, m is chosen by the returns' stand-ins, "
-        "which its noise does not move; below, by nearest returns (docs/math.md \"Which m\")"))
-    pair_noise: Literal["uniform", "incidence"] = Field("uniform", description=(
+        "written here in the results' config.yaml. From 1 mm on (range_noise.NOISY_ABOVE_M) the head is noisy: m "
+        "is chosen by the returns' stand-ins, which its noise does not move (below: nearest returns), and "
+        "pair_noise and feature_voxel_m left None resolve for it (docs/math.md \"Which m\")"))
+    pair_noise: Literal["uniform", "incidence"] | None = Field(None, description=(
         "uniform: every pair's residual whitened by sigma0; incidence: sigma0 is the range noise, which moves a "
         "return along its line of sight u, so pair k's residual n.(p - m) has sigma0 ((n.u_p)^2 + (n.u_m)^2 + "
         "f^2)^1/2 (f = INCIDENCE_FLOOR for the model's other errors), in the fine phase: the efficient weighting "
         "when range noise dominates, and the Marginals then the Cramér-Rao bound of the pairs (with "
-        "feature_voxel_m 0.1, docs/math.md)"))
+        "feature_voxel_m 0.1, docs/math.md); None: incidence for a noisy head (range_noise_m), else uniform"))
     control_interval_s: float = Field(1.0, gt=0)
     block_controls: int = Field(4, ge=1, description="control intervals of p grouped in one block factor")
     pose_corrections: bool = Field(False, description="Pose3 trajectory corrections (else Point3)")
@@ -134,7 +137,11 @@ class CalibrationConfig(BaseModel):
     def for_sensor(self, static: bool, range_noise_m: float = np.nan) -> CalibrationConfig:
         """The settings left to the recording (None) resolved for a static or a moving sensor whose
         range noise is range_noise_m (as measured when it was not set; NaN: unknown, left as set)."""
-        voxel_m = (STATIC_FEATURE_VOXEL_M if static else 0.0) if self.feature_voxel_m is None else self.feature_voxel_m
+        noise_m = self.range_noise_m if np.isnan(range_noise_m) else float(range_noise_m)
+        noisy_head = noisy(np.nan if noise_m is None else noise_m)
+        voxel_m = self.feature_voxel_m
+        if voxel_m is None:
+            voxel_m = FEATURE_VOXEL_M if static or noisy_head else 0.0
         hold = (STATIC_HOLD if static else ()) if self.hold is None else self.hold
         fixed = static if self.fixed_association is None else self.fixed_association
         return self.model_copy(update={
@@ -142,8 +149,8 @@ class CalibrationConfig(BaseModel):
             "feature_voxel_m": voxel_m, "hold": hold,
             "hold_soft": static if self.hold_soft is None else self.hold_soft,
             "check_halves": static if self.check_halves is None else self.check_halves,
-            "fixed_association": fixed,
-            "range_noise_m": self.range_noise_m if np.isnan(range_noise_m) else float(range_noise_m)})
+            "fixed_association": fixed, "range_noise_m": noise_m,
+            "pair_noise": self.pair_noise or ("incidence" if noisy_head else "uniform")})
 
     def coarse(self) -> CalibrationConfig:
         """The settings of the coarse phase: uniform pair noise (far from the solution the residuals are

@@ -16,17 +16,11 @@ from factors.spherical import beam_rays
 from factors.world_point import Corrections, Returns, world_points
 from graphcal.association import Sight
 from graphcal.extrinsic import Extrinsic
-from graphcal.range_noise import measured_range_noise_m
+from graphcal.range_noise import measured_range_noise_m, noisy
 from graphcal.recording import Recording
 from graphcal.sensor import SensorModel
 
 STATIC_BELOW_M = 1.0  # a sensor whose positions span less than this is static
-# range noise [m] from which m is chosen by stand-ins (docs/math.md "Which m"): without noise the nearest
-# return pairs better (sim2_street noise-free, full size: d_elevation 5.3e-4 / 8.0e-4 deg, Hz 0.0113 cm against
-# 7.9e-4 / 1.0e-3 deg, 0.0153 / 0.0145 cm with stand-ins, seeds 0 / 1), and the nearest's own bias grows with the
-# noise (1 cm: -2.4 mm a pair). Real heads: 5 mm and more (monterey's HDL-32E 7.4 mm); a noise-free simulation
-# decimated to every 20th firing measures 0.7 mm (its surfaces are not cubic over five firings 3.3 deg apart)
-STAND_INS_ABOVE_M = 1e-3
 
 
 @dataclass(frozen=True)
@@ -161,8 +155,8 @@ def rays_at(data: ReturnData, estimate: Estimate, rows: np.ndarray | None = None
 def sight_at(data: ReturnData, estimate: Estimate, points_m: np.ndarray) -> Sight | None:
     """The lines of sight and stand-ins (association.Sight) of the returns at an estimate, points_m
     their world points minus the origin [m] there (rows of a fibre are in firing order: time order);
-    None when the head's range noise is known to be below STAND_INS_ABOVE_M: the measured points are
-    then their own best stand-ins (docs/math.md "Which m")."""
-    if data.range_noise_m < STAND_INS_ABOVE_M:
+    None when the head's range noise is known to be below range_noise.NOISY_ABOVE_M: the measured
+    points are then their own best stand-ins (docs/math.md "Which m")."""
+    if not noisy(data.range_noise_m):
         return None
     return Sight.of(points_m, rays_at(data, estimate), data.fibre)

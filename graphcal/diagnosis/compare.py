@@ -60,7 +60,7 @@ def compare(recording: Recording, simulation: Recording, max_points: int | None 
     estimate = initial_estimate(recording, data) if estimate is None else estimate
     points = world_at(data, with_controls(estimate, data), pose=False)
     sim_points = world_at(sim, with_controls(estimate, sim), pose=False) + sim.origin_m - data.origin_m
-    features = features_at(sim_points, CalibrationConfig().for_sensor(sim.static))
+    features = features_at(sim_points, CalibrationConfig().for_sensor(sim.static, sim.range_noise_m))
     distance, nearest = cKDTree(sim_points).query(points, distance_upper_bound=GATE_M, workers=-1)
     found = np.isfinite(distance)
     nearest = np.where(found, nearest, 0)
