@@ -60,7 +60,9 @@ def compare(recording: Recording, simulation: Recording, max_points: int | None 
     estimate = initial_estimate(recording, data) if estimate is None else estimate
     points = world_at(data, with_controls(estimate, data), pose=False)
     sim_points = world_at(sim, with_controls(estimate, sim), pose=False) + sim.origin_m - data.origin_m
-    features = features_at(sim_points, CalibrationConfig().for_sensor(sim.static, sim.range_noise_m))
+    # a moving simulation's features from every return, as for a noise-free head: with 0.1 m voxels (those of a
+    # noisy head) the heading-bias recording of bench_diagnose named fibre_horizontal_offset before heading_bias
+    features = features_at(sim_points, CalibrationConfig().for_sensor(sim.static, 0.0))
     distance, nearest = cKDTree(sim_points).query(points, distance_upper_bound=GATE_M, workers=-1)
     found = np.isfinite(distance)
     nearest = np.where(found, nearest, 0)
