@@ -29,6 +29,9 @@ from graphcal.sim.script import load_scenario_builder
 CONCEALED_SCENARIO = load_scenario_builder("concealed")
 CONCEALED = CONCEALED_SCENARIO.__globals__["CONCEALED"]
 SIZE = 0.03
+# effects whose one-run sigma at the per-effect tests' size is over 10 % of their size: their size is judged on the
+# mean over seeds (incidence_range_bias, 80 k returns: sigma 15-17 %; seeds 1-4 gave -29.4, +4.8, -5.3, +3.4 %)
+MANY_SEEDS = {"incidence_range_bias": (1, 2, 3, 4)}
 VIEWER_POINTS = 5000
 
 
@@ -148,13 +151,18 @@ def test_bad_mode_is_a_clear_error(clean, tmp_path):
 @pytest.mark.skipif(not os.environ.get("GRAPHCAL_SLOW_TESTS"), reason="2-5 min per effect: GRAPHCAL_SLOW_TESTS=1")
 @pytest.mark.parametrize("effect", sorted(set(CONCEALED) - {"heading_bias"}))
 def test_each_concealed_effect_is_named_first_and_sized(effect, tmp_path_factory):
-    rec = graphcal.Recording.load(graphcal.simulate(CONCEALED_SCENARIO(size=0.04, seed=1, effect=effect), quiet=True)
-                                  .save(tmp_path_factory.mktemp("sim") / effect))
-    settings = CalibrationConfig(mode=CONCEALED[effect].mode, max_outer_iterations=6, max_points=80_000,
-                                 tolerance_m=1e-4)
-    diagnosis = graphcal.diagnose(rec, settings, max_effects=1, quiet=True)
-    assert diagnosis.findings and diagnosis.findings[0]["effect"] == effect, diagnosis.summary()
-    assert diagnosis.findings[0]["magnitude"] == pytest.approx(CONCEALED[effect].magnitude, rel=0.2)
+    """Named first on every seed; the size within 20 % (on the mean over the seeds where one run's sigma
+    is over 10 % of the size: MANY_SEEDS)."""
+    magnitudes = []
+    for seed in MANY_SEEDS.get(effect, (1,)):
+        rec = graphcal.Recording.load(graphcal.simulate(CONCEALED_SCENARIO(size=0.04, seed=seed, effect=effect),
+                                                        quiet=True).save(tmp_path_factory.mktemp("sim") / effect))
+        settings = CalibrationConfig(mode=CONCEALED[effect].mode, max_outer_iterations=6, max_points=80_000,
+                                     tolerance_m=1e-4)
+        diagnosis = graphcal.diagnose(rec, settings, max_effects=1, quiet=True)
+        assert diagnosis.findings and diagnosis.findings[0]["effect"] == effect, diagnosis.summary()
+        magnitudes.append(diagnosis.findings[0]["magnitude"])
+    assert np.mean(magnitudes) == pytest.approx(CONCEALED[effect].magnitude, rel=0.2)
 
 
 @pytest.mark.skipif(not os.environ.get("GRAPHCAL_SLOW_TESTS"), reason="about 5 min: GRAPHCAL_SLOW_TESTS=1")
