@@ -123,6 +123,10 @@ def _print_calibration(run) -> None:
     result, evaluation = run.result, run.evaluation
     before, after = result.energy_cm2
     typer.echo(f"J {before:.3g} -> {after:.3g} cm^2 in {result.seconds:.1f} s ({len(result.history)} outer iterations)")
+    noise_m = result.config.range_noise_m
+    if noise_m is not None:
+        typer.echo(f"range noise {noise_m * 1000:.2g} mm: pairs {result.config.pair_noise}, features from "
+                   + (f"{result.config.feature_voxel_m} m voxels" if result.config.feature_voxel_m else "every return"))
     if result.unobservable:
         typer.echo(f"unobservable (held at nominal): {', '.join(result.unobservable)}")
     if evaluation is not None:

@@ -58,6 +58,8 @@ def test_calibrate_writes_a_complete_run_folder(calibrated):
         assert (folder / name).is_file(), name
     manifest = yaml.safe_load((folder / "run.yaml").read_text())
     assert manifest["format"] == "graphcal-run/1" and manifest["recording"] == str(recording.resolve())
+    config = yaml.safe_load((folder / "config.yaml").read_text())  # resolved for the recording: noise-free sim6
+    assert 0 <= config["range_noise_m"] < 1e-3 and config["pair_noise"] == "uniform" and config["feature_voxel_m"] == 0
     stages = manifest["timings_s"]
     for stage in ("load and validate the recording", "calibrate: prepare", "calibrate: solve trajectory (coarse)",
                   "calibrate: observability", "calibrate: final fit and marginals", "residuals before/after",
