@@ -49,6 +49,7 @@ MIN_PLANARITY = 0.7
 SIGMA0_M = 0.01
 REFINE_ITERATIONS = 6
 REFINED_BELOW = 0.05  # the refinement stops when every step is below this many sigmas
+REFINED_RELATIVE = 1e-3  # or below this fraction of the parameter
 
 
 def compare(recording: Recording, simulation: Recording, max_points: int | None = 200_000,
@@ -138,10 +139,16 @@ def _refined(data, estimate: Estimate, context: ReturnContext, tests: list, sim_
                                        points[rows])
         step = np.linalg.lstsq(J, -r, rcond=None)[0]  # the candidates' columns and the common translation
         thetas = [theta + step[columns[n]] for n, theta in zip(names, thetas)]
-        if all(np.all(np.abs(step[columns[n]]) <= REFINED_BELOW * np.maximum(np.sqrt(np.diag(t.covariance)), 1e-300))
-               for n, t in zip(names, tests)):
+        if all(np.all(np.abs(step[columns[n]]) <= _tolerance(t, theta)) for n, t, theta in zip(names, tests, thetas)):
             break
     return thetas
+
+
+def _tolerance(test, theta: np.ndarray) -> np.ndarray:
+    """A refinement step small enough to stop: REFINED_BELOW of the parameters' sigmas, or REFINED_RELATIVE
+    of their size where the robust covariance gives no sigma (a diagonal at or below zero)."""
+    sigma = np.sqrt(np.clip(np.diag(test.covariance), 0.0, None))
+    return np.maximum(REFINED_BELOW * sigma, REFINED_RELATIVE * np.abs(theta))
 
 
 def _energy_cm2(r: np.ndarray, J: np.ndarray, columns: np.ndarray) -> float:
