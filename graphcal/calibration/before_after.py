@@ -87,7 +87,8 @@ class BeforeAfter:
 def residuals_before_after(recording: Recording, result: CalibrationResult) -> BeforeAfter:
     """The pairs and residuals of the nominal and of the calibrated cloud (module docstring)."""
     config = result.config
-    data = returns_for(result.calibration, recording, config.max_points, config.seed)  # calibrate's returns
+    # calibrate's returns, and its range noise: the same choice of m as the first outer iteration's
+    data = returns_for(result.calibration, recording, config.max_points, config.seed, config.range_noise_m)
     phase = "fine" if config.fixed_association else "coarse"  # fixed: fine only
     data, settings = phase_data(data, config, phase)
     association = Association.of(data, settings)

@@ -35,15 +35,16 @@ def apply_calibration(calibration: Calibration, recording: Recording) -> np.ndar
 
 
 def returns_for(calibration: Calibration, recording: Recording, max_points: int | None = None,
-                seed: int = 0) -> ReturnData:
+                seed: int = 0, range_noise_m: float | None = None) -> ReturnData:
     """Every return of the recording (or the random subset of max_points that calibrate draws
-    with this seed), placed between the calibration's control times."""
+    with this seed), placed between the calibration's control times; the head's range noise [m] as
+    calibrate resolved it if given (else measured, problem.prepare)."""
     if calibration.sensor_model != recording.sensor.model:
         raise GraphcalError(f"calibration is for a {calibration.sensor_model}, the recording has a "
                             f"{recording.sensor.model}")
     corrected = len(calibration.control_times_s) >= 2
     return prepare(recording, np.inf, max_points, np.random.default_rng(seed),
-                   control_times_s=calibration.control_times_s if corrected else None)
+                   control_times_s=calibration.control_times_s if corrected else None, range_noise_m=range_noise_m)
 
 
 def world_of(calibration: Calibration, data: ReturnData, rows: np.ndarray | None = None) -> np.ndarray:
