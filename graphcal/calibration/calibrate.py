@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from functools import partial
 
 import gtsam
 import numpy as np
@@ -27,6 +28,7 @@ from graphcal.calibration.problem import (
     world_at,
 )
 from graphcal.calibration.result import Calibration, CalibrationResult
+from graphcal.calibration.shared_returns import SharedReturnsCovariance
 from graphcal.calibration.solve import (
     HELD_SIGMA,
     PHASES,
@@ -40,6 +42,7 @@ from graphcal.calibration.solve import (
     control_prior_sigma,
     hold_at_nominal,
     holding,
+    make_blocks,
     solve_stage,
     strict_pairs,
 )
@@ -130,14 +133,14 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
     estimate = hold_at_nominal(run_stages(estimate, priors, label, last=("fine",), first=len(stages) - 1), priors,
                                nominal)
     final = timed("final fit and marginals", final_fit, data, estimate, config, estimated, nominal, priors,
-                  fixed_pairs, cache)
+                  fixed_pairs, cache, True)
     late = [name for name in final.uncertainty.unobservable() if name not in held + named]
     if late:  # seen only at the fine phase's pairs: hold them too and run the stages again
         priors = holding(priors, late)
         estimate = hold_at_nominal(run_stages(hold_at_nominal(estimate, priors, nominal), priors, ", unobservable held"),
                                    priors, nominal)
         final = timed("final fit and marginals, unobservable held", final_fit, data, estimate, config, estimated,
-                      nominal, priors, fixed_pairs, cache)
+                      nominal, priors, fixed_pairs, cache, True)
     unobservable = held + named + late
     check_energy_fell(history.rows, recording)
     if estimated[0]:
@@ -151,7 +154,8 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
                               tuple(unobservable))
     return CalibrationResult(calibration, final.uncertainty, estimated, history.rows, data.rows[final.pairs.index_p],
                              final.residual_m, final.pairs.weight, config, time.perf_counter() - started, timings,
-                             halves=None if halves is None else halves.to_yaml_dict())
+                             halves=None if halves is None else halves.to_yaml_dict(),
+                             shared_returns_uncertainty=final.shared_returns)
 
 
 # calibrated elevations spread over less than this fraction of the nominal ones: the fibres collapsed
@@ -196,30 +200,40 @@ def check_energy_fell(history: list[dict], recording: Recording) -> None:
 
 
 class FinalFit:
-    """Association at the final estimate (strict settings), per-pair residuals and the marginals
-    of the undamped graph."""
+    """Association at the final estimate (strict settings), per-pair residuals, the marginals of the
+    undamped graph and, for pairs whitened by the range noise, the sigmas with each return's noise
+    counted once over the pairs that share it (shared_returns.py; None otherwise)."""
 
-    def __init__(self, pairs, residual_m: np.ndarray, uncertainty: Uncertainty):
+    def __init__(self, pairs, residual_m: np.ndarray, uncertainty: Uncertainty,
+                 shared_returns: Uncertainty | None = None):
         self.pairs, self.residual_m, self.uncertainty = pairs, residual_m, uncertainty
+        self.shared_returns = shared_returns
 
 
 def final_fit(data: ReturnData, estimate: Estimate, config: CalibrationConfig, estimated, nominal: gtsam.Pose3,
-              priors: Priors, pairs: Correspondences | None = None, cache: FeatureCache | None = None) -> FinalFit:
+              priors: Priors, pairs: Correspondences | None = None, cache: FeatureCache | None = None,
+              shared_returns: bool = False) -> FinalFit:
     """The fit at the estimate on the given pairs (None: the strict association at the estimate, its
-    features from the cache when the cloud has not moved since)."""
+    features from the cache when the cloud has not moved since); shared_returns: also the sigmas of
+    shared_returns.py when the pairs are whitened by the range noise (pair_noise incidence, sigma0 the
+    range noise) and no robust loss reweights them."""
     if pairs is None:
         points, pairs = strict_pairs(data, estimate, config, cache)
     else:
         points = world_at(data, estimate, config.pose_corrections)
     residual = np.einsum("ni,ni->n", pairs.normal, points[pairs.index_p] - points[pairs.index_m])
-    graph, values = build_graph(data, estimate, pairs, config, estimated, nominal, priors, damped=False)
-    return FinalFit(pairs, residual, uncertainty(Marginals(graph, values), data, estimate, config, estimated,
-                                                 nominal, priors,
-                                                 control_prior_sigma(config, float(pairs.weight.sum()))))
+    blocks = make_blocks(data, estimate, pairs, config, estimated)
+    graph, values = build_graph(data, estimate, pairs, config, estimated, nominal, priors, damped=False, blocks=blocks)
+    sigmas = partial(uncertainty, data=data, estimate=estimate, config=config, estimated=estimated, priors=priors,
+                     control_sigma=control_prior_sigma(config, float(pairs.weight.sum())))
+    shared = None
+    if shared_returns and config.pair_noise == "incidence" and config.robust == "none":
+        shared = sigmas(SharedReturnsCovariance(graph, values, blocks, pairs, data, estimate, config.sigma0_m))
+    return FinalFit(pairs, residual, sigmas(Marginals(graph, values)), shared)
 
 
 def uncertainty(marginals: gtsam.Marginals, data: ReturnData, estimate: Estimate, config: CalibrationConfig,
-                estimated, nominal: gtsam.Pose3, priors: Priors, control_sigma: float) -> Uncertainty:
+                estimated, priors: Priors, control_sigma: float) -> Uncertainty:
     """Posterior and prior sigmas in file units (m, deg) for every estimated parameter."""
     est_int, est_ext, est_traj = estimated
     n = data.sensor.n_fibres

@@ -97,8 +97,9 @@ class CalibrationConfig(BaseModel):
         "uniform: every pair's residual whitened by sigma0; incidence: sigma0 is the range noise, which moves a "
         "return along its line of sight u, so pair k's residual n.(p - m) has sigma0 ((n.u_p)^2 + (n.u_m)^2 + "
         "f^2)^1/2 (f = INCIDENCE_FLOOR for the model's other errors), in the fine phase: the efficient weighting "
-        "when range noise dominates, and the Marginals then the Cramér-Rao bound of the pairs (with "
-        "feature_voxel_m 0.1, docs/math.md); None: incidence for a noisy head (range_noise_m), else uniform"))
+        "when range noise dominates (with feature_voxel_m 0.1, docs/math.md); the reported sigmas then count each "
+        "return's noise once over the pairs that share it (calibration/shared_returns.py); None: incidence for a "
+        "noisy head (range_noise_m), else uniform"))
     control_interval_s: float = Field(1.0, gt=0)
     block_controls: int = Field(4, ge=1, description="control intervals of p grouped in one block factor")
     pose_corrections: bool = Field(False, description="Pose3 trajectory corrections (else Point3)")

@@ -65,18 +65,26 @@ class DenseMarginals:
         keys = list(values.keys())
         dims = [len(v) for v in (values.zeroVectors().at(k) for k in keys)]
         information, _ = graph.linearize(values).hessian(gtsam.Ordering(keys))
-        # scaled to a unit diagonal first: the information spans far more than 1/eps between
-        # parameters, but mostly through their units and priors, which the scaling takes out
-        scale = 1.0 / np.sqrt(np.diag(information))
-        eigenvalues, vectors = np.linalg.eigh(information * np.outer(scale, scale))
-        floor = eigenvalues.max() * np.finfo(float).eps
-        self._covariance = np.outer(scale, scale) * ((vectors / np.maximum(eigenvalues, floor)) @ vectors.T)
+        self._covariance = dense_inverse(information)
         starts = np.r_[0, np.cumsum(dims)]
         self._span = {k: slice(a, b) for k, a, b in zip(keys, starts[:-1], starts[1:])}
 
     def marginalCovariance(self, key) -> np.ndarray:
-        span = self._span[key]
-        return self._covariance[span, span]
+        return self.jointCovariance(key, key)
+
+    def jointCovariance(self, a, b) -> np.ndarray:
+        """The covariance block of keys a (rows) and b (columns)."""
+        return self._covariance[self._span[a], self._span[b]]
+
+
+def dense_inverse(information: np.ndarray) -> np.ndarray:
+    """The inverse of a dense information matrix by eigen-decomposition, scaled to a unit diagonal
+    first: the information spans far more than 1/eps between parameters, but mostly through their
+    units and priors, which the scaling takes out."""
+    scale = 1.0 / np.sqrt(np.diag(information))
+    eigenvalues, vectors = np.linalg.eigh(information * np.outer(scale, scale))
+    floor = eigenvalues.max() * np.finfo(float).eps
+    return np.outer(scale, scale) * ((vectors / np.maximum(eigenvalues, floor)) @ vectors.T)
 
 
 class Marginals:

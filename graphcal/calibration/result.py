@@ -102,6 +102,10 @@ class Calibration:
                    tuple(data.get("unobservable") or ()))
 
 
+SIGMA_MARGINALS = "gtsam.Marginals at the final pairs, sigma0 the noise of one pair"
+SIGMA_SHARED = "range noise of each return counted once over the pairs that share it (sandwich, docs/math.md)"
+
+
 @dataclass(frozen=True)
 class CalibrationResult:
     """graphcal.calibrate's answer: the calibration, 1-sigmas (file units, see Uncertainty),
@@ -111,7 +115,10 @@ class CalibrationResult:
     total seconds and the seconds of each step (prepare, solve <stage>, final fit and marginals ...);
     effects: the extra physics modelled (graphcal.diagnose's findings, calibration.yaml's `effects`);
     halves: a static sensor's azimuth-halves check (static_sensor.HalvesCheck.to_yaml_dict), saved as
-    halves.yaml."""
+    halves.yaml; shared_returns_uncertainty: for pairs whitened by the range noise, the 1-sigmas with
+    each return's noise counted once over all the pairs it serves in (shared_returns.py), which
+    calibration.yaml writes as `sigma`; uncertainty stays gtsam.Marginals' (pairs as independent),
+    which names the unobservable parameters."""
 
     calibration: Calibration
     uncertainty: Uncertainty
@@ -125,11 +132,17 @@ class CalibrationResult:
     timings_s: dict[str, float] = field(default_factory=dict)
     effects: tuple[dict, ...] = ()
     halves: dict | None = None
+    shared_returns_uncertainty: Uncertainty | None = None
 
     @property
     def energy_cm2(self) -> tuple[float, float]:
         """J [cm^2] before the first solve and after the last."""
         return self.history[0]["energy_cm2"], self.history[-1]["energy_after_cm2"]
+
+    @property
+    def sigmas(self) -> Uncertainty:
+        """The 1-sigmas to report: with each return's noise counted once when computed, else the Marginals'."""
+        return self.uncertainty if self.shared_returns_uncertainty is None else self.shared_returns_uncertainty
 
     @property
     def unobservable(self) -> tuple[str, ...]:
@@ -154,7 +167,7 @@ class CalibrationResult:
         return directory / CALIBRATION_FILE
 
     def to_yaml_dict(self, command: str) -> dict:
-        cal, unc = self.calibration, self.uncertainty
+        cal, unc = self.calibration, self.sigmas
         unobservable = set(cal.unobservable)
         offsets = offsets_to_file_units(cal.estimate.offsets)
         rows = []
@@ -186,7 +199,8 @@ class CalibrationResult:
                 "intrinsics": rows, "extrinsic": extrinsic, "trajectory_corrections": corrections,
                 "effects": list(self.effects), "unobservable": sorted(unobservable),
                 "energy_cm2": {"before": float(before), "after": float(after)},
-                "provenance": {"command": command, "graphcal": __version__, "gtsam": _gtsam_version(),
+                "provenance": {"sigma": SIGMA_MARGINALS if self.shared_returns_uncertainty is None else SIGMA_SHARED,
+                               "command": command, "graphcal": __version__, "gtsam": _gtsam_version(),
                                "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
                                "seconds": round(self.seconds, 2)}}
 

@@ -105,7 +105,7 @@ def energy_cm2(p_m: np.ndarray, m_m: np.ndarray, pairs: Correspondences) -> tupl
 
 def build_graph(data: ReturnData, estimate: Estimate, pairs: Correspondences, config: CalibrationConfig,
                 estimates: tuple[bool, bool, bool], nominal_extrinsic: gtsam.Pose3, priors: Priors,
-                damped: bool = True, effects=None):
+                damped: bool = True, effects=None, blocks: list[tuple[np.ndarray, Block]] | None = None):
     """One graph: a block factor per fibre of p and window of config.block_controls control
     intervals of p (per window only when the intrinsics are not estimated), plus priors.
 
@@ -113,14 +113,16 @@ def build_graph(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
     iteration cannot run far along directions the current pairs barely see. It leaves the fixed
     point unchanged (at convergence the estimate stops moving) and is left out when sigmas are
     computed. effects (graphcal.diagnosis): candidate effect keys added to every block, with their
-    values and priors."""
+    values and priors. blocks: make_blocks' answer for these arguments, when the caller has it."""
     robust = None
     if config.robust != "none":
         scheme = gtsam.noiseModel.mEstimator.Base.ReweightScheme.Scalar
         create = {"huber": gtsam.noiseModel.mEstimator.Huber, "cauchy": gtsam.noiseModel.mEstimator.Cauchy}
         robust = create[config.robust].Create(config.robust_k, scheme)
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-    for _, block in make_blocks(data, estimate, pairs, config, estimates, effects):
+    if blocks is None:
+        blocks = make_blocks(data, estimate, pairs, config, estimates, effects)
+    for _, block in blocks:
         graph.add(make_factor(block, compressed=robust is None, robust=robust))
     if effects is not None:
         effects.add_to(graph, values)

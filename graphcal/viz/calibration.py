@@ -144,7 +144,7 @@ def log_history(stream: rr.RecordingStream, history: list[dict]) -> None:
 def log_parameters(stream: rr.RecordingStream, recording: Recording, result: CalibrationResult) -> None:
     """Per-fibre intrinsics (timeline "fibre") and per-control corrections (timeline "control")
     with 1-sigma bands and truth when known; a Markdown table of every estimate."""
-    calibration, uncertainty = result.calibration, result.uncertainty
+    calibration, uncertainty = result.calibration, result.sigmas
     truth = recording.truth
     if result.estimated[0]:
         values = offsets_to_file_units(calibration.estimate.offsets)

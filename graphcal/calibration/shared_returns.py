@@ -1,0 +1,74 @@
+"""Covariance of the estimate when pairs share returns (a noisy head).
+
+gtsam.Marginals give H^-1, H the graph's information: the covariance of the estimate if every
+pair's residual carried its own independent noise. It does not: a return's range noise moves it
+along its line of sight u by eps (sigma the range noise) in every pair it serves in, as p or as m.
+To first order the estimate moves by dx = -H^-1 A^T dr, with A the whitened Jacobian (rows: pairs)
+and dr_k = s_k (n_k.u_p eps_p - n_k.u_m eps_m + eta_k), s_k = sqrt(w_k) / sigma_k the pair's
+whitening, eta_k the pair's own independent part (the INCIDENCE_FLOOR of its sigma_k). So
+
+    Cov(dx) = H^-1 (sum_r g_r g_r^T + sum_k v_k a_k a_k^T) H^-1,
+    g_r = sigma sum_{pairs k using return r} s_k (+-n_k.u_r) a_k,   v_k = max(w_k - s_k^2 sigma^2 ((n.u_p)^2 + (n.u_m)^2), 0)
+
+(a sandwich; docs/math.md "Observability"). With no return shared, unit weights and no priors it is
+H^-1.
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import scipy.sparse as sparse
+
+from factors.point_to_plane import Block, residuals
+from graphcal.association import Correspondences
+from graphcal.calibration.observability import DenseMarginals
+from graphcal.calibration.problem import Estimate, ReturnData, rays_at
+
+RETURNS_PER_CHUNK = 200_000  # rows of g computed at once (memory: about 38 nonzeros each)
+
+
+class SharedReturnsCovariance(DenseMarginals):
+    """The sandwich covariance above for every key of the graph, with gtsam.Marginals' interface
+    (marginalCovariance(key), in each key's tangent space).
+
+    graph: the undamped graph at values (its information H includes the priors); blocks: its point-
+    to-plane blocks with their rows in pairs; range_noise_m: sigma, the range noise of one return."""
+
+    def __init__(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                 blocks: list[tuple[np.ndarray, Block]], pairs: Correspondences, data: ReturnData,
+                 estimate: Estimate, range_noise_m: float):
+        super().__init__(graph, values)  # H^-1
+        width = max(span.stop for span in self._span.values())
+        A, scale = _jacobian(blocks, values, {key: span.start for key, span in self._span.items()}, len(pairs), width)
+        along_p = np.einsum("ni,ni->n", pairs.normal, rays_at(data, estimate, pairs.index_p))
+        along_m = np.einsum("ni,ni->n", pairs.normal, rays_at(data, estimate, pairs.index_m))
+        own = np.maximum(pairs.weight - (scale * range_noise_m) ** 2 * (along_p ** 2 + along_m ** 2), 0.0)
+        meat = (A.T @ sparse.diags(own) @ A).toarray()
+        # S (returns x pairs): return r's coefficient in each pair's residual, sigma s_k (+-n.u)
+        n_pairs = len(pairs)
+        S = sparse.csr_matrix((np.r_[scale * range_noise_m * along_p, -scale * range_noise_m * along_m],
+                               (np.r_[pairs.index_p, pairs.index_m], np.r_[np.arange(n_pairs), np.arange(n_pairs)])),
+                              shape=(len(data.time_s), n_pairs))
+        for first in range(0, S.shape[0], RETURNS_PER_CHUNK):
+            G = S[first:first + RETURNS_PER_CHUNK] @ A  # rows g_r
+            meat += (G.T @ G).toarray()
+        self._covariance = self._covariance @ meat @ self._covariance
+
+
+def _jacobian(blocks: list[tuple[np.ndarray, Block]], values: gtsam.Values, column: dict[int, int], n_pairs: int,
+              width: int) -> tuple[sparse.csr_matrix, np.ndarray]:
+    """The whitened Jacobian of every pair's residual (pairs x the graph's columns, sparse) and each
+    pair's whitening s_k = sqrt(w_k) / sigma_k."""
+    rows, cols, vals = [], [], []
+    scale = np.zeros(n_pairs)
+    for pair_rows, block in blocks:
+        _, J = residuals(block, values)
+        to_global = np.concatenate([column[key] + np.arange(block.widths[key]) for key in block.widths])
+        r, c = np.nonzero(J)
+        rows.append(pair_rows[r])
+        cols.append(to_global[c])
+        vals.append(J[r, c])
+        scale[pair_rows] = np.sqrt(block.weight) / block.sigma0_m
+    A = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n_pairs, width))
+    return A, scale
