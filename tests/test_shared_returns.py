@@ -109,3 +109,15 @@ def test_calibrate_reports_the_shared_returns_sigmas_for_a_noisy_head(tmp_path):
         for k, name in enumerate(INTRINSIC_NAMES):
             if free[fibre, k]:
                 assert row["sigma"][name] == pytest.approx(shared[fibre, k])
+
+
+def test_without_pairs_the_estimate_carries_no_range_noise(at_truth):
+    """No pair: the priors alone fix the estimate, and no return's noise reaches it."""
+    data, config, truth, priors, pairs = at_truth
+    none = pairs.take(np.zeros(0, np.int64))
+    blocks = make_blocks(data, truth, none, config, INTRINSIC)
+    graph, values = build_graph(data, truth, none, config, INTRINSIC, truth.extrinsic, priors, damped=False,
+                                blocks=blocks)
+    covariance = SharedReturnsCovariance(graph, values, blocks, none, data, truth, RANGE_NOISE_M)
+    assert not blocks
+    assert np.all(covariance.marginalCovariance(I(0 if data.sensor.reference_fibre else 1)) == 0)

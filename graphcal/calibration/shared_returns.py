@@ -70,5 +70,7 @@ def _jacobian(blocks: list[tuple[np.ndarray, Block]], values: gtsam.Values, colu
         cols.append(to_global[c])
         vals.append(J[r, c])
         scale[pair_rows] = np.sqrt(block.weight) / block.sigma0_m
+    if not blocks:  # no pair moves with an estimated key
+        return sparse.csr_matrix((n_pairs, width)), scale
     A = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n_pairs, width))
     return A, scale
