@@ -2,10 +2,11 @@
 
 Cases (each in its own process, so each has its own peak memory):
 - sim2_intrinsic: sim2_street, intrinsics from the Table 4.1 start, noise-free;
-- sim2_noise: the same with 1 cm range noise; the RMS errors next to the Cramér-Rao bound
-  (the RMS of the Marginals' sigmas, sigma0 = the true 1 cm). The measured range noise makes it a
-  noisy head: pairs whitened by the noise along their two lines of sight, features from 0.1 m voxels
-  (docs/math.md); use --seeds for the comparison;
+- sim2_noise: the same with 1 cm range noise; the RMS errors next to the RMS of the Marginals'
+  sigmas (the inverse of the final information matrix, pairs as independent; sigma0 = the true 1 cm)
+  and of the sigmas that count each return's noise once over the pairs sharing it. The measured
+  range noise makes it a noisy head: pairs whitened by the noise along their two lines of sight,
+  features from 0.1 m voxels (docs/math.md); use --seeds for the comparison;
 - sim2_noise_plain: the same with the settings of a noise-free head (uniform pairs, every return's
   features), the defaults before session 12;
 - sim2_extrinsic_then_intrinsic, sim2_intrinsic_then_extrinsic, sim2_joint: the section 4.5.2
