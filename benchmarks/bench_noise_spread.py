@@ -1,0 +1,92 @@
+"""Benchmark: how far the estimate spreads under range noise, against the shared-returns sigmas.
+
+sim2_street without noise is simulated once; each draw adds fresh Gaussian range noise to every
+return, makes the pairs on that noisy cloud at the true calibration (the pipeline's own association:
+stand-ins, features, gates) and takes one Gauss-Newton step there. The RMS over the draws of that step
+(per parameter type, eq. 4.6 units) is set against the RMS of the shared-returns sigmas
+(graphcal/calibration/shared_returns.py) of the pairs made on the noise-free cloud: a ratio above 1 is
+variance the sandwich leaves out (docs/math.md "Observability", docs/STATUS.md). No outer loop and no
+pair-draw luck of one run: the measurement for changes to the noisy-head association.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from common import peak_gib
+
+from graphcal.atomic import atomic_path
+
+RESULTS = Path(__file__).resolve().parent / "results"
+# eq. 4.6 units of (d_range, d_azimuth, d_elevation, h_z): cm, deg, deg, cm
+TO_CM_DEG = np.array([100.0, np.degrees(1.0), np.degrees(1.0), 100.0])
+
+
+def main() -> None:
+    import graphcal
+    from graphcal.calibration.config import ESTIMATES, CalibrationConfig
+    from graphcal.calibration.problem import initial_estimate, prepare
+    from graphcal.calibration.shared_returns import SharedReturnsCovariance
+    from graphcal.calibration.solve import Priors, build_graph, make_blocks, strict_pairs
+    from graphcal.progress import progress
+    from graphcal.sim.script import load_scenario_builder
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--size", type=float, default=1.0, help="fraction of firings (1 = full size)")
+    parser.add_argument("--max-points", type=int, default=1_500_000, help="returns used")
+    parser.add_argument("--draws", type=int, default=8, help="noise draws")
+    parser.add_argument("--seed", type=int, default=7, help="scenario seed (the scene and the pair draws)")
+    parser.add_argument("--range-noise-m", type=float, default=0.01)
+    parser.add_argument("--out", type=Path, default=RESULTS / "noise_spread.json")
+    args = parser.parse_args()
+    started = time.perf_counter()
+    recording = graphcal.simulate(load_scenario_builder("sim2_street")(size=args.size, seed=args.seed), quiet=True)
+    noise_m = args.range_noise_m
+    config = CalibrationConfig(mode="intrinsic", sigma0_m=noise_m, range_noise_m=noise_m, seed=args.seed,
+                               max_points=args.max_points)
+    clean = prepare(recording, config.control_interval_s, config.max_points, np.random.default_rng(config.seed),
+                    range_noise_m=noise_m)
+    config = config.for_sensor(clean.static, np.nan)
+    truth = replace(initial_estimate(recording, clean), offsets=recording.truth.intrinsics)
+    priors = Priors.of(config, clean.sensor.n_fibres, len(clean.control_times_s))
+    estimates = ESTIMATES["intrinsic"]
+
+    def at_truth(data, pairs):
+        blocks = make_blocks(data, truth, pairs, config, estimates)
+        graph, values = build_graph(data, truth, pairs, config, estimates, truth.extrinsic, priors, damped=False,
+                                    blocks=blocks)
+        return graph, values, blocks
+
+    pairs = strict_pairs(clean, truth, config)[1]
+    graph, values, blocks = at_truth(clean, pairs)
+    covariance = SharedReturnsCovariance(graph, values, blocks, pairs, clean, truth, noise_m)
+    keys = list(values.keys())
+    sigma = np.sqrt(np.array([np.diag(covariance.marginalCovariance(key)) for key in keys]).mean(axis=0)) * TO_CM_DEG
+    rng = np.random.default_rng(args.seed)
+    steps = []
+    for _ in progress(range(args.draws), "noise draws"):
+        noisy = replace(clean, range_m=clean.range_m + rng.normal(0.0, noise_m, len(clean.range_m)))
+        graph, values, _ = at_truth(noisy, strict_pairs(noisy, truth, config)[1])
+        step = graph.linearize(values).optimize()
+        steps.append([step.at(key) for key in keys])
+    spread = np.sqrt((np.array(steps) ** 2).mean(axis=(0, 1))) * TO_CM_DEG
+    figures = {"machine": platform.platform(), "size": args.size, "seed": args.seed, "draws": args.draws,
+               "returns": len(recording.points), "max_points": args.max_points, "range_noise_m": noise_m,
+               "rms_step_cm_deg_deg_cm": spread.tolist(), "rms_sigma_shared_cm_deg_deg_cm": sigma.tolist(),
+               "ratio": (spread / sigma).tolist(), "seconds": time.perf_counter() - started, "peak_gib": peak_gib()}
+    print(f"{args.draws} draws, {figures['seconds']:.0f} s, peak {figures['peak_gib']:.2f} GiB\n"
+          f"RMS step (cm, deg, deg, cm): {spread.round(5)}\nRMS shared-returns sigma: {sigma.round(5)}\n"
+          f"ratio: {(spread / sigma).round(3)}")
+    with atomic_path(args.out) as tmp:
+        tmp.write_text(json.dumps(figures, indent=2))
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
