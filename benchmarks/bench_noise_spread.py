@@ -4,9 +4,9 @@ sim2_street without noise is simulated once; each draw adds fresh Gaussian range
 return, makes the pairs on that noisy cloud at the true calibration (the pipeline's own association:
 stand-ins, features, gates) and takes one Gauss-Newton step there. The RMS over the draws of that step
 (per parameter type, eq. 4.6 units) is set against the RMS of the shared-returns sigmas
-(graphcal/calibration/shared_returns.py) of the pairs made on the noise-free cloud: a ratio above 1 is
-variance the sandwich leaves out (docs/math.md "Observability", docs/STATUS.md). No outer loop and no
-pair-draw luck of one run: the measurement for changes to the noisy-head association.
+(graphcal/calibration/shared_returns.py) of each draw's pairs, as calibrate reports them: a ratio above
+1 is variance the sandwich leaves out (docs/math.md "Observability", docs/STATUS.md). No outer loop and
+no pair-draw luck of one run: the measurement for changes to the noisy-head association.
 """
 
 from __future__ import annotations
@@ -63,19 +63,19 @@ def main() -> None:
                                     blocks=blocks)
         return graph, values, blocks
 
-    pairs = strict_pairs(clean, truth, config)[1]
-    graph, values, blocks = at_truth(clean, pairs)
-    covariance = SharedReturnsCovariance(graph, values, blocks, pairs, clean, truth, noise_m)
-    keys = list(values.keys())
-    sigma = np.sqrt(np.array([np.diag(covariance.marginalCovariance(key)) for key in keys]).mean(axis=0)) * TO_CM_DEG
     rng = np.random.default_rng(args.seed)
-    steps = []
+    steps, variances = [], []
     for _ in progress(range(args.draws), "noise draws"):
         noisy = replace(clean, range_m=clean.range_m + rng.normal(0.0, noise_m, len(clean.range_m)))
-        graph, values, _ = at_truth(noisy, strict_pairs(noisy, truth, config)[1])
+        pairs = strict_pairs(noisy, truth, config)[1]
+        graph, values, blocks = at_truth(noisy, pairs)
+        keys = list(values.keys())
         step = graph.linearize(values).optimize()
         steps.append([step.at(key) for key in keys])
+        covariance = SharedReturnsCovariance(graph, values, blocks, pairs, noisy, truth, noise_m)
+        variances.append([np.diag(covariance.marginalCovariance(key)) for key in keys])
     spread = np.sqrt((np.array(steps) ** 2).mean(axis=(0, 1))) * TO_CM_DEG
+    sigma = np.sqrt(np.array(variances).mean(axis=(0, 1))) * TO_CM_DEG
     figures = {"machine": platform.platform(), "size": args.size, "seed": args.seed, "draws": args.draws,
                "returns": len(recording.points), "max_points": args.max_points, "range_noise_m": noise_m,
                "rms_step_cm_deg_deg_cm": spread.tolist(), "rms_sigma_shared_cm_deg_deg_cm": sigma.tolist(),
