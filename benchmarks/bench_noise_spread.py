@@ -45,6 +45,9 @@ def main() -> None:
     parser.add_argument("--range-noise-m", type=float, default=0.01)
     parser.add_argument("--out", type=Path, default=RESULTS / "noise_spread.json")
     args = parser.parse_args()
+    if args.draws < 1 or args.range_noise_m <= 0 or not 0 < args.size <= 1:
+        parser.error(f"expected --draws >= 1, --range-noise-m > 0 and 0 < --size <= 1 (got {args.draws}, "
+                     f"{args.range_noise_m}, {args.size})")
     started = time.perf_counter()
     recording = graphcal.simulate(load_scenario_builder("sim2_street")(size=args.size, seed=args.seed), quiet=True)
     noise_m = args.range_noise_m
