@@ -165,15 +165,19 @@ class Block:
         return dict(zip(self.widths, starts[:-1].tolist()))
 
 
-INCIDENCE_FLOOR = 0.1  # of the range noise: a pair's sigma for normal and plane-model errors
+INCIDENCE_FLOOR = 0.1  # of the range noise: a pair's sigma for normal errors
 
 
-def incidence_sigma_m(normal: np.ndarray, ray_p: np.ndarray, ray_m: np.ndarray, range_sigma_m: float) -> np.ndarray:
+def incidence_sigma_m(normal: np.ndarray, ray_p: np.ndarray, ray_m: np.ndarray, range_sigma_m: float,
+                      out_of_plane_m: np.ndarray | float = 0.0) -> np.ndarray:
     """(N,) sigma [m] of n.(p - m) when the range noise (range_sigma_m) moves p and m along their unit
-    lines of sight ray_p, ray_m (N,3): range_sigma ((n.u_p)^2 + (n.u_m)^2 + INCIDENCE_FLOOR^2)^1/2."""
+    lines of sight ray_p, ray_m (N,3) and the surface departs from the plane at p by out_of_plane_m
+    [m] ((N,) or a scalar; the plane model's error):
+    (range_sigma^2 ((n.u_p)^2 + (n.u_m)^2 + INCIDENCE_FLOOR^2) + out_of_plane^2)^1/2."""
     along_p = np.einsum("ni,ni->n", normal, ray_p)
     along_m = np.einsum("ni,ni->n", normal, ray_m)
-    return range_sigma_m * np.sqrt(along_p ** 2 + along_m ** 2 + INCIDENCE_FLOOR ** 2)
+    return range_sigma_m * np.sqrt(along_p ** 2 + along_m ** 2 + INCIDENCE_FLOOR ** 2
+                                   + np.square(np.asarray(out_of_plane_m) / range_sigma_m))
 
 
 def _intrinsics(values: gtsam.Values, keys: BlockKeys, slot: str, fixed: np.ndarray) -> np.ndarray:

@@ -20,19 +20,23 @@ from scipy.spatial import cKDTree
 class Features:
     """Per-point local shape from the k nearest neighbours: unit normal (N,3) and the
     dimensionality features of the sqrt-eigenvalues s1 >= s2 >= s3 of the covariance:
-    linearity (s1-s2)/s1, planarity (s2-s3)/s1, scattering s3/s1 (each in [0, 1])."""
+    linearity (s1-s2)/s1, planarity (s2-s3)/s1, scattering s3/s1 (each in [0, 1]), and s3 itself,
+    out_of_plane_m [m]: the RMS distance of the neighbourhood from its best plane."""
 
     normal: np.ndarray
     linearity: np.ndarray
     planarity: np.ndarray
     scattering: np.ndarray
+    out_of_plane_m: np.ndarray
 
 
 @dataclass(frozen=True)
 class Correspondences:
     """Pairs (p, m) as row indices into the cloud, with the normal at p and a weight in [0, 1]; with a
     Sight, the shift [m] along each return's line of sight from it to its stand-in (shift_p_m,
-    shift_m_m; None without)."""
+    shift_m_m; None without); out_of_plane_m [m]: the out-of-plane scatter of p's neighbourhood
+    (Features.out_of_plane_m), how far the surface around the pair departs from the plane at p
+    (None: not known)."""
 
     index_p: np.ndarray
     index_m: np.ndarray
@@ -40,6 +44,7 @@ class Correspondences:
     weight: np.ndarray
     shift_p_m: np.ndarray | None = None
     shift_m_m: np.ndarray | None = None
+    out_of_plane_m: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.index_p)
@@ -47,7 +52,9 @@ class Correspondences:
     def take(self, rows: np.ndarray) -> Correspondences:
         """The pairs at rows (indices or a boolean mask)."""
         shifts = (None, None) if self.shift_p_m is None else (self.shift_p_m[rows], self.shift_m_m[rows])
-        return Correspondences(self.index_p[rows], self.index_m[rows], self.normal[rows], self.weight[rows], *shifts)
+        scatter = None if self.out_of_plane_m is None else self.out_of_plane_m[rows]
+        return Correspondences(self.index_p[rows], self.index_m[rows], self.normal[rows], self.weight[rows], *shifts,
+                               scatter)
 
 
 @dataclass(frozen=True)
@@ -102,7 +109,8 @@ def local_features(points_m: np.ndarray, radius_m: float = 0.5, max_nn: int = 20
         nearest = cKDTree(sampled).query(points_m, workers=-1)[1]
         features = local_features(sampled, radius_m, max_nn)
         return Features(*(np.asarray(field)[nearest] for field in (features.normal, features.linearity,
-                                                                     features.planarity, features.scattering)))
+                                                                     features.planarity, features.scattering,
+                                                                     features.out_of_plane_m)))
     cloud.estimate_covariances(o3d.geometry.KDTreeSearchParamHybrid(radius=radius_m, max_nn=max_nn))
     eigenvalues, eigenvectors = np.linalg.eigh(np.asarray(cloud.covariances))  # ascending
     s = np.sqrt(np.clip(eigenvalues, 0.0, None))[:, ::-1]  # s1 >= s2 >= s3
@@ -111,7 +119,8 @@ def local_features(points_m: np.ndarray, radius_m: float = 0.5, max_nn: int = 20
     return Features(normal=eigenvectors[:, :, 0],
                     linearity=np.where(valid, (s[:, 0] - s[:, 1]) / s1, 0.0),
                     planarity=np.where(valid, (s[:, 1] - s[:, 2]) / s1, 0.0),
-                    scattering=np.where(valid, s[:, 2] / s1, 0.0))
+                    scattering=np.where(valid, s[:, 2] / s1, 0.0),
+                    out_of_plane_m=s[:, 2])
 
 
 def neighbour_fibres(elevation_deg: np.ndarray, n_steps: int) -> dict[int, list[int]]:
@@ -173,11 +182,12 @@ def associate(points_m: np.ndarray, fibre: np.ndarray, features: Features, neigh
         parts = list(pool.map(pairs_of, jobs, streams))
     if not parts:
         empty = np.zeros(0, dtype=np.int64)
-        return Correspondences(empty, empty, np.zeros((0, 3)), np.zeros(0))
+        return Correspondences(empty, empty, np.zeros((0, 3)), np.zeros(0), out_of_plane_m=np.zeros(0))
     index_p = np.concatenate([p for p, _ in parts])
     index_m = np.concatenate([m for _, m in parts])
     shifts = (None, None) if sight is None else (sight.shift_m[index_p], sight.shift_m[index_m])
-    return Correspondences(index_p, index_m, features.normal[index_p], features.planarity[index_p], *shifts)
+    return Correspondences(index_p, index_m, features.normal[index_p], features.planarity[index_p], *shifts,
+                           features.out_of_plane_m[index_p])
 
 
 @dataclass(frozen=True)

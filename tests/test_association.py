@@ -16,6 +16,10 @@ def test_features_of_a_plane_a_line_and_a_blob():
     expected_normal = rotation @ [0, 0, 1]
     np.testing.assert_allclose(np.abs(features.normal @ expected_normal), 1.0, atol=1e-9)
     assert np.median(features.planarity) > 0.6 and np.median(features.scattering) < 1e-6  # 20-point patches
+    assert np.median(features.out_of_plane_m) < 1e-9
+    rough = plane + np.column_stack([np.zeros((3000, 2)), rng.normal(0, 0.002, 3000)])
+    # 20 points, 3 of whose degrees of freedom the plane takes: s3^2 about (17/20) 2 mm^2 on average
+    assert np.median(local_features(rough, radius_m=0.4).out_of_plane_m) == pytest.approx(0.002 * np.sqrt(17 / 20), rel=0.15)
 
     line = np.column_stack([np.linspace(0, 5, 2000), np.zeros(2000), np.zeros(2000)]) + rng.normal(0, 1e-4, (2000, 3))
     features = local_features(line, radius_m=0.2)
@@ -178,7 +182,7 @@ def test_line_of_sight_choice_is_not_biased_by_range_noise():
     points = origin + rays * range_m[:, None]
     fibre = np.repeat([0, 1], per_ring * sweeps)
     flat = np.ones(len(points))
-    features = Features(np.tile([0.0, 0.0, 1.0], (len(points), 1)), 0 * flat, flat, 0 * flat)
+    features = Features(np.tile([0.0, 0.0, 1.0], (len(points), 1)), 0 * flat, flat, 0 * flat, 0 * flat)
 
     def mean_and_error(pairs):
         r = points[pairs.index_p, 2] - points[pairs.index_m, 2]

@@ -146,7 +146,8 @@ def test_reference_fibre_and_fixed_slots_have_no_key():
 
 def test_incidence_sigma_is_the_spread_of_range_noise_along_the_lines_of_sight():
     """incidence_sigma_m against a Monte Carlo of n.(p - m) when p and m move along their lines of sight by
-    independent range noise (plus the floor, drawn as its own independent term)."""
+    independent range noise (plus the floor, drawn as its own independent term) and the surface leaves
+    the plane at p by an out-of-plane scatter of 3 mm."""
     from factors.point_to_plane import INCIDENCE_FLOOR, incidence_sigma_m
 
     rng = np.random.default_rng(5)
@@ -154,6 +155,7 @@ def test_incidence_sigma_is_the_spread_of_range_noise_along_the_lines_of_sight()
     normal, ray_p, ray_m = (unit(rng.normal(0, 1, (1, 3))) for _ in range(3))
     draws, sigma_m = 200_000, 0.01
     eps_p, eps_m, floor = (rng.normal(0, sigma_m, draws) for _ in range(3))
-    r = (normal @ ray_p.T) * eps_p - (normal @ ray_m.T) * eps_m + INCIDENCE_FLOOR * floor
-    expected = incidence_sigma_m(normal, ray_p, ray_m, sigma_m)[0]
+    out_of_plane = rng.normal(0, 0.003, draws)
+    r = (normal @ ray_p.T) * eps_p - (normal @ ray_m.T) * eps_m + INCIDENCE_FLOOR * floor + out_of_plane
+    expected = incidence_sigma_m(normal, ray_p, ray_m, sigma_m, np.array([0.003]))[0]
     assert r.std() == pytest.approx(expected, rel=0.01)

@@ -95,8 +95,9 @@ class CalibrationConfig(BaseModel):
         "pair_noise and feature_voxel_m left None resolve for it (docs/math.md \"Which m\")"))
     pair_noise: Literal["uniform", "incidence"] | None = Field(None, description=(
         "uniform: every pair's residual whitened by sigma0; incidence: sigma0 is the range noise, which moves a "
-        "return along its line of sight u, so pair k's residual n.(p - m) has sigma0 ((n.u_p)^2 + (n.u_m)^2 + "
-        "f^2)^1/2 (f = INCIDENCE_FLOOR for the model's other errors), in the fine phase: the efficient weighting "
+        "return along its line of sight u, so pair k's residual n.(p - m) has (sigma0^2 ((n.u_p)^2 + (n.u_m)^2 + "
+        "f^2) + s3^2)^1/2 (f = INCIDENCE_FLOOR for the normals' errors; s3 the out-of-plane scatter of p's "
+        "neighbourhood, the plane model's error, 0 with fixed_association), in the fine phase: the efficient weighting "
         "when range noise dominates (with feature_voxel_m 0.1, docs/math.md); the reported sigmas then count each "
         "return's noise once over the pairs that share it (calibration/shared_returns.py); None: incidence for a "
         "noisy head (range_noise_m), else uniform"))

@@ -131,6 +131,16 @@ def build_graph(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
     return graph, values
 
 
+def plane_model_sigma_m(pairs: Correspondences, config: CalibrationConfig) -> np.ndarray | float:
+    """Each pair's plane-model sigma [m] for its incidence sigma: the out-of-plane scatter of p's
+    neighbourhood (docs/math.md "Observability"), where the features follow the fit; 0 on fixed pairs
+    (config.fixed_association), whose features stay those of the start: their scatter there holds the
+    start's own errors between rings, which the fit is to remove, and would weigh those pairs down."""
+    if config.fixed_association or pairs.out_of_plane_m is None:
+        return 0.0
+    return pairs.out_of_plane_m
+
+
 def make_blocks(data: ReturnData, estimate: Estimate, pairs: Correspondences, config: CalibrationConfig,
                 estimates: tuple[bool, bool, bool], effects=None) -> list[tuple[np.ndarray, Block]]:
     """The block factors' data (see build_graph), each with its rows in pairs; effects.terms(p_rows,
@@ -145,7 +155,8 @@ def make_blocks(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
     sigma = np.full(len(pairs), config.sigma0_m)
     if config.pair_noise == "incidence":
         sigma = incidence_sigma_m(pairs.normal, rays_at(data, estimate, pairs.index_p),
-                                  rays_at(data, estimate, pairs.index_m), config.sigma0_m)
+                                  rays_at(data, estimate, pairs.index_m), config.sigma0_m,
+                                  plane_model_sigma_m(pairs, config))
     intrinsic_key = np.array([NO_KEY if f == ref else I(f) for f in range(data.sensor.n_fibres)], np.int64)
     control_key = np.array([X(c) for c in range(len(data.control_times_s))], np.int64)
     blocks = []

@@ -68,7 +68,7 @@ def compare(recording: Recording, simulation: Recording, max_points: int | None 
     features = features_at(sim_points, CalibrationConfig().for_sensor(sim.static, 0.0))
     sim_tree = cKDTree(sim_points)
     rows, nearest, normal = _paired(points, sim_tree, features)
-    context = ReturnContext.of(data, recording.world.poses, points, Features(normal, *(np.zeros(len(points)),) * 3),
+    context = ReturnContext.of(data, recording.world.poses, points, Features(normal, *(np.zeros(len(points)),) * 4),
                                estimate.extrinsic.translation())
     names = list(candidates or CANDIDATES)
     estimate = with_controls(estimate, data)
