@@ -131,6 +131,9 @@ def pose_sigmas(covariance_tangent: np.ndarray, R: np.ndarray) -> np.ndarray:
     return np.sqrt(np.diag(rotate @ covariance_tangent @ rotate.T)) * POSE_TO_FILE_UNITS
 
 
+TIE = 0.05  # relative: softest-direction components this close to the largest are a tie
+
+
 def soft_parameters(information: np.ndarray, firm_sigma: np.ndarray) -> list[int]:
     """Indices of the parameters to hold so that every remaining one, and every combination of
     them, is determined to within firm_sigma by the data: the smallest eigenvalue of the
@@ -138,7 +141,9 @@ def soft_parameters(information: np.ndarray, firm_sigma: np.ndarray) -> list[int
     at least 1. Greedy and pivoted: while the free set has a softer direction, hold the free
     parameter with the largest component along the softest direction (for a direction no pair
     sees, e.g. the common vertical offset of fibres that never pair with the reference fibre,
-    this picks one of them, as choosing a reference fixes a gauge).
+    this picks one of them, as choosing a reference fixes a gauge). Components within TIE of the
+    largest are a tie, which the first of them wins: a common mode's components are equal up to
+    rounding, and which one argmax found flipped the static halves check (docs/STATUS.md, session 14).
 
     information: (P, P) Gauss-Newton information of the data term (units of the parameters^-2);
     firm_sigma: (P,) the largest 1-sigma that counts as determined, in the parameters' units."""
@@ -149,5 +154,6 @@ def soft_parameters(information: np.ndarray, firm_sigma: np.ndarray) -> list[int
         eigenvalues, vectors = np.linalg.eigh(whitened[np.ix_(free, free)])
         if eigenvalues[0] >= 1.0:
             break
-        held.append(free.pop(int(np.argmax(np.abs(vectors[:, 0])))))
+        component = np.abs(vectors[:, 0])
+        held.append(free.pop(int(np.argmax(component >= (1.0 - TIE) * component.max()))))
     return sorted(held)
