@@ -5,7 +5,7 @@ pair's residual carried its own independent noise. It does not: a return's range
 along its line of sight u by eps (sigma the range noise) in every pair it serves in, as p or as m.
 To first order the estimate moves by dx = -H^-1 A^T dr, with A the whitened Jacobian (rows: pairs)
 and dr_k = s_k (n_k.u_p eps_p - n_k.u_m eps_m + eta_k), s_k = sqrt(w_k) / sigma_k the pair's
-whitening, eta_k the pair's own independent part (the INCIDENCE_FLOOR of its sigma_k). So
+whitening, eta_k the pair's own independent part (the INCIDENCE_FLOOR and plane-model terms of its sigma_k). So
 
     Cov(dx) = H^-1 (sum_r g_r g_r^T + sum_k v_k a_k a_k^T) H^-1,
     g_r = sigma sum_{pairs k using return r} s_k (+-n_k.u_r) a_k,   v_k = max(w_k - s_k^2 sigma^2 ((n.u_p)^2 + (n.u_m)^2), 0)
