@@ -1,6 +1,8 @@
 """The shared-returns covariance (graphcal/calibration/shared_returns.py) against independent math:
 with no return shared it is the Marginals' covariance, and over fresh range-noise draws on fixed
-pairs it is the spread of the estimate's Gauss-Newton step, where the Marginals are optimistic."""
+pairs it is the spread of the estimate's Gauss-Newton step, where the Marginals are optimistic; and
+the pair model it rests on: without noise, the step at the truth is small once each pair's sigma holds
+its plane-model error."""
 
 from dataclasses import replace
 
@@ -35,6 +37,24 @@ def at_truth():
     truth = replace(initial_estimate(recording, data), offsets=recording.truth.intrinsics)
     priors = Priors.of(config, data.sensor.n_fibres, len(data.control_times_s))
     return data, config, truth, priors, strict_pairs(data, truth, config)[1]
+
+
+def test_the_plane_model_term_takes_the_edges_bias_out_of_the_step_at_the_truth(at_truth):
+    """A noise-free cloud with a noisy head's settings: the Gauss-Newton step at the true calibration is
+    what the pair model alone gets wrong. Voxel normals tilt near edges and the pairs there pull the
+    offsets (docs/math.md "Observability"); with each pair's out-of-plane scatter in its sigma the step
+    is several times smaller for every parameter type (measured: 4x to 10x)."""
+    data, config, truth, priors, pairs = at_truth
+
+    def rms_step(pairs_used) -> np.ndarray:
+        graph, values = build_graph(data, truth, pairs_used, config, INTRINSIC, truth.extrinsic, priors, damped=False)
+        step = graph.linearize(values).optimize()
+        fibres = [f for f in range(data.sensor.n_fibres) if f != data.sensor.reference_fibre]
+        return np.sqrt((np.array([step.at(I(f)) for f in fibres]) ** 2).mean(axis=0))
+
+    assert pairs.out_of_plane_m is not None and np.all(pairs.out_of_plane_m >= 0)
+    with_term, without = rms_step(pairs), rms_step(replace(pairs, out_of_plane_m=None))
+    assert np.all(with_term < without / 3)
 
 
 def test_without_shared_returns_it_is_the_marginals(at_truth):
