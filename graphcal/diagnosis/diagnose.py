@@ -228,7 +228,8 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
     withdrawn, previous = [], None
     # a round adds a finding, withdraws one (at most every candidate once) or ends the diagnosis
     rounds = max_effects + 1 + len(CANDIDATES)
-    for _ in progress(range(rounds), "diagnosing (rounds)", total=rounds, quiet=quiet):
+    # rounds is a bound the diagnosis seldom reaches: an open-ended bar, not a percentage of it
+    for _ in progress(iter(range(rounds)), f"diagnosing (rounds, at most {rounds})", quiet=quiet):
         names = candidate_names(fit, candidates)
         tests, lin = score_all(fit, names)
         if added is not None:  # the effect added last, with its sigma at the refit
