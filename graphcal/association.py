@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 import open3d as o3d
@@ -108,9 +108,7 @@ def local_features(points_m: np.ndarray, radius_m: float = 0.5, max_nn: int = 20
         sampled = np.asarray(cloud.voxel_down_sample(voxel_m).points)
         nearest = cKDTree(sampled).query(points_m, workers=-1)[1]
         features = local_features(sampled, radius_m, max_nn)
-        return Features(*(np.asarray(field)[nearest] for field in (features.normal, features.linearity,
-                                                                     features.planarity, features.scattering,
-                                                                     features.out_of_plane_m)))
+        return Features(*(np.asarray(getattr(features, field.name))[nearest] for field in fields(Features)))
     cloud.estimate_covariances(o3d.geometry.KDTreeSearchParamHybrid(radius=radius_m, max_nn=max_nn))
     eigenvalues, eigenvectors = np.linalg.eigh(np.asarray(cloud.covariances))  # ascending
     s = np.sqrt(np.clip(eigenvalues, 0.0, None))[:, ::-1]  # s1 >= s2 >= s3
