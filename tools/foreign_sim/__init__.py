@@ -1,0 +1,15 @@
+"""An independent lidar drive simulator: recordings (RECORDING.md, graphcal-recording/1) whose
+scenes, vehicle dynamics, firing pattern and raycasting graphcal's own simulator did not shape.
+
+It imports nothing from graphcal or factors. Use:
+
+    from tools.foreign_sim import simulate, FAMILIES
+    simulate("relief_street", "out/relief", duration_s=15.0, size=0.1, seed=3)
+
+or `python -m tools.foreign_sim relief_street --out out/relief --size 0.1`.
+"""
+
+from tools.foreign_sim.scenes import FAMILIES
+from tools.foreign_sim.simulation import simulate
+
+__all__ = ["FAMILIES", "simulate"]
