@@ -25,7 +25,8 @@ RESULTS = Path(__file__).resolve().parent / "results"
 def _config(mode: str, max_points: int, outer_iterations: int = 6):
     from graphcal.calibration.config import CalibrationConfig
 
-    return CalibrationConfig(mode=mode, max_outer_iterations=outer_iterations, max_points=max_points, tolerance_m=1e-4)
+    return CalibrationConfig(mode=mode, max_outer_iterations=outer_iterations, max_points=max_points, tolerance_m=1e-4,
+                             refuse_unconverged=False)
 
 
 def _effect(effects: tuple[str, ...], size: float, max_points: int, queue) -> None:

@@ -172,12 +172,33 @@ def incidence_sigma_m(normal: np.ndarray, ray_p: np.ndarray, ray_m: np.ndarray, 
                       out_of_plane_m: np.ndarray | float = 0.0) -> np.ndarray:
     """(N,) sigma [m] of n.(p - m) when the range noise (range_sigma_m) moves p and m along their unit
     lines of sight ray_p, ray_m (N,3) and the surface departs from the plane at p by out_of_plane_m
-    [m] ((N,) or a scalar; the plane model's error):
+    [m] ((N,) or a scalar; the plane model's error, and any other independent error of the pair, e.g.
+    pose_noise_sigma_m in quadrature):
     (range_sigma^2 ((n.u_p)^2 + (n.u_m)^2 + INCIDENCE_FLOOR^2) + out_of_plane^2)^1/2."""
     along_p = np.einsum("ni,ni->n", normal, ray_p)
     along_m = np.einsum("ni,ni->n", normal, ray_m)
     return range_sigma_m * np.sqrt(along_p ** 2 + along_m ** 2 + INCIDENCE_FLOOR ** 2
                                    + np.square(np.asarray(out_of_plane_m) / range_sigma_m))
+
+
+def pose_noise_sigma_m(normal: np.ndarray, lever_p_m: np.ndarray, lever_m_m: np.ndarray, dt_s: np.ndarray,
+                       interval_s: float, position_sigma_m: float, attitude_sigma_rad: float) -> np.ndarray:
+    """(N,) sigma [m] that white noise on the recorded poses adds to n.(p - m): position noise
+    position_sigma_m per axis and attitude noise attitude_sigma_rad per axis on each pose sample,
+    interval_s apart, each return's pose interpolated linearly between two samples (variance factor
+    (1-a)^2 + a^2, 2/3 on average). lever_p_m, lever_m_m (N,3): p and m minus the body position at their
+    times [m, world axes]; dt_s (N,): their time apart. Returns fired within one pose interval share its
+    noise, which then moves both alike: the shared part's weight falls linearly with dt_s / interval_s.
+    Position: 2 (2/3) s^2 f; attitude: (2/3) sa^2 (f (|l_p x n|^2 + |l_m x n|^2) + (1 - f) |(l_p - l_m) x n|^2),
+    f = min(|dt_s| / interval_s, 1)."""
+    if interval_s <= 0 or (position_sigma_m == 0 and attitude_sigma_rad == 0):
+        return np.zeros(len(normal))
+    apart = np.minimum(np.abs(dt_s) / interval_s, 1.0)
+    arm_p, arm_m = np.cross(lever_p_m, normal), np.cross(lever_m_m, normal)
+    arm_pm = arm_p - arm_m
+    attitude = (apart * (np.einsum("ni,ni->n", arm_p, arm_p) + np.einsum("ni,ni->n", arm_m, arm_m))
+                + (1.0 - apart) * np.einsum("ni,ni->n", arm_pm, arm_pm))
+    return np.sqrt(2.0 / 3.0 * (2.0 * apart * position_sigma_m ** 2 + attitude_sigma_rad ** 2 * attitude))
 
 
 def _intrinsics(values: gtsam.Values, keys: BlockKeys, slot: str, fixed: np.ndarray) -> np.ndarray:

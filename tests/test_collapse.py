@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from graphcal.calibration.calibrate import check_energy_fell, check_fibres_apart
+from graphcal.calibration.checks import check_energy_fell, check_fibres_apart
 from graphcal.calibration.config import CalibrationConfig, held_names
 from graphcal.errors import CalibrationError, ConfigError
 from graphcal.sensor import sensor_from_catalog
@@ -11,15 +11,11 @@ from graphcal.sim.scenario import draw_offsets
 from graphcal.sim.starts import TABLE_4_1_ERRORS
 
 
-class _Recording:
-    path, name = None, "rec"
-
-
 def test_table_4_1_offsets_are_not_a_collapse():
     sensor = sensor_from_catalog("HDL-32E")
     for seed in range(5):  # the seed's largest start: 3 deg errors on a 1.33 deg fibre spacing
         offsets = draw_offsets(TABLE_4_1_ERRORS, sensor.n_fibres, sensor.reference_fibre, np.random.default_rng(seed))
-        check_fibres_apart(sensor.elevation_deg, offsets[:, 2], _Recording())
+        check_fibres_apart(sensor.elevation_deg, offsets[:, 2], "rec")
 
 
 def test_fibres_pushed_onto_the_reference_are_refused():
@@ -27,7 +23,7 @@ def test_fibres_pushed_onto_the_reference_are_refused():
     reference = sensor.elevation_deg[sensor.reference_fibre]
     collapsed = np.radians(reference - sensor.elevation_deg) * 0.8  # 80 % of the way onto one cone
     with pytest.raises(CalibrationError, match="collapsed"):
-        check_fibres_apart(sensor.elevation_deg, collapsed, _Recording())
+        check_fibres_apart(sensor.elevation_deg, collapsed, "rec")
 
 
 def test_a_static_sensor_holds_the_elevations_and_features_from_voxels():
@@ -60,12 +56,12 @@ def test_hold_names_parameters_or_says_what_it_expected():
 
 def test_a_calibration_that_ends_above_its_start_is_refused():
     falling = [{"energy_cm2": 40.0, "energy_after_cm2": 5.0}, {"energy_cm2": 6.0, "energy_after_cm2": 0.01}]
-    check_energy_fell(falling, _Recording())
+    check_energy_fell(falling, "rec")
     gate_opened = [{"energy_cm2": 0.674, "energy_after_cm2": 0.6}, {"energy_cm2": 0.9, "energy_after_cm2": 0.866}]
-    check_energy_fell(gate_opened, _Recording())  # started at the truth: more pairs as the gate opens
+    check_energy_fell(gate_opened, "rec")  # started at the truth: more pairs as the gate opens
     rising = [{"energy_cm2": 11.1, "energy_after_cm2": 5.2}, {"energy_cm2": 104.2, "energy_after_cm2": 103.9}]
     with pytest.raises(CalibrationError, match=r"diverged \(J 11.1 cm2 at the start, 104 cm2 at the end\)"):
-        check_energy_fell(rising, _Recording())
+        check_energy_fell(rising, "rec")
 
 
 def test_a_hold_naming_nothing_is_refused_when_the_settings_are_read(tmp_path):
@@ -75,3 +71,40 @@ def test_a_hold_naming_nothing_is_refused_when_the_settings_are_read(tmp_path):
     settings.write_text("hold: ['fibre_*.d_elevation']\n")  # the unit is missing
     with pytest.raises(ConfigError, match=r"settings.yaml: hold: .*'fibre_\*.d_elevation' names no parameter"):
         calibration_config("intrinsic", settings)
+
+
+def test_crossed_rings_a_cap_and_a_slide_are_refused_with_what_slid():
+    from graphcal.calibration.checks import check_converged, check_rings_in_order, check_within_priors
+    from graphcal.calibration.weak_directions import Layout
+    import gtsam
+
+    sensor = sensor_from_catalog("HDL-32E")
+    order = sensor.fibres_by_elevation()
+    crossing = np.zeros(sensor.n_fibres)
+    crossing[order[3]] = np.radians(1.5)  # 1.33 deg apart: above its upper neighbour
+    check_rings_in_order(sensor.elevation_deg, np.zeros(sensor.n_fibres), 0.2, "rec")
+    check_rings_in_order(sensor.elevation_deg, crossing, 10.0, "rec")  # a nominal model 10 deg off may cross
+    with pytest.raises(CalibrationError, match=f"fibres {order[3]} and {order[4]} cross"):
+        check_rings_in_order(sensor.elevation_deg, crossing, 0.2, "rec")
+    converged = [{"phase": "fine", "max_step": 1e-6, "stop": "converged"}]
+    check_converged(converged, "rec")
+    with pytest.raises(CalibrationError, match="did not converge: .* coarse phase"):
+        check_converged([{"phase": "coarse", "max_step": 0.02, "stop": "cap"}], "rec")
+    with pytest.raises(CalibrationError, match="did not converge: .* coarse phase"):  # the cap left no fine step
+        check_converged([{"phase": "coarse", "max_step": 0.002, "stop": "coarse done"}], "rec")
+    layout = Layout((1, 2), False, np.tile([0.02, np.radians(0.2), np.radians(0.2), 0.02], 2), np.eye(3))
+    offsets = np.zeros((3, 4))
+    offsets[2, 3] = 0.12  # 6 prior sigmas
+    estimate = type("Estimate", (), {"offsets": offsets, "extrinsic": gtsam.Pose3()})
+    check_within_priors(estimate, gtsam.Pose3(), layout, ["fibre_2.h_z_m"], "rec")  # named: the prior decides it
+    with pytest.raises(CalibrationError, match=r"fibre_2.h_z_m \(6 sigmas\)"):
+        check_within_priors(estimate, gtsam.Pose3(), layout, [], "rec")
+
+
+def test_an_energy_the_noise_does_not_explain_is_refused():
+    from graphcal.calibration.checks import check_energy_explained
+
+    check_energy_explained(1.5, 1.2, 0.01, "rec")
+    check_energy_explained(50.0, None, 0.01, "rec")  # no prediction: pairs whitened by a nominal sigma
+    with pytest.raises(CalibrationError, match="J ends at 6 cm2 where the measured noise .* predicts 1.2 cm2"):
+        check_energy_explained(6.0, 1.2, 0.01, "rec")

@@ -159,3 +159,33 @@ def test_incidence_sigma_is_the_spread_of_range_noise_along_the_lines_of_sight()
     r = (normal @ ray_p.T) * eps_p - (normal @ ray_m.T) * eps_m + INCIDENCE_FLOOR * floor + out_of_plane
     expected = incidence_sigma_m(normal, ray_p, ray_m, sigma_m, np.array([0.003]))[0]
     assert r.std() == pytest.approx(expected, rel=0.01)
+
+
+@pytest.mark.parametrize("apart", [True, False])
+def test_pose_noise_sigma_is_the_spread_of_white_pose_noise(apart):
+    """pose_noise_sigma_m against a Monte Carlo of n.(p - m) when every pose sample carries white position
+    and attitude noise and each return's pose is interpolated linearly between two samples at a uniform
+    random place: p and m in different sample intervals (independent noise), or fired at the same time
+    (shared noise, only the attitude's turn of p - m remains)."""
+    from factors.point_to_plane import pose_noise_sigma_m
+
+    rng = np.random.default_rng(8)
+    normal = np.array([[0.2, -0.3, 0.93]])
+    normal /= np.linalg.norm(normal)
+    lever_p, lever_m = np.array([[8.0, 3.0, -1.5]]), np.array([[7.5, 3.6, -1.4]])
+    draws, sigma_m, sigma_rad = 200_000, 0.005, np.radians(0.01)
+
+    def pose_error(lever):
+        a = rng.uniform(0, 1, (draws, 1))
+        position = (1 - a) * rng.normal(0, sigma_m, (draws, 3)) + a * rng.normal(0, sigma_m, (draws, 3))
+        turn = (1 - a) * rng.normal(0, sigma_rad, (draws, 3)) + a * rng.normal(0, sigma_rad, (draws, 3))
+        return position, turn
+
+    position_p, turn_p = pose_error(lever_p)
+    position_m, turn_m = pose_error(lever_m) if apart else (position_p, turn_p)
+    moved_p = position_p + np.cross(turn_p, lever_p)
+    moved_m = position_m + np.cross(turn_m, lever_m)
+    r = (moved_p - moved_m) @ normal[0]
+    expected = pose_noise_sigma_m(normal, lever_p, lever_m, np.array([0.02 if apart else 0.0]), 0.01, sigma_m,
+                                  sigma_rad)[0]
+    assert r.std() == pytest.approx(expected, rel=0.02)

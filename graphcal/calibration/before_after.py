@@ -103,7 +103,7 @@ def pairs_in(data: ReturnData, calibration: Calibration, association: Associatio
     points = world_of(calibration, data) - data.origin_m
     sight = phase_sight(data, calibration.estimate, points, phase)
     features = features_at(points, settings)
-    pairs = association.pairs(points, data.fibre, features, settings.gate_start_m, settings, sight)
+    pairs = association.pairs(points, data.fibre, features, settings.gate_start_m, settings, sight, phase)
     residual = np.einsum("ni,ni->n", pairs.normal, points[pairs.index_p] - points[pairs.index_m])
     return Pairs(data.rows[pairs.index_p], data.rows[pairs.index_m], pairs.weight, residual,
                  points[pairs.index_p] + data.origin_m)

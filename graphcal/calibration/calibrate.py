@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from functools import partial
 
 import gtsam
@@ -38,7 +39,10 @@ from graphcal.calibration.solve import (
     I,
     Priors,
     X,
+    Association,
     build_graph,
+    features_at,
+    phase_data,
     control_prior_sigma,
     hold_at_nominal,
     holding,
@@ -46,6 +50,16 @@ from graphcal.calibration.solve import (
     solve_stage,
     strict_pairs,
 )
+from graphcal.calibration.checks import (
+    check_converged,
+    check_energy_explained,
+    check_energy_fell,
+    check_fibres_apart,
+    check_rings_in_order,
+    check_within_priors,
+)
+from graphcal.calibration.weak_analysis import layout_of, weak_at
+from graphcal.calibration.weak_directions import WeakDirections, lock_factor
 from graphcal.calibration.static_sensor import free_intrinsics, halves_over_draws, pair_draws, soft_over_draws
 from graphcal.errors import CalibrationError, ConfigError
 from graphcal.intrinsics import offsets_to_file_units
@@ -105,109 +119,99 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
             held, priors = held + list(halves.held), holding(priors, halves.held)
 
     used = {}  # outer iterations each stage has run: n_max counts both phases of a stage
+    layout = layout_of(data, priors, estimated, nominal)
 
-    def run_stages(estimate: Estimate, priors: Priors, label: str = "", last: tuple[str, ...] = PHASES,
+    def run_stages(estimate: Estimate, weak: WeakDirections, label: str = "", last: tuple[str, ...] = PHASES,
                    first: int = 0) -> Estimate:
-        """The stages from `first` one by one (successive modes stay successive), the last one's phases `last` only."""
+        """The stages from `first` one by one (successive modes stay successive), the last one's phases `last`
+        only, the weak directions held at nominal."""
         for k, stage in enumerate(stages[first:], first):
             phases = last if k == len(stages) - 1 else PHASES
             left = config.max_outer_iterations - (used.get(stage, 0) if phases == ("fine",) else 0)
             before = len(history.rows)
+            held_here = weak.restricted(*ESTIMATES[stage][:2])
+            lock = lock_factor(held_here, [I(f) for f in held_here.layout.fibres],
+                               E(0) if held_here.layout.extrinsic else None, nominal)
             estimate = timed(f"solve {stage}{label} ({', '.join(phases)})", solve_stage, data, estimate, config,
                              stage + label, ESTIMATES[stage], nominal, priors, history, quiet, fixed_pairs, phases,
-                             cache, left)
+                             cache, left, lock)
             used[stage] = len(history.rows) - before
         return estimate
 
-    # at the switch to the fine phase the Marginals name what the data cannot observe: held at nominal
-    # from there, it cannot drag the others through the fine phase (docs/math.md "Observability")
-    estimate = run_stages(estimate, priors, last=("coarse",))
-    probe = timed("observability", final_fit, data, estimate, config, estimated, nominal, priors, fixed_pairs, cache)
-    named = [name for name in probe.uncertainty.unobservable() if name not in held]
-    label = ""
-    if named:
-        priors, label = holding(priors, named), ", unobservable held"
-        estimate = hold_at_nominal(estimate, priors, nominal)
-        if len(stages) > 1:
-            estimate = run_stages(estimate, priors, label, last=("coarse",))
-    estimate = hold_at_nominal(run_stages(estimate, priors, label, last=("fine",), first=len(stages) - 1), priors,
-                               nominal)
+    def weak_here(estimate: Estimate, phase: str) -> WeakDirections:
+        """The weak directions at the estimate on the pairs of a phase: at the start the coarse phase's (the
+        strict gates would keep few pairs of a start a few centimetres off), else the strict ones."""
+        if fixed_pairs is not None:
+            return weak_at(data, estimate, fixed_pairs, config.fine(), estimated, priors, layout)
+        if phase == "fine":
+            return weak_at(data, estimate, strict_pairs(data, estimate, config, cache)[1], config.fine(), estimated,
+                           priors, layout)
+        returns, settings = phase_data(data, config, phase)
+        points = world_at(returns, estimate, config.pose_corrections)
+        pairs = Association.of(returns, settings).pairs(points, returns.fibre, features_at(points, settings),
+                                                        settings.gate_start_m, settings, None, phase)
+        return weak_at(returns, estimate, pairs, settings, estimated, priors, layout)
+
+    def back_to_nominal(estimate: Estimate, weak: WeakDirections) -> Estimate:
+        offsets, extrinsic = weak.reset_to_nominal(estimate.offsets, estimate.extrinsic, nominal)
+        return replace(estimate, offsets=offsets, extrinsic=extrinsic)
+
+    # what the data cannot see, or see only weakly, is found at the start (held through the coarse phase), at
+    # the switch to the fine phase (held from there on) and at the end (if it adds some, they are held and the
+    # fine phase runs again): held at nominal wherever it is found (calibration/weak_directions.py)
+    weak = timed("weak directions at the start", weak_here, estimate, "coarse")
+    estimate = run_stages(estimate, weak, last=("coarse",))
+    weak = timed("weak directions, fine phase", weak_here, estimate, "fine")
+    estimate = run_stages(back_to_nominal(estimate, weak), weak, last=("fine",), first=len(stages) - 1)
+    late = weak.union(timed("weak directions at the end", weak_here, estimate, "fine"))
+    if late.basis.shape[1] > weak.basis.shape[1]:
+        weak = late
+        estimate = run_stages(back_to_nominal(estimate, weak), weak, ", weak directions held", last=("fine",),
+                              first=len(stages) - 1)
+    estimate = hold_at_nominal(estimate, priors, nominal)
     final = timed("final fit and marginals", final_fit, data, estimate, config, estimated, nominal, priors,
                   fixed_pairs, cache, True)
-    late = [name for name in final.uncertainty.unobservable() if name not in held + named]
-    if late:  # seen only at the fine phase's pairs: hold them too and run the stages again
-        priors = holding(priors, late)
-        estimate = hold_at_nominal(run_stages(hold_at_nominal(estimate, priors, nominal), priors, ", unobservable held"),
-                                   priors, nominal)
-        final = timed("final fit and marginals, unobservable held", final_fit, data, estimate, config, estimated,
-                      nominal, priors, fixed_pairs, cache, True)
-    unobservable = held + named + late
-    check_energy_fell(history.rows, recording)
+    reasons = {name: "held at its nominal value (setting hold, or a static sensor's checks)" for name in held}
+    reasons |= {name: reason for name, reason in weak.named().items() if name not in held}
+    unobservable = held + [name for name in reasons if name not in held]
+    where = str(recording.path or recording.name)
+    check_energy_fell(history.rows, where)
+    if config.refuse_unconverged:
+        check_converged(history.rows, where)
     if estimated[0]:
-        check_fibres_apart(data.sensor.elevation_deg, estimate.offsets[:, 2], recording)
+        check_fibres_apart(data.sensor.elevation_deg, estimate.offsets[:, 2], where)
+        check_rings_in_order(data.sensor.elevation_deg, estimate.offsets[:, 2], config.intrinsic_sigma_angle_deg, where)
+    check_within_priors(estimate, nominal, layout, unobservable, where)
+    # one viewpoint (static): the scene's shape between the rings stays in J (docs/math.md); an estimate
+    # accepted unconverged: its J says nothing of the model
+    if not data.static and config.refuse_unconverged:
+        check_energy_explained(history.rows[-1]["energy_after_cm2"], final.expected_energy_cm2, data.range_noise_m,
+                               where)
     if estimated[2]:
         unobservable += list(TRAJECTORY_GAUGE[:2 if config.pose_corrections else 1])
     if data.static:  # whatever the mode: the whole cloud moves rigidly with the extrinsic and the trajectory
-        unobservable += [name for name in (*(f"extrinsic.{n}" for n in EXTRINSIC_NAMES), *TRAJECTORY_GAUGE)
-                         if name not in unobservable]
+        rigid = [f"extrinsic.{n}" for n in EXTRINSIC_NAMES if f"extrinsic.{n}" not in unobservable]
+        unobservable += rigid + [name for name in TRAJECTORY_GAUGE if name not in unobservable]
+        held = held + rigid
+        reasons |= {name: "a static sensor: the whole cloud moves rigidly with it" for name in rigid}
     calibration = Calibration(data.sensor.model, data.sensor.reference_fibre, estimate, data.control_times_s,
-                              tuple(unobservable))
+                              tuple(unobservable), tuple(held), reasons)
     return CalibrationResult(calibration, final.uncertainty, estimated, history.rows, data.rows[final.pairs.index_p],
                              final.residual_m, final.pairs.weight, config, time.perf_counter() - started, timings,
                              halves=None if halves is None else halves.to_yaml_dict(),
                              shared_returns_uncertainty=final.shared_returns)
 
 
-# calibrated elevations spread over less than this fraction of the nominal ones: the fibres collapsed
-COLLAPSE_RATIO = 0.5
-# J at the end over J at the start above which a run diverged
-DIVERGED_RATIO = 2.0
-
-
-def check_fibres_apart(elevation_deg: np.ndarray, d_elevation_rad: np.ndarray, recording: Recording) -> None:
-    """Raise CalibrationError when the fibres' calibrated elevations have collapsed together.
-
-    The self-consistency energy has a trivial minimum: fibres that sweep one cone see the same
-    points, and every point-to-plane distance between them vanishes. A run that starts far from
-    the truth, or stops early, or whose scene leaves it a direction it cannot see (a level head
-    over flat ground, docs/math.md), can slide towards it (J falls while the cloud gets worse); no
-    real sensor has its beams' spread halved, so such a result is refused, not returned."""
-    calibrated = elevation_deg + np.degrees(d_elevation_rad)
-    nominal_spread, spread = float(np.std(elevation_deg)), float(np.std(calibrated))
-    if spread < COLLAPSE_RATIO * nominal_spread:
-        raise CalibrationError(
-            f"{recording.path or recording.name}: the fibres' calibrated elevations collapsed together (spread "
-            f"{spread:.2f} deg against {nominal_spread:.2f} deg nominal): a degenerate minimum where neighbouring "
-            "fibres coincide, not a calibration; start closer to the truth (smaller offsets), allow more outer "
-            "iterations (max_outer_iterations), or tighten the angle prior (intrinsic_sigma_angle_deg). A level "
-            "head over flat ground slides there even from the truth: its fibres that see only the ground can rise "
-            "together unseen (docs/math.md); calibrate its intrinsics from a drive with the head pitched or with "
-            "objects at many heights")
-
-
-def check_energy_fell(history: list[dict], recording: Recording) -> None:
-    """Raise CalibrationError when J ends DIVERGED_RATIO times above where it started: the outer
-    loop diverged (its association kept finding worse pairs), and the estimate makes the cloud less
-    consistent than the nominal model did. J's pairs change with the gate and the phase, so a
-    smaller rise (a run started at the truth whose gate opens) is not taken for divergence."""
-    start, end = history[0]["energy_cm2"], history[-1]["energy_after_cm2"]
-    if end > DIVERGED_RATIO * start:
-        raise CalibrationError(
-            f"{recording.path or recording.name}: the calibration diverged (J {start:.3g} cm2 at the start, "
-            f"{end:.3g} cm2 at the end): the nominal model fits this recording better than the estimate; tighten "
-            "the priors (intrinsic_sigma_range_m, intrinsic_sigma_angle_deg), hold what the drive cannot observe "
-            "(hold), or use a recording with more surfaces and motion")
-
-
 class FinalFit:
     """Association at the final estimate (strict settings), per-pair residuals, the marginals of the
     undamped graph and, for pairs whitened by the range noise, the sigmas with each return's noise
-    counted once over the pairs that share it (shared_returns.py; None otherwise)."""
+    counted once over the pairs that share it (shared_returns.py; None otherwise), and the J [cm^2] the
+    pairs' noise model predicts when they are whitened by the measured noise (None otherwise)."""
 
     def __init__(self, pairs, residual_m: np.ndarray, uncertainty: Uncertainty,
-                 shared_returns: Uncertainty | None = None):
+                 shared_returns: Uncertainty | None = None, expected_energy_cm2: float | None = None):
         self.pairs, self.residual_m, self.uncertainty = pairs, residual_m, uncertainty
-        self.shared_returns = shared_returns
+        self.shared_returns, self.expected_energy_cm2 = shared_returns, expected_energy_cm2
 
 
 def final_fit(data: ReturnData, estimate: Estimate, config: CalibrationConfig, estimated, nominal: gtsam.Pose3,
@@ -229,7 +233,12 @@ def final_fit(data: ReturnData, estimate: Estimate, config: CalibrationConfig, e
     shared = None
     if shared_returns and config.pair_noise == "incidence" and config.robust == "none":
         shared = sigmas(SharedReturnsCovariance(graph, values, blocks, pairs, data, estimate, config.sigma0_m))
-    return FinalFit(pairs, residual, sigmas(Marginals(graph, values)), shared)
+    expected = None
+    if config.pair_noise == "incidence" and blocks:  # pairs whitened by the measured noise: J it predicts
+        weight = np.concatenate([block.weight for _, block in blocks])
+        sigma = np.concatenate([np.broadcast_to(block.sigma0_m, len(block.weight)) for _, block in blocks])
+        expected = float((weight * sigma ** 2).sum() / weight.sum() * 1e4)
+    return FinalFit(pairs, residual, sigmas(Marginals(graph, values)), shared, expected)
 
 
 def uncertainty(marginals: gtsam.Marginals, data: ReturnData, estimate: Estimate, config: CalibrationConfig,

@@ -109,11 +109,18 @@ class CalibrationConfig(BaseModel):
         "un-normalised sum of eq. 5.5 over a full cloud's pairs (weight sum ~1e7), 1e-5 here; 1e-6 measured "
         "better (docs/math.md)"))
     deformation: Literal["prior", "monnier"] = "prior"
-    intrinsic_sigma_range_m: float = Field(0.3, gt=0, description="prior on d_range and Hz about the nominal 0")
-    intrinsic_sigma_angle_deg: float = Field(10.0, gt=0, description="prior on d_azimuth and d_elevation")
-    extrinsic_sigma_lever_arm_m: float = Field(1.0, gt=0)
-    extrinsic_sigma_boresight_deg: float = Field(10.0, gt=0)
+    intrinsic_sigma_range_m: float = Field(0.02, gt=0, description=(
+        "the nominal model's stated uncertainty (1-sigma) on d_range and Hz, a prior about the nominal 0: a "
+        "factory calibration is good to about 2 cm and 0.2 deg; give more for a start known to be further off"))
+    intrinsic_sigma_angle_deg: float = Field(0.2, gt=0, description="the same for d_azimuth and d_elevation")
+    extrinsic_sigma_lever_arm_m: float = Field(0.1, gt=0, description=(
+        "the nominal extrinsic's stated uncertainty (1-sigma) on each lever-arm axis: a tape-measured mounting"))
+    extrinsic_sigma_boresight_deg: float = Field(1.0, gt=0, description="the same for each boresight angle")
     max_outer_iterations: int = Field(40, ge=1, description="n_max, per stage")
+    refuse_unconverged: bool = Field(True, description=(
+        "a run whose outer iterations stop on max_outer_iterations before converging ends in CalibrationError "
+        "(exit 3), and so does one whose J ends far above what the measured noise predicts; False returns the "
+        "estimate unchecked on both counts (a quick look with a small max_outer_iterations)"))
     tolerance_m: float = Field(1e-5, gt=0, description="delta: stop when max |dX| (m, or rad x 1 m) is below")
     plateau_iterations: int = Field(6, ge=2, description=(
         "fine phase: also stop when J has not reached a new low (by plateau_improvement) in this many outer "

@@ -18,6 +18,7 @@ from graphcal.calibration.problem import (
 )
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.errors import GraphcalError
+from graphcal.calibration.observability import INTRINSIC_NAMES
 from graphcal.intrinsics import (
     DISPLAY_FROM_FILE_UNITS,
     DISPLAY_NAMES,
@@ -114,6 +115,35 @@ class Evaluation:
                                      "after_gauge_free": stats(self.cloud_after_gauge_free)},
                 "common_offset_m": [float(v) for v in self.common_offset_m],
                 "energy_cm2": [float(v) for v in self.energy_cm2], "table": self.table()}
+
+
+@dataclass(frozen=True)
+class Scorecard:
+    """The intrinsics against truth over the parameters the result does not name unobservable: RMS error
+    per type (cm, deg, deg, cm; NaN where every one of a type is named), the fraction of their errors
+    within 3 of the reported 1-sigmas, and the fraction of all intrinsic parameters named."""
+
+    rms_observable: np.ndarray
+    within_3_sigma: float
+    named_fraction: float
+
+    def to_dict(self) -> dict:
+        return {"rms_observable": dict(zip(DISPLAY_NAMES, map(float, self.rms_observable))),
+                "within_3_sigma": self.within_3_sigma, "named_fraction": self.named_fraction}
+
+
+def scorecard(result: CalibrationResult, recording: Recording) -> Scorecard:
+    """The intrinsics of a calibration result against the recording's truth (Scorecard)."""
+    sensor = recording.sensor
+    names = [[f"fibre_{f}.{name}" for name in INTRINSIC_NAMES] for f in range(sensor.n_fibres)]
+    named = set(result.unobservable)
+    free = np.array([[f != sensor.reference_fibre and name not in named for name in row] for f, row in enumerate(names)])
+    error = offsets_to_file_units(result.calibration.estimate.offsets - recording.truth.intrinsics)
+    rms = np.array([np.sqrt(np.mean(error[free[:, k], k] ** 2)) if free[:, k].any() else np.nan for k in range(4)])
+    sigma = result.sigmas.intrinsics
+    within = float(np.mean(np.abs(error[free]) <= 3 * sigma[free])) if free.any() else np.nan
+    total = 4 * (sensor.n_fibres - 1)
+    return Scorecard(rms * DISPLAY_FROM_FILE_UNITS, within, float((total - free.sum()) / total))
 
 
 def intrinsic_rms(offsets: np.ndarray, truth: np.ndarray, reference_fibre: int) -> np.ndarray:

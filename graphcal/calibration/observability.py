@@ -65,6 +65,7 @@ class DenseMarginals:
         keys = list(values.keys())
         dims = [len(v) for v in (values.zeroVectors().at(k) for k in keys)]
         information, _ = graph.linearize(values).hessian(gtsam.Ordering(keys))
+        self._information = information
         self._covariance = dense_inverse(information)
         starts = np.r_[0, np.cumsum(dims)]
         self._span = {k: slice(a, b) for k, a, b in zip(keys, starts[:-1], starts[1:])}

@@ -19,6 +19,7 @@ from graphcal.extrinsic import Extrinsic
 from graphcal.range_noise import measured_range_noise_m, noisy
 from graphcal.recording import Recording
 from graphcal.sensor import SensorModel
+from graphcal.trajectory_noise import PoseNoise, measured_pose_noise
 
 STATIC_BELOW_M = 1.0  # a sensor whose positions span less than this is static
 
@@ -26,7 +27,8 @@ STATIC_BELOW_M = 1.0  # a sensor whose positions span less than this is static
 @dataclass(frozen=True)
 class ReturnData:
     """Per-return arrays (N) of the returns used (rows: their row in points.parquet), the control
-    times [s], and the head's range noise [m] (1-sigma; NaN: unknown)."""
+    times [s], the head's range noise [m] (1-sigma; NaN: unknown) and the recorded trajectory's white
+    noise (trajectory_noise.PoseNoise)."""
 
     sensor: SensorModel
     rows: np.ndarray
@@ -41,6 +43,7 @@ class ReturnData:
     control_times_s: np.ndarray
     origin_m: np.ndarray
     range_noise_m: float
+    pose_noise: PoseNoise = PoseNoise.none()
 
     @property
     def static(self) -> bool:
@@ -77,7 +80,7 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
     """Read the returns (a random subset of max_points if given) and the INS pose at each one's
     time; control times control_interval_s apart from the trajectory's first pose span them,
     unless given; the head's range noise [m] measured from all the returns (range_noise.measured_range_noise_m)
-    unless given."""
+    unless given; the trajectory's white noise measured from its poses (trajectory_noise.py)."""
     columns = recording.points.read(["time", "fibre", "range", "azimuth"])
     rows = np.arange(len(columns["time"]))
     if range_noise_m is None:
@@ -95,7 +98,8 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
     alpha = np.clip((time - control_times[control]) / (control_times[control + 1] - control_times[control]), 0, 1)
     return ReturnData(recording.sensor, rows, columns["fibre"][rows].astype(np.int64),
                       columns["range"][rows].astype(np.float64), columns["azimuth"][rows].astype(np.float64),
-                      time, rotation.as_matrix(), position - origin, control, alpha, control_times, origin, range_noise_m)
+                      time, rotation.as_matrix(), position - origin, control, alpha, control_times, origin, range_noise_m,
+                      measured_pose_noise(recording.world.poses))
 
 
 def control_grid(anchor_s: float, first_s: float, last_s: float, interval_s: float) -> np.ndarray:

@@ -45,14 +45,19 @@ def calibration_file(path: str | Path) -> Path:
 class Calibration:
     """The estimate alone, as calibration.yaml holds it: offsets (n_fibres, 4) in (m, rad, rad, m)
     from the nominal model, T_body_lidar, trajectory corrections at control_times_s (Pose3 about
-    the vehicle in world axes; identity when none were estimated), unobservable parameter names
-    (held at their nominal value)."""
+    the vehicle in world axes; identity when none were estimated), the names of the parameters the
+    data cannot observe (unobservable), of those held at their nominal value (held: calibration.yaml
+    writes them null), and why each unobservable one is (reasons: {name: plain words}). An unobservable
+    parameter that is not held keeps the value the fit gave it along what the data see of it in
+    combination with others (weak_directions.py): its sigma is then close to its prior's."""
 
     sensor_model: str
     reference_fibre: int
     estimate: Estimate
     control_times_s: np.ndarray
     unobservable: tuple[str, ...] = ()
+    held: tuple[str, ...] = ()
+    reasons: dict = field(default_factory=dict)
 
     def extrinsic(self) -> Extrinsic:
         pose = self.estimate.extrinsic
@@ -77,13 +82,16 @@ class Calibration:
             raise RecordingError(path, f"{len(rows)} intrinsic rows", field="intrinsics",
                                  expected=f"one row per fibre ({sensor.n_fibres})")
         offsets = np.zeros((sensor.n_fibres, 4))
+        held = []
         for index, row in enumerate(rows):
             if not isinstance(row, dict) or row.get("fibre") != index:
                 raise RecordingError(path, f"row {index} is {row!r}", field=f"intrinsics[{index}].fibre",
                                      expected=f"fibre: {index}")
-            offsets[index] = [0.0 if row.get(name) is None  # unobservable: held at its nominal value
+            offsets[index] = [0.0 if row.get(name) is None  # held at its nominal value
                               else finite_number(row[name], path, f"intrinsics[{index}].{name}")
                               for name in INTRINSIC_NAMES]
+            held += [f"fibre_{index}.{name}" for name in INTRINSIC_NAMES
+                     if row.get(name) is None and index != sensor.reference_fibre]
         extrinsic = _mapping(data.get("extrinsic"), path, "extrinsic", "lever_arm_m and boresight_deg")
         extrinsic = Extrinsic.from_dict({k: extrinsic.get(k) for k in ("lever_arm_m", "boresight_deg")}, path)
         corrections, times = [], []
@@ -99,7 +107,7 @@ class Calibration:
                                  expected="none, or at least two strictly increasing times")
         return cls(model, sensor.reference_fibre,
                    Estimate(offsets_from_file_units(offsets), pose_of(extrinsic), tuple(corrections)), np.asarray(times),
-                   tuple(data.get("unobservable") or ()))
+                   tuple(data.get("unobservable") or ()), tuple(held), dict(data.get("unobservable_reasons") or {}))
 
 
 SIGMA_MARGINALS = "gtsam.Marginals at the final pairs, sigma0 the noise of one pair"
@@ -168,21 +176,21 @@ class CalibrationResult:
 
     def to_yaml_dict(self, command: str) -> dict:
         cal, unc = self.calibration, self.sigmas
-        unobservable = set(cal.unobservable)
+        unobservable, held = set(cal.unobservable), set(cal.held)
         offsets = offsets_to_file_units(cal.estimate.offsets)
         rows = []
         for fibre, values in enumerate(offsets):
             row = {"fibre": fibre}
             names = [f"fibre_{fibre}.{name}" for name in INTRINSIC_NAMES]
-            row.update({name: (None if full in unobservable else float(v))
+            row.update({name: (None if full in held else float(v))
                         for name, full, v in zip(INTRINSIC_NAMES, names, values)})
             row["sigma"] = (None if fibre == cal.reference_fibre or not self.estimated[0] else
-                            {name: (None if full in unobservable else float(s))
+                            {name: (None if full in held else float(s))
                              for name, full, s in zip(INTRINSIC_NAMES, names, unc.intrinsics[fibre])})
             rows.append(row)
         extrinsic = cal.extrinsic().to_dict()
         if unc.extrinsic is not None:
-            sigma = [None if f"extrinsic.{name}" in unobservable else float(s)
+            sigma = [None if f"extrinsic.{name}" in held else float(s)
                      for name, s in zip(EXTRINSIC_NAMES, unc.extrinsic)]
             extrinsic["sigma"] = {"boresight_deg": sigma[:3], "lever_arm_m": sigma[3:]}
         corrections = []
@@ -198,6 +206,7 @@ class CalibrationResult:
         return {"format": FORMAT, "sensor": {"model": cal.sensor_model, "reference_fibre": cal.reference_fibre},
                 "intrinsics": rows, "extrinsic": extrinsic, "trajectory_corrections": corrections,
                 "effects": list(self.effects), "unobservable": sorted(unobservable),
+                "unobservable_reasons": {name: cal.reasons[name] for name in sorted(cal.reasons)},
                 "energy_cm2": {"before": float(before), "after": float(after)},
                 "provenance": {"sigma": SIGMA_MARGINALS if self.shared_returns_uncertainty is None else SIGMA_SHARED,
                                "command": command, "graphcal": __version__, "gtsam": _gtsam_version(),

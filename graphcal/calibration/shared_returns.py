@@ -7,11 +7,12 @@ To first order the estimate moves by dx = -H^-1 A^T dr, with A the whitened Jaco
 and dr_k = s_k (n_k.u_p eps_p - n_k.u_m eps_m + eta_k), s_k = sqrt(w_k) / sigma_k the pair's
 whitening, eta_k the pair's own independent part (the INCIDENCE_FLOOR and plane-model terms of its sigma_k). So
 
-    Cov(dx) = H^-1 (sum_r g_r g_r^T + sum_k v_k a_k a_k^T) H^-1,
+    Cov(dx) = H^-1 (sum_r g_r g_r^T + sum_k v_k a_k a_k^T + P) H^-1,
     g_r = sigma sum_{pairs k using return r} s_k (+-n_k.u_r) a_k,   v_k = max(w_k - s_k^2 sigma^2 ((n.u_p)^2 + (n.u_m)^2), 0)
 
-(a sandwich; docs/math.md "Observability"). With no return shared, unit weights and no priors it is
-H^-1.
+with P the priors' information (the nominal values are off by their priors' sigmas: the estimate
+inherits that error where the data see little), a sandwich (docs/math.md "Observability"). With no return
+shared and unit weights it is H^-1.
 """
 
 from __future__ import annotations
@@ -44,7 +45,9 @@ class SharedReturnsCovariance(DenseMarginals):
         along_p = np.einsum("ni,ni->n", pairs.normal, rays_at(data, estimate, pairs.index_p))
         along_m = np.einsum("ni,ni->n", pairs.normal, rays_at(data, estimate, pairs.index_m))
         own = np.maximum(pairs.weight - (scale * range_noise_m) ** 2 * (along_p ** 2 + along_m ** 2), 0.0)
-        meat = (A.T @ sparse.diags(own) @ A).toarray()
+        # the priors: the nominal value is itself off by the prior's sigma, an error the estimate inherits where
+        # the data are silent (a weak direction held at nominal): their information H - A^T A enters as is
+        meat = (A.T @ sparse.diags(own) @ A).toarray() + self._information - (A.T @ A).toarray()
         # S (returns x pairs): return r's coefficient in each pair's residual, sigma s_k (+-n.u)
         n_pairs = len(pairs)
         S = sparse.csr_matrix((np.r_[scale * range_noise_m * along_p, -scale * range_noise_m * along_m],

@@ -354,8 +354,7 @@ def _calibration(result: CalibrationResult, fit: Fit, findings: list[dict]) -> C
     """The baseline's result with the re-solved estimate and the effects it carries (sigmas: the
     baseline's)."""
     calibration = result.calibration
-    calibration = Calibration(calibration.sensor_model, calibration.reference_fibre, fit.estimate,
-                              calibration.control_times_s, calibration.unobservable)
+    calibration = replace(calibration, estimate=fit.estimate)
     effects = tuple({k: f[k] for k in ("effect", "magnitude", "sigma", "unit", "parameters", "statement")}
                     for f in findings)
     return replace(result, calibration=calibration, effects=effects)

@@ -20,3 +20,9 @@ SECTION_4_5_2_ERRORS = IntrinsicErrors(range_m=0.05, azimuth_deg=0.5, elevation_
 SECTION_4_5_2_HEAD = PITCHED_HEAD.model_copy(update={"error_lever_arm_m": (0.5, 0.5, 0.8),
                                                       "error_boresight_deg": (2.5, 3.0, -2.0)})
 STARTS = {"table_4_1": (PITCHED_HEAD, TABLE_4_1_ERRORS), "section_4_5_2": (SECTION_4_5_2_HEAD, SECTION_4_5_2_ERRORS)}
+
+# the priors that go with these starts: their nominal model is no factory calibration (3 deg and 10 cm off
+# for Table 4.1, an extrinsic 80 cm and 3 deg off for section 4.5.2), so the nominal's stated uncertainty
+# is wide; calibrate's defaults state a factory calibration's (2 cm, 0.2 deg; 10 cm, 1 deg)
+FAR_START_PRIORS = {"intrinsic_sigma_range_m": 0.3, "intrinsic_sigma_angle_deg": 10.0,
+                    "extrinsic_sigma_lever_arm_m": 1.0, "extrinsic_sigma_boresight_deg": 10.0}

@@ -1,0 +1,132 @@
+"""Benchmark: calibrate recordings graphcal's simulator did not make (tools/foreign_sim), against truth.
+
+For each scene family (box_street, suburb, open_road, relief_street) and mounting (level, tilted), a
+drive of an HDL-32E-class head with 1 cm range noise, an INS with 5 mm / 0.005 deg white noise, true
+intrinsic offsets within 3 cm and 0.3 deg (the factory's nominal model) and an extrinsic within 5 cm and
+0.5 deg is simulated by the independent simulator and calibrated with graphcal.calibrate's defaults.
+Figures per case (graphcal.calibration.evaluate.scorecard): RMS error over the intrinsic parameters not
+named unobservable (cm, deg, deg, cm), the fraction of their errors within 3 reported sigmas, the
+fraction named unobservable, the extrinsic errors, J, seconds and peak memory. --from-truth starts each
+calibration at the truth (sensor.yaml and extrinsic.yaml set to the true values, the truth then zero
+offsets): the fit must stay within its sigmas. Writes benchmarks/results/foreign.json (or --out).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import platform
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from common import peak_gib, run_in_process
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools.foreign_sim, from the checkout
+
+from graphcal.atomic import atomic_path
+
+RESULTS = Path(__file__).resolve().parent / "results"
+FAMILIES = ("box_street", "suburb", "open_road", "relief_street")
+MOUNTS = ("level", "tilted")
+
+
+def _truth_as_nominal(recording_dir: Path) -> None:
+    """Rewrite a simulated recording so that its nominal model is the truth (offsets folded into
+    sensor.yaml's optional per-fibre fields, the true extrinsic as extrinsic.yaml) and its truth zero
+    offsets from it."""
+    import numpy as np
+    import yaml
+
+    from graphcal.intrinsics import load_offsets_csv, save_offsets_csv
+
+    sensor = yaml.safe_load((recording_dir / "sensor.yaml").read_text())
+    truth = load_offsets_csv(recording_dir / "truth" / "intrinsics.csv", len(sensor["fibres"]))
+    for row, (d_range, d_azimuth, d_elevation, h_z) in zip(sensor["fibres"], truth):
+        row["elevation_deg"] = float(row["elevation_deg"] + np.degrees(d_elevation))
+        row["azimuth_offset_deg"] = float(row.get("azimuth_offset_deg", 0.0) + np.degrees(d_azimuth))
+        row["range_offset_m"] = float(row.get("range_offset_m", 0.0) + d_range)
+        row["vertical_offset_m"] = float(row.get("vertical_offset_m", 0.0) + h_z)
+    (recording_dir / "sensor.yaml").write_text(yaml.safe_dump(sensor))
+    shutil.copy(recording_dir / "truth" / "extrinsic.yaml", recording_dir / "extrinsic.yaml")
+    save_offsets_csv(recording_dir / "truth" / "intrinsics.csv", np.zeros_like(truth))
+
+
+def _case(family: str, mount: str, size: float, duration_s: float, seed: int, from_truth: bool, settings: dict,
+          queue) -> None:
+    import graphcal
+    from graphcal.calibration.evaluate import scorecard
+    from graphcal.errors import CalibrationError
+    from tools.foreign_sim import simulate
+
+    with tempfile.TemporaryDirectory() as folder:
+        directory = simulate(family, Path(folder) / "rec", duration_s=duration_s, size=size, seed=seed, mount=mount)
+        if from_truth:
+            _truth_as_nominal(Path(directory))
+        recording = graphcal.Recording.load(directory)
+        row = {"family": family, "mount": mount, "seed": seed, "from_truth": from_truth,
+               "returns": len(recording.points)}
+        started = time.perf_counter()
+        try:
+            result = graphcal.calibrate(recording, graphcal.CalibrationConfig(**settings, seed=seed), quiet=True)
+        except CalibrationError as error:
+            queue.put(row | {"calibrate_s": time.perf_counter() - started, "refused": str(error),
+                             "peak_gib": peak_gib()})
+            return
+        seconds = time.perf_counter() - started
+        evaluation = graphcal.evaluate(result, recording)
+        card = scorecard(result, recording)
+    queue.put(row | {"mode": result.config.mode, "calibrate_s": seconds, "peak_gib": peak_gib(),
+                     "timings_s": {stage: round(t, 2) for stage, t in result.timings_s.items()},
+                     "outer_iterations": len(result.history), **card.to_dict(),
+                     "unobservable": list(result.unobservable),
+                     "lever_arm_error_m": list(evaluation.lever_arm_error_m),
+                     "rotation_error_deg": list(evaluation.rotation_error_deg),
+                     "energy_cm2": list(evaluation.energy_cm2),
+                     "c2c_mean_gauge_free_cm": evaluation.cloud_after_gauge_free.mean * 100,
+                     "table": evaluation.table()})
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--families", nargs="*", default=list(FAMILIES), choices=FAMILIES)
+    parser.add_argument("--mounts", nargs="*", default=list(MOUNTS), choices=MOUNTS)
+    parser.add_argument("--size", type=float, default=0.1, help="fraction of the head's firings simulated")
+    parser.add_argument("--duration", type=float, default=15.0, help="seconds of drive")
+    parser.add_argument("--seeds", type=int, default=1)
+    parser.add_argument("--from-truth", action="store_true", help="start each calibration at the truth")
+    parser.add_argument("--mode", default=None, help="calibrate's mode (default: its default)")
+    parser.add_argument("--out", type=Path, default=None)
+    args = parser.parse_args()
+    settings = {} if args.mode is None else {"mode": args.mode}
+    rows = []
+    for family in args.families:
+        for mount in args.mounts:
+            for seed in range(args.seeds):
+                row = run_in_process(_case, family, mount, args.size, args.duration, seed, args.from_truth, settings)
+                rows.append(row)
+                if "refused" in row:
+                    print(f"{family}/{mount} seed {seed}: refused ({row['calibrate_s']:.0f} s): {row['refused']}",
+                          flush=True)
+                    continue
+                rms = ", ".join(f"{k} {v:.4g}" for k, v in row["rms_observable"].items())
+                print(f"{family}/{mount} seed {seed}: {row['returns']:,} returns, {row['calibrate_s']:.0f} s, "
+                      f"{row['peak_gib']:.2f} GiB; RMS over the observable: {rms}; within 3 sigma "
+                      f"{row['within_3_sigma']:.0%}; named {row['named_fraction']:.0%}; lever arm "
+                      f"{row['lever_arm_error_m'][1] * 100:.2f} cm, rotation {row['rotation_error_deg'][1]:.4f} deg; "
+                      f"J {row['energy_cm2'][0]:.3g} -> {row['energy_cm2'][1]:.3g} cm2", flush=True)
+    out = args.out or RESULTS / ("foreign_from_truth.json" if args.from_truth else "foreign.json")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(out) as tmp:
+        tmp.write_text(json.dumps({"machine": platform.platform(), "processor": platform.processor(),
+                                   "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+                                   "size": args.size, "duration_s": args.duration, "settings": settings,
+                                   "cases": rows}, indent=2))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
