@@ -128,7 +128,10 @@ def _print_calibration(run) -> None:
         typer.echo(f"range noise {noise_m * 1000:.2g} mm: pairs {result.config.pair_noise}, features from "
                    + (f"{result.config.feature_voxel_m} m voxels" if result.config.feature_voxel_m else "every return"))
     if result.unobservable:
-        typer.echo(f"unobservable (held at nominal): {', '.join(result.unobservable)}")
+        shown = ", ".join(result.unobservable[:12]) + (f" and {len(result.unobservable) - 12} more"
+                                                       if len(result.unobservable) > 12 else "")
+        typer.echo(f"unobservable ({len(result.unobservable)}, kept at nominal where the data do not see them; "
+                   f"why: calibration.yaml unobservable_reasons): {shown}")
     if evaluation is not None:
         typer.echo(f"against truth, cloud-to-cloud mean {evaluation.cloud_before.mean * 100:.3g} -> "
                    f"{evaluation.cloud_after.mean * 100:.3g} cm ({evaluation.cloud_after_gauge_free.mean * 100:.3g} cm "

@@ -131,7 +131,7 @@ def test_straight_drive_leaves_the_lever_arm_and_roll_unobservable(tmp_path):
     """On a straight drive the body never turns: a lever-arm error shifts every scan by the same
     world vector, and a roll about the driving direction turns the whole cloud rigidly about the
     driving line; no self-consistency energy sees either. Those four must be named unobservable,
-    held at nominal (sigma null in the yaml); pitch and yaw (which move a surface differently
+    held at nominal (their sigma the prior's in the yaml); pitch and yaw (which move a surface differently
     when seen ahead and behind) stay estimated and come back to the truth."""
     scenario = SIM2(size=0.02, seed=3)
     scenario = scenario.model_copy(update={

@@ -1,10 +1,8 @@
-"""1-sigma of every estimated parameter from gtsam.Marginals, and which ones the data cannot see.
+"""1-sigma of every estimated parameter from gtsam.Marginals (which parameters the data cannot see:
+weak_directions.py).
 
 The graph's cost is (W / sigma0^2) J + priors, so the marginal covariances are those of a
 least-squares fit with point noise sigma0 (Cramér-Rao bound when sigma0 is the true noise).
-A parameter is unobservable when the data add almost nothing to its prior: its posterior sigma
-stays above UNOBSERVABLE_RATIO times its prior sigma (the data carry less than a third of the
-information about it). Such a parameter is held at its nominal value and reported by name.
 """
 
 from __future__ import annotations
@@ -15,9 +13,6 @@ import gtsam
 import numpy as np
 
 from graphcal.intrinsics import offsets_to_file_units
-
-# posterior / prior sigma above which a parameter counts as unobservable (information ratio < 1/3)
-UNOBSERVABLE_RATIO = 0.5 * np.sqrt(3.0)
 
 POSE_TO_FILE_UNITS = np.r_[np.full(3, np.degrees(1.0)), np.ones(3)]  # [rad x3, m x3] -> [deg x3, m x3]
 INTRINSIC_NAMES = ("d_range_m", "d_azimuth_deg", "d_elevation_deg", "h_z_m")
@@ -39,19 +34,6 @@ class Uncertainty:
     extrinsic_prior: np.ndarray | None
     controls: np.ndarray | None
     controls_prior: np.ndarray | None
-
-    def unobservable(self) -> list[str]:
-        """Names of the intrinsic and extrinsic parameters whose posterior sigma stays near the
-        prior's. Control corrections are not judged one by one: each carries the trajectory's
-        common translation (and rotation), which no self-consistency energy sees; calibrate
-        names those gauge directions instead (held by E_def, eq. 5.3)."""
-        names = []
-        flag = self.intrinsics > UNOBSERVABLE_RATIO * self.intrinsics_prior
-        names += [f"fibre_{i}.{INTRINSIC_NAMES[k]}" for i, k in zip(*np.nonzero(flag))]
-        if self.extrinsic is not None:
-            names += [f"extrinsic.{EXTRINSIC_NAMES[k]}"
-                      for k in np.flatnonzero(self.extrinsic > UNOBSERVABLE_RATIO * self.extrinsic_prior)]
-        return names
 
 
 class DenseMarginals:

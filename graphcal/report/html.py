@@ -112,7 +112,7 @@ def _header(folder: Path, calibration: dict, manifest: dict, history: list[dict]
             ["stages", ", ".join(dict.fromkeys(row["mode"] for row in history))],
             ["outer iterations", str(len(history))],
             ["J before → after [cm²]", f"{energy.get('before', float('nan')):.4g} → {energy.get('after', float('nan')):.4g}"],
-            ["unobservable (held at nominal)", ", ".join(calibration.get("unobservable") or []) or "none"]]
+            ["unobservable", ", ".join(calibration.get("unobservable") or []) or "none"]]
     return f"<h1>graphcal calibration report: {html.escape(folder.name)}</h1>" + _table(["", ""], rows)
 
 
@@ -161,8 +161,11 @@ def _parameters(calibration: dict, recording) -> str:
         parts.append(f"<h3>{html.escape(title)}</h3>" + _table(header, rows))
     return _section("Parameters with 1-sigma", "".join(parts),
                     "1-sigma from the marginal covariances of the final graph (σ0 the nominal point noise). "
-                    "'unobservable': the data carry less than a third of the information about it; it is held at "
-                    "its nominal value and is not a measurement.")
+                    "'(unobservable)': the data see it, alone or in combination with others, less than ten times "
+                    "better than the nominal model's stated uncertainty; it is kept at its nominal value along what "
+                    "the data do not see, its sigma is the prior's, and it is not a measurement (calibration.yaml "
+                    "says why in unobservable_reasons). 'held at nominal': held by a setting or a static sensor's "
+                    "checks.")
 
 
 def _intrinsics_figure(calibration: dict, truth) -> bytes:

@@ -1,12 +1,14 @@
-"""Parameter tables (estimate ± 1-sigma, 'unobservable' where held at nominal) from a
-calibration.yaml mapping: shared by the HTML report and the viewer's parameters table."""
+"""Parameter tables (estimate ± 1-sigma, marked when the data cannot observe it, 'held at nominal'
+where it is held) from a calibration.yaml mapping: shared by the HTML report and the viewer's parameters
+table."""
 
 from __future__ import annotations
 
 from graphcal.calibration.observability import INTRINSIC_NAMES
 from graphcal.intrinsics import DISPLAY_FROM_FILE_UNITS
 
-UNOBSERVABLE = "unobservable"
+UNOBSERVABLE = "held at nominal"
+WEAK = " (unobservable)"  # a value the prior decides, not the data
 # calibration.yaml intrinsic field -> (shown name, factor from the file unit)
 INTRINSIC_COLUMNS = tuple(zip(INTRINSIC_NAMES, ("d_range [cm]", "d_azimuth [deg]", "d_elevation [deg]", "Hz [cm]"),
                               DISPLAY_FROM_FILE_UNITS.tolist()))
@@ -16,8 +18,8 @@ EXTRINSIC_ROWS = (("roll [deg]", "boresight_deg", 0, 1.0), ("pitch [deg]", "bore
 
 
 def with_sigma(value: float | None, sigma: float | None, factor: float = 1.0) -> str:
-    """'1.234 ± 0.012' in the display unit (value and sigma times factor); 'unobservable' for a
-    parameter held at nominal (None); the value alone when it has no sigma."""
+    """'1.234 ± 0.012' in the display unit (value and sigma times factor); 'held at nominal' for a
+    parameter held at its nominal value (None); the value alone when it has no sigma."""
     if value is None:
         return UNOBSERVABLE
     text = f"{value * factor:.4g}"
@@ -34,9 +36,12 @@ def parameter_rows(calibration: dict) -> list[tuple[str, list[str], list[list[st
     tables = []
     extrinsic = calibration["extrinsic"]
     sigma = extrinsic.get("sigma")
+    weak = set(calibration.get("unobservable") or [])
+    extrinsic_names = ("roll_deg", "pitch_deg", "yaw_deg", "lever_arm_x_m", "lever_arm_y_m", "lever_arm_z_m")
     rows = [[name, with_sigma(extrinsic[key][k] if sigma is None or sigma[key][k] is not None else None,
-                              None if sigma is None else sigma[key][k], factor)]
-            for name, key, k, factor in EXTRINSIC_ROWS]
+                              None if sigma is None else sigma[key][k], factor)
+             + (WEAK if sigma is not None and sigma[key][k] is not None and f"extrinsic.{full}" in weak else "")]
+            for (name, key, k, factor), full in zip(EXTRINSIC_ROWS, extrinsic_names)]
     title = "Extrinsic T_body_lidar" + ("" if sigma else " (not estimated: the nominal of extrinsic.yaml)")
     tables.append((title, ["parameter", "estimate"], rows))
     if intrinsics_estimated(calibration):
@@ -44,6 +49,7 @@ def parameter_rows(calibration: dict) -> list[tuple[str, list[str], list[list[st
         for row in calibration["intrinsics"]:
             sigmas = row.get("sigma")
             cells = ["0 (reference)" if sigmas is None else with_sigma(row[key], sigmas[key], factor)
+                     + (WEAK if row[key] is not None and f"fibre_{row['fibre']}.{key}" in weak else "")
                      for key, _, factor in INTRINSIC_COLUMNS]
             rows.append([str(row["fibre"])] + cells)
         tables.append(("Intrinsic offsets per fibre (from the nominal model)",
