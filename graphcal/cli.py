@@ -97,8 +97,9 @@ def calibration_config(mode: str, config: Path | None, overrides: dict | None = 
 @app.command()
 @_clear_errors
 def calibrate(recording: Annotated[Path, typer.Argument(help="recording directory")],
-              mode: Annotated[str, typer.Option(help="intrinsic, extrinsic, trajectory, joint, joint_trajectory, "
-                                                     "extrinsic_then_intrinsic, intrinsic_then_extrinsic")] = "intrinsic",
+              mode: Annotated[str, typer.Option(help="auto (what a mapping drive needs), intrinsic, extrinsic, "
+                                                     "trajectory, joint, joint_trajectory, extrinsic_then_intrinsic, "
+                                                     "intrinsic_then_extrinsic")] = "auto",
               config: Annotated[Path | None, typer.Option(help="YAML file of CalibrationConfig settings")] = None,
               out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-calibrate-<UTC time>)")] = None,
               evaluate: Annotated[bool, typer.Option(help="compare with truth/ when the recording has one")] = True,

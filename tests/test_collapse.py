@@ -108,3 +108,21 @@ def test_an_energy_the_noise_does_not_explain_is_refused():
     check_energy_explained(50.0, None, 0.01, "rec")  # no prediction: pairs whitened by a nominal sigma
     with pytest.raises(CalibrationError, match="J ends at 6 cm2 where the measured noise .* predicts 1.2 cm2"):
         check_energy_explained(6.0, 1.2, 0.01, "rec")
+
+
+def test_auto_estimates_the_trajectory_only_where_the_drive_comes_back():
+    from graphcal.calibration.problem import revisits
+    from graphcal.poses import PoseTrack
+
+    t = np.arange(0.0, 60.0, 0.1)
+    straight = np.column_stack([8.0 * t, np.zeros_like(t), np.zeros_like(t)])
+    angle = 2 * np.pi * t / 40.0  # a 40 s loop of radius 40 m, driven one and a half times
+    loop = np.column_stack([40 * np.cos(angle), 40 * np.sin(angle), np.zeros_like(t)])
+    rpy = np.zeros((len(t), 3))
+    assert not revisits(PoseTrack.from_rpy(t, straight, rpy))
+    assert revisits(PoseTrack.from_rpy(t, loop, rpy))
+    auto = CalibrationConfig()
+    assert auto.for_sensor(False, 0.01, revisits=False).mode == "joint"
+    assert auto.for_sensor(False, 0.01, revisits=True).mode == "joint_trajectory"
+    assert auto.for_sensor(True, 0.01).mode == "intrinsic"
+    assert CalibrationConfig(mode="extrinsic").for_sensor(False, 0.01, revisits=True).mode == "extrinsic"

@@ -22,6 +22,7 @@ from graphcal.calibration.observability import (
     pose_sigmas,
 )
 from graphcal.calibration.problem import (
+    revisits,
     Estimate,
     ReturnData,
     initial_estimate,
@@ -82,7 +83,7 @@ def _calibrate(recording: Recording, config: CalibrationConfig, quiet: bool) -> 
     timings = {}  # stage -> seconds
     data = prepare(recording, config.control_interval_s, config.max_points, np.random.default_rng(config.seed),
                    range_noise_m=config.range_noise_m)
-    config = config.for_sensor(data.static, data.range_noise_m)
+    config = config.for_sensor(data.static, data.range_noise_m, revisits(recording.world.poses))
     timings["prepare"] = time.perf_counter() - started
     estimate = initial_estimate(recording, data)
     nominal = estimate.extrinsic

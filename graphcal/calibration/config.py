@@ -12,8 +12,9 @@ from graphcal.calibration.observability import EXTRINSIC_NAMES, INTRINSIC_NAMES
 from graphcal.errors import ConfigError
 from graphcal.range_noise import noisy
 
-Mode = Literal["intrinsic", "extrinsic", "trajectory", "joint", "joint_trajectory",
+Mode = Literal["auto", "intrinsic", "extrinsic", "trajectory", "joint", "joint_trajectory",
                "extrinsic_then_intrinsic", "intrinsic_then_extrinsic"]
+
 
 # what each single-stage mode estimates: (intrinsics, extrinsic, trajectory)
 ESTIMATES = {"intrinsic": (True, False, False), "extrinsic": (False, True, False),
@@ -38,8 +39,13 @@ class CalibrationConfig(BaseModel):
     step falls below tolerance_m or max_outer_iterations is reached."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
-    mode: Mode = "intrinsic"
-    max_points: int | None = Field(None, ge=1000, description="use a random subset of this many returns")
+    mode: Mode = Field("auto", description=(
+        "what to estimate; auto: what a mapping drive needs, intrinsics and extrinsic (joint), plus trajectory "
+        "corrections when the drive comes back to where it was (joint_trajectory: only a second pass shows the "
+        "trajectory's errors, trajectory_revisits); a static sensor: intrinsic (held by its checks)"))
+    max_points: int | None = Field(1_000_000, ge=1000, description=(
+        "use a random subset of this many returns (None: all); the pairs per fibre pair are capped "
+        "(max_pairs_per_fibre_pair), so more returns mostly sharpen the normals and cost time"))
     neighbours: int = Field(2, ge=1, description="N: fibres j in [i-N, i+N] in elevation order")
     refresh_every: int = Field(2, ge=1, description="K: outer iterations between feature refreshes")
     refresh_above_m: float = Field(0.001, ge=0, description=(
@@ -143,9 +149,13 @@ class CalibrationConfig(BaseModel):
             held_names(hold, MAX_FIBRES, None)
         return hold
 
-    def for_sensor(self, static: bool, range_noise_m: float = np.nan) -> CalibrationConfig:
-        """The settings left to the recording (None) resolved for a static or a moving sensor whose
-        range noise is range_noise_m (as measured when it was not set; NaN: unknown, left as set)."""
+    def for_sensor(self, static: bool, range_noise_m: float = np.nan, revisits: bool = False) -> CalibrationConfig:
+        """The settings left to the recording (None, mode auto) resolved for a static or a moving sensor whose
+        range noise is range_noise_m (as measured when it was not set; NaN: unknown, left as set) and whose
+        drive comes back to where it was or not (revisits)."""
+        mode = self.mode
+        if mode == "auto":
+            mode = "intrinsic" if static else ("joint_trajectory" if revisits else "joint")
         noise_m = self.range_noise_m if np.isnan(range_noise_m) else float(range_noise_m)
         noisy_head = noisy(np.nan if noise_m is None else noise_m)
         voxel_m = self.feature_voxel_m
@@ -158,7 +168,7 @@ class CalibrationConfig(BaseModel):
             "feature_voxel_m": voxel_m, "hold": hold,
             "hold_soft": static if self.hold_soft is None else self.hold_soft,
             "check_halves": static if self.check_halves is None else self.check_halves,
-            "fixed_association": fixed, "range_noise_m": noise_m,
+            "fixed_association": fixed, "range_noise_m": noise_m, "mode": mode,
             "pair_noise": self.pair_noise or ("incidence" if noisy_head else "uniform")})
 
     def coarse(self) -> CalibrationConfig:

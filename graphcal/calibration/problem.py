@@ -11,17 +11,21 @@ from dataclasses import dataclass, replace
 
 import gtsam
 import numpy as np
+from scipy.spatial import cKDTree
 
 from factors.spherical import beam_rays
 from factors.world_point import Corrections, Returns, world_points
 from graphcal.association import Sight
 from graphcal.extrinsic import Extrinsic
+from graphcal.poses import PoseTrack
 from graphcal.range_noise import measured_range_noise_m, noisy
 from graphcal.recording import Recording
 from graphcal.sensor import SensorModel
 from graphcal.trajectory_noise import PoseNoise, measured_pose_noise
 
 STATIC_BELOW_M = 1.0  # a sensor whose positions span less than this is static
+REVISIT_WITHIN_M = 5.0  # a drive revisits a place when it passes within this of where it was ...
+REVISIT_AFTER_S = 20.0  # ... at least this much earlier
 
 
 @dataclass(frozen=True)
@@ -100,6 +104,20 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
                       columns["range"][rows].astype(np.float64), columns["azimuth"][rows].astype(np.float64),
                       time, rotation.as_matrix(), position - origin, control, alpha, control_times, origin, range_noise_m,
                       measured_pose_noise(recording.world.poses))
+
+
+def revisits(poses: PoseTrack) -> bool:
+    """Whether the drive comes back to where it was (within REVISIT_WITHIN_M of a position it held at least
+    REVISIT_AFTER_S earlier): only then do pairs between two passes show the trajectory's errors."""
+    times = np.arange(poses.span[0], poses.span[1], 1.0)
+    if len(times) < 2:
+        return False
+    position, _ = poses.interpolate(times)
+    tree = cKDTree(position)
+    for a, b in tree.query_pairs(REVISIT_WITHIN_M):
+        if abs(times[a] - times[b]) >= REVISIT_AFTER_S:
+            return True
+    return False
 
 
 def control_grid(anchor_s: float, first_s: float, last_s: float, interval_s: float) -> np.ndarray:
