@@ -49,7 +49,7 @@ def _truth_as_nominal(recording_dir: Path) -> None:
         row["elevation_deg"] = float(row["elevation_deg"] + np.degrees(d_elevation))
         row["azimuth_offset_deg"] = float(row.get("azimuth_offset_deg", 0.0) + np.degrees(d_azimuth))
         row["range_offset_m"] = float(row.get("range_offset_m", 0.0) + d_range)
-        row["vertical_offset_m"] = float(row.get("vertical_offset_m", 0.0) + h_z)
+        row["height_offset_m"] = float(row.get("height_offset_m", 0.0) + h_z)
     (recording_dir / "sensor.yaml").write_text(yaml.safe_dump(sensor))
     shutil.copy(recording_dir / "truth" / "extrinsic.yaml", recording_dir / "extrinsic.yaml")
     save_offsets_csv(recording_dir / "truth" / "intrinsics.csv", np.zeros_like(truth))

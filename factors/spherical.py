@@ -32,7 +32,7 @@ class FactoryTerms:
     """Per-return factory model terms (arrays broadcastable to the returns).
 
     elevation_rad: phi_i; azimuth_offset_rad: alpha_i; range_offset_m: r0_i;
-    vertical_offset_m: V_i; horizontal_offset_m: H_i.
+    vertical_offset_m: V_i; horizontal_offset_m: H_i; height_offset_m: Z_i.
     """
 
     elevation_rad: np.ndarray
@@ -40,6 +40,7 @@ class FactoryTerms:
     range_offset_m: np.ndarray | float = 0.0
     vertical_offset_m: np.ndarray | float = 0.0
     horizontal_offset_m: np.ndarray | float = 0.0
+    height_offset_m: np.ndarray | float = 0.0
 
 
 def _angles(range_m, azimuth_rad, factory: FactoryTerms, offsets):
@@ -72,7 +73,8 @@ def to_xyz_with_jacobian(range_m, azimuth_rad, factory: FactoryTerms, offsets, j
     ca, sa = np.cos(a), np.sin(a)
     ce, se = elevation_trig if elevation_trig is not None else (np.cos(e), np.sin(e))
     h = r * ce - V * se
-    xyz = np.stack([h * ca + H * sa, -h * sa + H * ca, r * se + V * ce + offsets[..., 3]], axis=-1)
+    xyz = np.stack([h * ca + H * sa, -h * sa + H * ca, r * se + V * ce + factory.height_offset_m + offsets[..., 3]],
+                   axis=-1)
     if not jacobian:
         return xyz, None
     J = np.zeros(xyz.shape + (4,))
@@ -108,7 +110,7 @@ def from_xyz(xyz, factory: FactoryTerms, offsets) -> tuple[np.ndarray, np.ndarra
     """
     xyz = np.asarray(xyz, dtype=np.float64)
     offsets = np.asarray(offsets, dtype=np.float64)
-    x, y, z = xyz[..., 0], xyz[..., 1], xyz[..., 2] - offsets[..., 3]
+    x, y, z = xyz[..., 0], xyz[..., 1], xyz[..., 2] - offsets[..., 3] - factory.height_offset_m
     V, H = factory.vertical_offset_m, factory.horizontal_offset_m
     e = factory.elevation_rad + offsets[..., 2]
     # x - i y = (h - i H) exp(-i a)... written with psi = atan2(-y, x): a = psi + atan2(H, h)

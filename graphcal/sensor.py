@@ -11,7 +11,7 @@ from factors.spherical import FactoryTerms, from_xyz, to_xyz_with_jacobian
 from graphcal.errors import RecordingError, finite_number
 
 OPTIONAL_FIBRE_FIELDS = ("azimuth_offset_deg", "range_offset_m", "vertical_offset_m",
-                         "horizontal_offset_m")
+                         "horizontal_offset_m", "height_offset_m")
 
 
 @dataclass(frozen=True)
@@ -40,6 +40,7 @@ class SensorModel:
     range_offset_m: np.ndarray
     vertical_offset_m: np.ndarray
     horizontal_offset_m: np.ndarray
+    height_offset_m: np.ndarray
     timing: FiringTiming | None = field(default=None, compare=False)
 
     @property
@@ -54,6 +55,7 @@ class SensorModel:
             range_offset_m=self.range_offset_m[fibre],
             vertical_offset_m=self.vertical_offset_m[fibre],
             horizontal_offset_m=self.horizontal_offset_m[fibre],
+            height_offset_m=self.height_offset_m[fibre],
         )
 
     def to_xyz(self, fibre, range_m, azimuth_rad, offsets=None) -> np.ndarray:

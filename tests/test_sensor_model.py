@@ -140,3 +140,21 @@ def test_factory_terms_default_to_eq_4_1():
     np.testing.assert_allclose(jacobian[0], [[1, 0, 0, 0], [0, -10, 0, 0], [0, 0, 10, 1]], atol=1e-12)
     assert from_xyz(np.array([[0.0, -10.0, 0.0]]), FactoryTerms(np.array([0.0])), np.zeros((1, 4)))[1][0] == \
         pytest.approx(np.pi / 2)
+
+
+def test_a_calibration_folds_into_the_factory_terms_exactly():
+    """With no vertical or horizontal laser offset, offsets (d_rho, d_theta, d_phi, Hz) folded into the
+    factory terms (range, azimuth and height offsets, elevation) give the same points: a calibrated
+    model can be the next calibration's nominal (sensor.yaml's height_offset_m holds Hz)."""
+    from factors.spherical import FactoryTerms, to_xyz
+
+    rng = np.random.default_rng(6)
+    n = 500
+    elevation = np.radians(rng.uniform(-30, 10, n))
+    offsets = np.column_stack([rng.normal(0, 0.03, n), rng.normal(0, 0.005, n), rng.normal(0, 0.005, n),
+                               rng.normal(0, 0.03, n)])
+    range_m, azimuth = rng.uniform(2, 60, n), rng.uniform(0, 2 * np.pi, n)
+    calibrated = to_xyz(range_m, azimuth, FactoryTerms(elevation), offsets)
+    folded = FactoryTerms(elevation + offsets[:, 2], azimuth_offset_rad=offsets[:, 1], range_offset_m=offsets[:, 0],
+                          height_offset_m=offsets[:, 3])
+    np.testing.assert_allclose(to_xyz(range_m, azimuth, folded, np.zeros((n, 4))), calibrated, atol=1e-12)

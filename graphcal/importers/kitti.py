@@ -151,7 +151,7 @@ def import_kitti(drive: str | Path, calibration: VelodyneCalibration | None = No
     sensor = SensorModel(model="HDL-64E", rotation_hz=float(1.0 / np.median(end - start)),
                          reference_fibre=int(np.argmin(np.abs(elevation_deg))), elevation_deg=elevation_deg,
                          azimuth_offset_deg=zeros, range_offset_m=zeros, vertical_offset_m=vertical_m,
-                         horizontal_offset_m=zeros, timing=base.timing)
+                         horizontal_offset_m=zeros, height_offset_m=zeros, timing=base.timing)
     columns = {key: [] for key in ("time", "fibre", "range", "azimuth", "intensity", "scan")}
     misfit = []
     for index, path in enumerate(progress(scans, f"reading {drive.name}", quiet=quiet)):

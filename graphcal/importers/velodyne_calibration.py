@@ -72,7 +72,7 @@ def read_velodyne_calibration(path: str | Path, model: str | None = None) -> Vel
     model = model or MODEL_BY_LASERS.get(n, f"Velodyne-{n}")
     if model in CATALOG and CATALOG[model].n_fibres != n:
         raise RecordingError(path, f"{n} lasers", expected=f"{CATALOG[model].n_fibres} lasers for a {model}")
-    columns = {name: np.array([row[name] for row in rows]) for name in ("elevation_deg",) + OPTIONAL_FIBRE_FIELDS}
+    columns = {name: np.array([row.get(name, 0.0) for row in rows]) for name in ("elevation_deg",) + OPTIONAL_FIBRE_FIELDS}
     two_point = max((row["two_point_m"] for row in rows), default=0.0)
     sensor = SensorModel(model=model, rotation_hz=10.0, reference_fibre=int(np.argmin(np.abs(columns["elevation_deg"]))),
                          timing=CATALOG[model].timing if model in CATALOG else None, **columns)
