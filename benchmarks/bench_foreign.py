@@ -35,22 +35,18 @@ MOUNTS = ("level", "tilted")
 
 
 def _truth_as_nominal(recording_dir: Path) -> None:
-    """Rewrite a simulated recording so that its nominal model is the truth (offsets folded into
-    sensor.yaml's optional per-fibre fields, the true extrinsic as extrinsic.yaml) and its truth zero
+    """Rewrite a simulated recording so that its nominal model is the truth (the true offsets folded into
+    sensor.yaml, SensorModel.with_offsets; the true extrinsic as extrinsic.yaml) and its truth zero
     offsets from it."""
     import numpy as np
-    import yaml
 
     from graphcal.intrinsics import load_offsets_csv, save_offsets_csv
+    from graphcal.sensor import SensorModel
+    from graphcal.yamlfile import read_yaml, write_yaml
 
-    sensor = yaml.safe_load((recording_dir / "sensor.yaml").read_text())
-    truth = load_offsets_csv(recording_dir / "truth" / "intrinsics.csv", len(sensor["fibres"]))
-    for row, (d_range, d_azimuth, d_elevation, h_z) in zip(sensor["fibres"], truth):
-        row["elevation_deg"] = float(row["elevation_deg"] + np.degrees(d_elevation))
-        row["azimuth_offset_deg"] = float(row.get("azimuth_offset_deg", 0.0) + np.degrees(d_azimuth))
-        row["range_offset_m"] = float(row.get("range_offset_m", 0.0) + d_range)
-        row["height_offset_m"] = float(row.get("height_offset_m", 0.0) + h_z)
-    (recording_dir / "sensor.yaml").write_text(yaml.safe_dump(sensor))
+    sensor = SensorModel.from_dict(read_yaml(recording_dir / "sensor.yaml"), recording_dir / "sensor.yaml")
+    truth = load_offsets_csv(recording_dir / "truth" / "intrinsics.csv", sensor.n_fibres)
+    write_yaml(recording_dir / "sensor.yaml", sensor.with_offsets(truth).to_dict())
     shutil.copy(recording_dir / "truth" / "extrinsic.yaml", recording_dir / "extrinsic.yaml")
     save_offsets_csv(recording_dir / "truth" / "intrinsics.csv", np.zeros_like(truth))
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -74,6 +74,18 @@ class SensorModel:
     def from_xyz(self, fibre, xyz, offsets=None):
         """Inverse of eq. 4.2: (range m, azimuth rad, off-cone distance m) per return."""
         return from_xyz(xyz, self.factory_terms(fibre), self._per_return(fibre, offsets))
+
+    def with_offsets(self, offsets: np.ndarray) -> SensorModel:
+        """This model with a calibration's offsets (n_fibres, 4; m, rad, rad, m) folded into its factory
+        terms: the same points with zero offsets (exact where the laser has no vertical or horizontal
+        offset, V_i = H_i = 0), a nominal model for the next calibration."""
+        offsets = np.asarray(offsets, dtype=np.float64)
+        if np.any(self.vertical_offset_m != 0) or np.any(self.horizontal_offset_m != 0):
+            raise ValueError("offsets fold exactly only into a model without vertical and horizontal laser offsets")
+        return replace(self, elevation_deg=self.elevation_deg + np.degrees(offsets[:, 2]),
+                       azimuth_offset_deg=self.azimuth_offset_deg + np.degrees(offsets[:, 1]),
+                       range_offset_m=self.range_offset_m + offsets[:, 0],
+                       height_offset_m=self.height_offset_m + offsets[:, 3])
 
     def fibres_by_elevation(self) -> np.ndarray:
         """Fibre ids sorted from the lowest to the highest beam."""

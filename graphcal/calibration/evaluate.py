@@ -18,7 +18,7 @@ from graphcal.calibration.problem import (
 )
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.errors import GraphcalError
-from graphcal.calibration.observability import INTRINSIC_NAMES
+from graphcal.calibration.observability import EXTRINSIC_NAMES, INTRINSIC_NAMES
 from graphcal.intrinsics import (
     DISPLAY_FROM_FILE_UNITS,
     DISPLAY_NAMES,
@@ -121,15 +121,19 @@ class Evaluation:
 class Scorecard:
     """The intrinsics against truth over the parameters the result does not name unobservable: RMS error
     per type (cm, deg, deg, cm; NaN where every one of a type is named), the fraction of their errors
-    within 3 of the reported 1-sigmas, and the fraction of all intrinsic parameters named."""
+    within 3 of the reported 1-sigmas, and the fraction of all intrinsic parameters named; the extrinsic's
+    error over its reported sigma per estimated axis (roll, pitch, yaw, lever arm x, y, z about body axes)
+    that is not named unobservable."""
 
     rms_observable: np.ndarray
     within_3_sigma: float
     named_fraction: float
+    extrinsic_z: dict
 
     def to_dict(self) -> dict:
         return {"rms_observable": dict(zip(DISPLAY_NAMES, map(float, self.rms_observable))),
-                "within_3_sigma": self.within_3_sigma, "named_fraction": self.named_fraction}
+                "within_3_sigma": self.within_3_sigma, "named_fraction": self.named_fraction,
+                "extrinsic_z": self.extrinsic_z}
 
 
 def scorecard(result: CalibrationResult, recording: Recording) -> Scorecard:
@@ -143,7 +147,15 @@ def scorecard(result: CalibrationResult, recording: Recording) -> Scorecard:
     sigma = result.sigmas.intrinsics
     within = float(np.mean(np.abs(error[free]) <= 3 * sigma[free])) if free.any() else np.nan
     total = 4 * (sensor.n_fibres - 1)
-    return Scorecard(rms * DISPLAY_FROM_FILE_UNITS, within, float((total - free.sum()) / total))
+    extrinsic_z = {}
+    if result.sigmas.extrinsic is not None:
+        truth = recording.truth.extrinsic
+        estimate = result.calibration.estimate.extrinsic
+        turn = Rotation.from_matrix(estimate.rotation().matrix() @ truth.R_body_lidar.T).as_rotvec(degrees=True)
+        error = np.r_[turn, estimate.translation() - np.asarray(truth.lever_arm_m)]
+        extrinsic_z = {name: float(e / s) for name, e, s in zip(EXTRINSIC_NAMES, error, result.sigmas.extrinsic)
+                       if f"extrinsic.{name}" not in named}
+    return Scorecard(rms * DISPLAY_FROM_FILE_UNITS, within, float((total - free.sum()) / total), extrinsic_z)
 
 
 def intrinsic_rms(offsets: np.ndarray, truth: np.ndarray, reference_fibre: int) -> np.ndarray:
