@@ -1,4 +1,4 @@
-"""Draw docs/figures/frames.png: the sensor, body and world frames of docs/frames.md.
+"""Draw docs/figures/frames.png: the sensor, body and world frames of docs/concepts.md.
 
 Run from anywhere:  python docs/figures/make_frames_figure.py
 Deterministic (Agg backend, no random input, no timestamp in the PNG metadata).

@@ -18,7 +18,7 @@ from pathlib import Path
 from PIL import Image
 from rerun.experimental import ViewerClient
 
-from graphcal.viz.stream import viewer_executable
+from graphcal.viewer.stream import viewer_executable
 
 
 def main() -> None:
