@@ -35,8 +35,8 @@ from pathlib import Path
 import numpy as np
 from common import peak_gib, run_in_process
 
-from graphcal.atomic import atomic_path
-from graphcal.sim.starts import FAR_START_PRIORS
+from graphcal.common.atomic import atomic_path
+from graphcal.simulation.starts import FAR_START_PRIORS
 
 RESULTS = Path(__file__).resolve().parent / "results"
 SECTION_4_5_2 = {"start": "section_4_5_2"}
@@ -65,14 +65,21 @@ JOINT_VS_SUCCESSIVE = ("turn_extrinsic_then_intrinsic", "turn_intrinsic_then_ext
 def _case(name: str, size: float, max_points: int | None, seed: int, queue) -> None:
     import graphcal
     from graphcal.calibration.evaluate import intrinsic_rms
-    from graphcal.intrinsics import offsets_from_file_units
-    from graphcal.sim.script import load_scenario_builder
+    from graphcal.recording.intrinsics import offsets_from_file_units
+    from graphcal.simulation.script import load_scenario_builder
 
     scenario_name, scenario_settings, settings = CASES[name]
     recording = graphcal.simulate(load_scenario_builder(scenario_name)(size=size, seed=seed, **scenario_settings),
                                   quiet=True)
     started = time.perf_counter()
-    result = graphcal.calibrate(recording, graphcal.CalibrationConfig(**settings, max_points=max_points, seed=seed), quiet=True)
+    try:
+        result = graphcal.calibrate(recording, graphcal.CalibrationConfig(**settings, max_points=max_points, seed=seed),
+                                    quiet=True)
+    except graphcal.CalibrationError as error:  # refused: say so, with its seconds, and go on
+        queue.put({"case": name, "seed": seed, "returns": len(recording.points), "refused": str(error),
+                   "calibrate_s": time.perf_counter() - started, "peak_gib": peak_gib(), "outer_iterations": 0,
+                   "timings_s": {}, "table": "", "unobservable": []})
+        return
     seconds = time.perf_counter() - started
     evaluation = graphcal.evaluate(result, recording)
     row = {"case": name, "seed": seed, "returns": len(recording.points), "max_points": max_points, "calibrate_s": seconds,

@@ -39,8 +39,8 @@ GROUND_BELOW_M = -2.0  # lidar-frame z under which a return is ground (the head 
 
 
 def _recording(name: str, size: float, **changes):
-    from graphcal.sim.script import load_scenario_builder
-    from graphcal.sim.simulator import simulate
+    from graphcal.simulation.script import load_scenario_builder
+    from graphcal.simulation.simulator import simulate
 
     scenario = load_scenario_builder(name)(size=size, **changes)
     return scenario, simulate(scenario, quiet=True)
@@ -60,9 +60,9 @@ def _best_of(repeats: int, job) -> tuple[float, float]:
 
 def _throughput(name: str, size: float, queue) -> None:
     import graphcal
-    import graphcal.deskewing as deskew_module
-    from graphcal.deskewing import deskew_points, scan_offsets
-    from graphcal.recording import Recording
+    import graphcal.deskewing.deskew as deskew_module
+    from graphcal.deskewing.deskew import deskew_points, scan_offsets
+    from graphcal.recording.directory import Recording
 
     _, recording = _recording(name, size)
     n = len(recording.points)
@@ -89,7 +89,7 @@ def _throughput(name: str, size: float, queue) -> None:
 
 
 def _truth_stats(scans, recording) -> dict:
-    from graphcal.deskew_metrics import truth_distance
+    from graphcal.deskewing.metrics import truth_distance
 
     distance = truth_distance(scans, recording)
     return {"mean_m": float(distance.mean()), "p95_m": float(np.percentile(distance, 95)),
@@ -98,7 +98,7 @@ def _truth_stats(scans, recording) -> dict:
 
 def _accuracy(name: str, size: float, queue) -> None:
     import graphcal
-    from graphcal.deskew_metrics import DeskewMetrics
+    from graphcal.deskewing.metrics import DeskewMetrics
 
     _, recording = _recording(name, size)
     figures = {"returns": len(recording.points)}
@@ -175,9 +175,9 @@ class _Rows:
 
 def _noise_sweep(size: float, queue) -> None:
     import graphcal
-    from graphcal.deskew_metrics import truth_distance
-    from graphcal.sim.odometry import simulate_odometry
-    from graphcal.sim.scenario import OdometrySpec
+    from graphcal.deskewing.metrics import truth_distance
+    from graphcal.simulation.odometry import simulate_odometry
+    from graphcal.simulation.scenario import OdometrySpec
 
     sweeps = {"wheel_noise_mrad": ([0.0, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0], False),
               "gyro_noise_deg_s": ([0.0, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0], True)}
@@ -206,7 +206,7 @@ def _plot(sweep: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from graphcal.atomic import atomic_path
+    from graphcal.common.atomic import atomic_path
 
     figure, axes = plt.subplots(1, 2, figsize=(10, 4))
     titles = {"wheel_noise_mrad": ("yaw from the wheels (eq. 2)", "wheel angle noise per 10 ms sample [mrad]"),
@@ -252,7 +252,7 @@ def main() -> None:
     figures["target_returns_per_s"] = TARGET_RETURNS_PER_S
     figures["met"] = bool(best >= TARGET_RETURNS_PER_S)
     print(json.dumps(figures, indent=1))
-    from graphcal.atomic import atomic_path
+    from graphcal.common.atomic import atomic_path
 
     RESULTS.mkdir(parents=True, exist_ok=True)
     with atomic_path(RESULTS / "deskew.json") as tmp:

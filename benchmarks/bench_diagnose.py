@@ -32,7 +32,7 @@ def _config(mode: str, max_points: int, outer_iterations: int = 6):
 def _effect(effects: tuple[str, ...], size: float, max_points: int, queue) -> None:
     import graphcal
     from graphcal.diagnosis.compare import compare
-    from graphcal.sim.script import load_scenario_builder
+    from graphcal.simulation.script import load_scenario_builder
 
     build = load_scenario_builder("concealed")
     concealed = build.__globals__["CONCEALED"]
@@ -64,7 +64,7 @@ def _effect(effects: tuple[str, ...], size: float, max_points: int, queue) -> No
 
 def _budget(max_points: int, queue) -> None:
     import graphcal
-    from graphcal.sim.script import load_scenario_builder
+    from graphcal.simulation.script import load_scenario_builder
 
     # pitched head: a level one in this flat courtyard gives the joint baseline a direction it slides along
     # into the fibres' collapse (docs/math.md), which calibrate refuses. No INS error: joint mode does not

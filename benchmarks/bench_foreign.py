@@ -27,7 +27,7 @@ from common import peak_gib, run_in_process
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools.foreign_sim, from the checkout
 
-from graphcal.atomic import atomic_path
+from graphcal.common.atomic import atomic_path
 
 RESULTS = Path(__file__).resolve().parent / "results"
 FAMILIES = ("box_street", "suburb", "open_road", "relief_street")
@@ -40,9 +40,9 @@ def _truth_as_nominal(recording_dir: Path) -> None:
     offsets from it."""
     import numpy as np
 
-    from graphcal.intrinsics import load_offsets_csv, save_offsets_csv
-    from graphcal.sensor import SensorModel
-    from graphcal.yamlfile import read_yaml, write_yaml
+    from graphcal.recording.intrinsics import load_offsets_csv, save_offsets_csv
+    from graphcal.recording.sensor import SensorModel
+    from graphcal.common.yamlfile import read_yaml, write_yaml
 
     sensor = SensorModel.from_dict(read_yaml(recording_dir / "sensor.yaml"), recording_dir / "sensor.yaml")
     truth = load_offsets_csv(recording_dir / "truth" / "intrinsics.csv", sensor.n_fibres)
@@ -55,7 +55,7 @@ def _case(family: str, mount: str, size: float, duration_s: float, seed: int, fr
           queue) -> None:
     import graphcal
     from graphcal.calibration.evaluate import scorecard
-    from graphcal.errors import CalibrationError
+    from graphcal.common.errors import CalibrationError
     from tools.foreign_sim import simulate
 
     with tempfile.TemporaryDirectory() as folder:

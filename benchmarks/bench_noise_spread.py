@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 from common import peak_gib
 
-from graphcal.atomic import atomic_path
-from graphcal.sim.starts import FAR_START_PRIORS
+from graphcal.common.atomic import atomic_path
+from graphcal.simulation.starts import FAR_START_PRIORS
 
 RESULTS = Path(__file__).resolve().parent / "results"
 # eq. 4.6 units of (d_range, d_azimuth, d_elevation, h_z): cm, deg, deg, cm
@@ -35,8 +35,8 @@ def main() -> None:
     from graphcal.calibration.problem import initial_estimate, prepare
     from graphcal.calibration.shared_returns import SharedReturnsCovariance
     from graphcal.calibration.solve import Priors, build_graph, make_blocks, strict_pairs
-    from graphcal.progress import progress
-    from graphcal.sim.script import load_scenario_builder
+    from graphcal.common.progress import progress
+    from graphcal.simulation.script import load_scenario_builder
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=float, default=1.0, help="fraction of firings (1 = full size)")

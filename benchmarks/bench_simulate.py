@@ -20,8 +20,8 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def _simulate(out: str, size: float, queue) -> None:
-    from graphcal.sim.script import load_scenario_builder
-    from graphcal.sim.simulator import simulate
+    from graphcal.simulation.script import load_scenario_builder
+    from graphcal.simulation.simulator import simulate
 
     started = time.perf_counter()
     recording = simulate(load_scenario_builder("sim6_turn")(size=size, seed=0), quiet=True)
@@ -32,7 +32,7 @@ def _simulate(out: str, size: float, queue) -> None:
 
 
 def _load(out: str, queue) -> None:
-    from graphcal.recording import Recording
+    from graphcal.recording.directory import Recording
 
     started = time.perf_counter()
     recording = Recording.load(out)

@@ -35,7 +35,7 @@ def run_in_process(target, *args) -> dict:
 
 def report(figures: dict, path: Path) -> None:
     """Print the figures (a dict value as a titled group) and write them to `path` as JSON, atomically."""
-    from graphcal.atomic import atomic_path
+    from graphcal.common.atomic import atomic_path
 
     def show(items, indent=""):
         for key, value in items.items():

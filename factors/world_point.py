@@ -110,7 +110,7 @@ class Turn:
 
 
 def on_stand_ins(measured: Returns, offsets: np.ndarray, shift_m: np.ndarray) -> tuple[Returns, np.ndarray]:
-    """The returns with their ranges' stand-ins (range + shift_m [m], graphcal.association.Sight), and the
+    """The returns with their ranges' stand-ins (range + shift_m [m], graphcal.calibration.association.Sight), and the
     offset (N,3) [m] in each one's sensor frame from eq. 4.2's point at the stand-in range to the
     measured one at the intrinsic offsets (N,4): world_points with held_lidar = that offset gives the
     measured points at those offsets, but the Jacobians of the intrinsic angles, which scale with the

@@ -17,10 +17,10 @@ from dataclasses import dataclass
 import numpy as np
 from pyproj import CRS
 
-from graphcal.geodesy import grid_to_geodetic, map_factors
-from graphcal.sim.scenario import Scenario
-from graphcal.sim.script import load_scenario_builder, run_scenario_script
-from graphcal.sim.starts import PITCHED_HEAD
+from graphcal.recording.geodesy import grid_to_geodetic, map_factors
+from graphcal.simulation.scenario import Scenario
+from graphcal.simulation.script import load_scenario_builder, run_scenario_script
+from graphcal.simulation.starts import PITCHED_HEAD
 
 CRS_NAME = "EPSG:32631"
 # 288 km west of the zone's central meridian at 48.8 N: grid scale factor k = 1.00102

@@ -4,10 +4,10 @@ One revolution lasts 0.1 s, so the vehicle moves 1 m during a sweep (1.38 m at 5
 holds wheel angles and a gyro yaw rate (noiseless by default; pass another OdometrySpec).
 """
 
-from graphcal.sim.drive import Drive, straight
-from graphcal.sim.scenario import SEED_002_ODOMETRY, OdometrySpec, Scenario
-from graphcal.sim.scene import ParkedCar, Pole, street
-from graphcal.sim.script import run_scenario_script
+from graphcal.simulation.drive import Drive, straight
+from graphcal.simulation.scenario import SEED_002_ODOMETRY, OdometrySpec, Scenario
+from graphcal.simulation.scene import ParkedCar, Pole, street
+from graphcal.simulation.script import run_scenario_script
 
 
 def scenario(size: float = 1.0, seed: int = 0, speed_m_s: float = 10.0,

@@ -4,10 +4,10 @@ The head turns 2.5 deg more during a sweep than a static model assumes: 2.19 m a
 odometry.csv holds wheel angles and a gyro yaw rate (noiseless by default; pass another OdometrySpec).
 """
 
-from graphcal.sim.drive import Drive, turn
-from graphcal.sim.scenario import SEED_002_ODOMETRY, OdometrySpec, Scenario
-from graphcal.sim.scene import Facade, Ground, Pole
-from graphcal.sim.script import run_scenario_script
+from graphcal.simulation.drive import Drive, turn
+from graphcal.simulation.scenario import SEED_002_ODOMETRY, OdometrySpec, Scenario
+from graphcal.simulation.scene import Facade, Ground, Pole
+from graphcal.simulation.script import run_scenario_script
 
 HALF_SIDE_M = 50.0
 

@@ -2,7 +2,7 @@
 
 start="table_4_1" (default): intrinsic errors with the RMS of Table 4.1, exact extrinsic;
 start="section_4_5_2": the start of seed 000's joint vs successive comparison (both in
-graphcal/sim/starts.py). On this straight drive the lever arm and the roll about the driving
+graphcal/simulation/starts.py). On this straight drive the lever arm and the roll about the driving
 line are unobservable; sim6_turn with the same start has a turn that shows them.
 
 The head is pitched 20 deg forward (spin axis tilted towards the driving direction), as mobile
@@ -14,11 +14,11 @@ Facades carry pilasters and two ledges (3.5 m, 7 m) whose horizontal faces the u
 
 from typing import Literal
 
-from graphcal.sim.drive import Drive, straight
-from graphcal.sim.scenario import Scenario
-from graphcal.sim.scene import ParkedCar, Pole, street
-from graphcal.sim.script import run_scenario_script
-from graphcal.sim.starts import STARTS
+from graphcal.simulation.drive import Drive, straight
+from graphcal.simulation.scenario import Scenario
+from graphcal.simulation.scene import ParkedCar, Pole, street
+from graphcal.simulation.script import run_scenario_script
+from graphcal.simulation.starts import STARTS
 
 
 def scenario(size: float = 1.0, seed: int = 0, range_noise_m: float = 0.0,

@@ -7,7 +7,7 @@ corrects; heading_error_deg adds a constant INS heading (yaw) error, which only 
 trajectory corrections can correct (seed 001's conclusion).
 
 start="section_4_5_2" mounts the head pitched and sets seed 000's joint vs successive start
-(graphcal/sim/starts.py): on this drive the turn makes the lever arm's x and y and the boresight
+(graphcal/simulation/starts.py): on this drive the turn makes the lever arm's x and y and the boresight
 observable, which sim2_street's straight drive cannot (the vertical lever arm stays unobservable
 on flat ground).
 """
@@ -15,11 +15,11 @@ on flat ground).
 from typing import Literal
 
 
-from graphcal.sim.drive import Drive, straight, turn
-from graphcal.sim.scenario import ExtrinsicSpec, InsErrors, IntrinsicErrors, Scenario
-from graphcal.sim.scene import Facade, Ground
-from graphcal.sim.script import run_scenario_script
-from graphcal.sim.starts import STARTS
+from graphcal.simulation.drive import Drive, straight, turn
+from graphcal.simulation.scenario import ExtrinsicSpec, InsErrors, IntrinsicErrors, Scenario
+from graphcal.simulation.scene import Facade, Ground
+from graphcal.simulation.script import run_scenario_script
+from graphcal.simulation.starts import STARTS
 
 COURTYARD = ((-40.0, -30.0), (40.0, -30.0), (40.0, 30.0), (-40.0, 30.0))
 

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from graphcal.association import Features, Sight, associate, local_features, neighbour_fibres
-from graphcal.sensor import sensor_from_catalog
+from graphcal.calibration.association import Features, Sight, associate, local_features, neighbour_fibres
+from graphcal.recording.sensor import sensor_from_catalog
 
 
 def test_features_of_a_plane_a_line_and_a_blob():

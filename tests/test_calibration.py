@@ -22,10 +22,10 @@ from graphcal.calibration.evaluate import (
     nominal_calibration,
 )
 from graphcal.calibration.result import Calibration
-from graphcal.sim.scenario import ExtrinsicSpec, IntrinsicErrors
-from graphcal.sim.scene import ParkedCar
-from graphcal.sim.script import load_scenario_builder
-from graphcal.sim.starts import FAR_START_PRIORS
+from graphcal.simulation.scenario import ExtrinsicSpec, IntrinsicErrors
+from graphcal.simulation.scene import ParkedCar
+from graphcal.simulation.script import load_scenario_builder
+from graphcal.simulation.starts import FAR_START_PRIORS
 
 SIM2 = load_scenario_builder("sim2_street")
 

@@ -5,10 +5,10 @@ import pytest
 
 from graphcal.calibration.checks import check_energy_fell, check_fibres_apart
 from graphcal.calibration.config import CalibrationConfig, held_names
-from graphcal.errors import CalibrationError, ConfigError
-from graphcal.sensor import sensor_from_catalog
-from graphcal.sim.scenario import draw_offsets
-from graphcal.sim.starts import TABLE_4_1_ERRORS
+from graphcal.common.errors import CalibrationError, ConfigError
+from graphcal.recording.sensor import sensor_from_catalog
+from graphcal.simulation.scenario import draw_offsets
+from graphcal.simulation.starts import TABLE_4_1_ERRORS
 
 
 def test_table_4_1_offsets_are_not_a_collapse():
@@ -65,7 +65,7 @@ def test_a_calibration_that_ends_above_its_start_is_refused():
 
 
 def test_a_hold_naming_nothing_is_refused_when_the_settings_are_read(tmp_path):
-    from graphcal.cli import calibration_config
+    from graphcal.cli.main import calibration_config
 
     settings = tmp_path / "settings.yaml"
     settings.write_text("hold: ['fibre_*.d_elevation']\n")  # the unit is missing
@@ -112,7 +112,7 @@ def test_an_energy_the_noise_does_not_explain_is_refused():
 
 def test_auto_estimates_the_trajectory_only_where_the_drive_comes_back():
     from graphcal.calibration.problem import revisits
-    from graphcal.poses import PoseTrack
+    from graphcal.recording.poses import PoseTrack
 
     t = np.arange(0.0, 60.0, 0.1)
     straight = np.column_stack([8.0 * t, np.zeros_like(t), np.zeros_like(t)])

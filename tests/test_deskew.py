@@ -10,20 +10,20 @@ from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
 import graphcal
-import graphcal.points
-from graphcal.cli import app
-from graphcal.cloud_io import pose_to_3dtk, read_3dtk_pose
-from graphcal.deskew_metrics import DeskewMetrics, icp_errors, occupied_cells, truth_distance
-from graphcal.deskewing import iter_scans, relative_lidar_poses
-from graphcal.errors import ConfigError, RecordingError
-from graphcal.points import PointTable
-from graphcal.recording import Recording
-from graphcal.scan_files import POSE_COLUMNS
-from graphcal.sim.odometry import simulate_odometry
-from graphcal.sim.scenario import OdometrySpec
-from graphcal.sim.script import load_scenario_builder
-from graphcal.sim.simulator import simulate
-from graphcal.tables import read_csv_columns
+import graphcal.recording.points
+from graphcal.cli.main import app
+from graphcal.clouds.formats import pose_to_3dtk, read_3dtk_pose
+from graphcal.deskewing.metrics import DeskewMetrics, icp_errors, occupied_cells, truth_distance
+from graphcal.deskewing.deskew import iter_scans, relative_lidar_poses
+from graphcal.common.errors import ConfigError, RecordingError
+from graphcal.recording.points import PointTable
+from graphcal.recording.directory import Recording
+from graphcal.deskewing.scan_files import POSE_COLUMNS
+from graphcal.simulation.odometry import simulate_odometry
+from graphcal.simulation.scenario import OdometrySpec
+from graphcal.simulation.script import load_scenario_builder
+from graphcal.simulation.simulator import simulate
+from graphcal.common.tables import read_csv_columns
 
 SIZE = 0.05
 
@@ -149,7 +149,7 @@ def test_revolutions_from_the_azimuth_and_across_batches(linear, monkeypatch):
     columns = recording.points.read()
     del columns["scan"]
     no_counter = dataclasses.replace(recording, points=PointTable.from_arrays(**columns))
-    monkeypatch.setattr(graphcal.points, "BATCH_ROWS", 5000)
+    monkeypatch.setattr(graphcal.recording.points, "BATCH_ROWS", 5000)
     for variant in (recording, no_counter):
         scans = list(iter_scans(variant, "ins", quiet=True))
         assert [s.first_row for s in scans] == [s.first_row for s in reference]

@@ -22,9 +22,9 @@ from typer.testing import CliRunner
 
 import graphcal
 from graphcal.calibration.config import CalibrationConfig
-from graphcal.cli import app
-from graphcal.runs import diagnosis_run
-from graphcal.sim.script import load_scenario_builder
+from graphcal.cli.main import app
+from graphcal.cli.runs import diagnosis_run
+from graphcal.simulation.script import load_scenario_builder
 
 CONCEALED_SCENARIO = load_scenario_builder("concealed")
 CONCEALED = CONCEALED_SCENARIO.__globals__["CONCEALED"]

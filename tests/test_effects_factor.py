@@ -15,7 +15,7 @@ from factors.point_to_plane import (
     residuals,
 )
 from factors.world_point import Returns
-from graphcal.sensor import sensor_from_catalog
+from graphcal.recording.sensor import sensor_from_catalog
 
 X = gtsam.symbol_shorthand.X
 I = gtsam.symbol_shorthand.I

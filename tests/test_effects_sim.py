@@ -5,12 +5,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from graphcal.geodesy import to_world
-from graphcal.georeference import georeference
-from graphcal.sim.drive import Drive, straight
-from graphcal.sim.scenario import ExtrinsicSpec, Scenario
-from graphcal.sim.scene import Pole, street
-from graphcal.sim.simulator import simulate
+from graphcal.recording.geodesy import to_world
+from graphcal.recording.georeference import georeference
+from graphcal.simulation.drive import Drive, straight
+from graphcal.simulation.scenario import ExtrinsicSpec, Scenario
+from graphcal.simulation.scene import Pole, street
+from graphcal.simulation.simulator import simulate
 
 
 def small(**changes) -> Scenario:

@@ -14,9 +14,9 @@ import pytest
 
 import graphcal
 from graphcal.calibration.evaluate import scorecard
-from graphcal.intrinsics import load_offsets_csv, save_offsets_csv
-from graphcal.sensor import SensorModel
-from graphcal.yamlfile import read_yaml, write_yaml
+from graphcal.recording.intrinsics import load_offsets_csv, save_offsets_csv
+from graphcal.recording.sensor import SensorModel
+from graphcal.common.yamlfile import read_yaml, write_yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tools.foreign_sim import simulate  # noqa: E402

@@ -223,8 +223,8 @@ def test_graphcal_georeferencing_agrees(recordings, family):
     """graphcal's own chain (sensor model, extrinsic, interpolated poses) with the true values
     gives the same world points as the small re-implementation above."""
     import graphcal
-    from graphcal.geodesy import to_world
-    from graphcal.georeference import georeference
+    from graphcal.recording.geodesy import to_world
+    from graphcal.recording.georeference import georeference
 
     directory = recordings[family]
     rec = graphcal.Recording.load(directory)

@@ -1,4 +1,4 @@
-"""Georeferencing (graphcal.geodesy) and pose interpolation (graphcal.poses) against pyproj,
+"""Georeferencing (graphcal.recording.geodesy) and pose interpolation (graphcal.recording.poses) against pyproj,
 closed-form transverse Mercator and analytic motion."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 import graphcal
 from graphcal import Recording, RecordingError
-from graphcal.geodesy import (
+from graphcal.recording.geodesy import (
     geodetic_to_grid,
     grid_to_geodetic,
     map_factors,
@@ -18,11 +18,11 @@ from graphcal.geodesy import (
     to_world,
     utm_crs,
 )
-from graphcal.poses import PoseTrack
-from graphcal.sim.drive import Drive, straight, turn
-from graphcal.sim.scenario import Scenario
-from graphcal.sim.scene import street
-from graphcal.trajectory import Trajectory
+from graphcal.recording.poses import PoseTrack
+from graphcal.simulation.drive import Drive, straight, turn
+from graphcal.simulation.scenario import Scenario
+from graphcal.simulation.scene import street
+from graphcal.recording.trajectory import Trajectory
 
 A_WGS84, F_WGS84, K0_UTM = 6378137.0, 1 / 298.257223563, 0.9996
 PARIS = (48.8566, 2.3522)

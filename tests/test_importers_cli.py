@@ -6,10 +6,10 @@ from test_importers_trajectory import _sbet_records
 from typer.testing import CliRunner
 from velodyne_synth import position_packet, spinning_capture, udp_frame
 
-from graphcal.cli import app
+from graphcal.cli.main import app
 from graphcal.importers.sbet import import_sbet
-from graphcal.recording import Recording
-from graphcal.trajectory import Trajectory
+from graphcal.recording.directory import Recording
+from graphcal.recording.trajectory import Trajectory
 
 
 def _capture_with_fix(tmp_path):

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from graphcal.errors import RecordingError
+from graphcal.common.errors import RecordingError
 from graphcal.importers.kitti import import_kitti
-from graphcal.recording import Recording
-from graphcal.sensor import sensor_from_catalog
+from graphcal.recording.directory import Recording
+from graphcal.recording.sensor import sensor_from_catalog
 
 START = calendar.timegm((2011, 9, 26, 13, 2, 25)) + 0.5  # UTC
 SCAN_S = 0.1035

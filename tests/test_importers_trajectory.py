@@ -6,10 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from graphcal.errors import ConfigError, RecordingError
+from graphcal.common.errors import ConfigError, RecordingError
 from graphcal.importers.sbet import FIELDS, import_sbet, ned_to_enu_attitude_deg
 from graphcal.importers.trajectory_csv import CsvTrajectoryFormat, import_trajectory_csv
-from graphcal.rotations import rotation_from_rpy_deg
+from graphcal.recording.rotations import rotation_from_rpy_deg
 
 SBET = Path(__file__).resolve().parents[2] / "shared/data/real/leeward_airborne_las_sbet/sbet.out"
 

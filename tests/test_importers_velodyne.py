@@ -17,10 +17,10 @@ from velodyne_synth import (
     udp_frame,
 )
 
-from graphcal.errors import ConfigError, RecordingError
+from graphcal.common.errors import ConfigError, RecordingError
 from graphcal.importers.velodyne_calibration import read_velodyne_calibration
 from graphcal.importers.velodyne_pcap import decode_pcap, import_pcap
-from graphcal.recording import Recording
+from graphcal.recording.directory import Recording
 
 REAL = Path(__file__).resolve().parents[2] / "shared/data/real"
 VELOVIEW = REAL / "veloview_hdl32e_vlp16_pcap"

@@ -4,14 +4,14 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from graphcal.dead_reckoning import increments, integrate, odometry_track
-from graphcal.odometry import Odometry
-from graphcal.recording import Recording
-from graphcal.sim.drive import Drive, straight, turn
-from graphcal.sim.odometry import simulate_odometry
-from graphcal.sim.scenario import OdometrySpec
-from graphcal.sim.script import load_scenario_builder
-from graphcal.sim.simulator import simulate
+from graphcal.deskewing.dead_reckoning import increments, integrate, odometry_track
+from graphcal.recording.odometry import Odometry
+from graphcal.recording.directory import Recording
+from graphcal.simulation.drive import Drive, straight, turn
+from graphcal.simulation.odometry import simulate_odometry
+from graphcal.simulation.scenario import OdometrySpec
+from graphcal.simulation.script import load_scenario_builder
+from graphcal.simulation.simulator import simulate
 
 RADIUS_M, ANGLE_DEG, SPEED = 12.0, 60.0, 6.0
 

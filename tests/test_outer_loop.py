@@ -92,7 +92,7 @@ def test_features_are_computed_again_only_when_the_cloud_changes_shape():
 
 def test_the_coarse_phase_sample_keeps_each_return_whole():
     from graphcal.calibration.problem import ReturnData
-    from graphcal.sensor import sensor_from_catalog
+    from graphcal.recording.sensor import sensor_from_catalog
 
     rng = np.random.default_rng(3)
     n = 5000

@@ -7,7 +7,7 @@ import pytest
 from factors import so3
 from factors.point_to_plane import Block, BlockKeys, compress, jacobian_by_key, make_factor, residuals
 from factors.world_point import Returns
-from graphcal.sensor import sensor_from_catalog
+from graphcal.recording.sensor import sensor_from_catalog
 
 X = gtsam.symbol_shorthand.X
 I = gtsam.symbol_shorthand.I

@@ -1,4 +1,4 @@
-"""The head's range noise measured from its own returns (graphcal.range_noise) and what it decides."""
+"""The head's range noise measured from its own returns (graphcal.recording.range_noise) and what it decides."""
 
 from dataclasses import replace
 
@@ -7,8 +7,8 @@ import pytest
 
 import graphcal
 from graphcal.calibration.problem import initial_estimate, prepare, sight_at, world_at
-from graphcal.range_noise import NOISY_ABOVE_M, measured_range_noise_m
-from graphcal.sim.script import load_scenario_builder
+from graphcal.recording.range_noise import NOISY_ABOVE_M, measured_range_noise_m
+from graphcal.simulation.script import load_scenario_builder
 
 
 def _wall_sweep(noise_m: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

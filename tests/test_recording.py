@@ -19,14 +19,14 @@ import pytest
 import yaml
 
 import graphcal
-import graphcal.atomic
-import graphcal.points
+import graphcal.common.atomic
+import graphcal.recording.points
 from graphcal import Recording, RecordingError
-from graphcal.odometry import Odometry
-from graphcal.points import PointTable
-from graphcal.sim.drive import Drive, straight, turn
-from graphcal.sim.scenario import ExtrinsicSpec, IntrinsicErrors, Scenario
-from graphcal.sim.scene import street
+from graphcal.recording.odometry import Odometry
+from graphcal.recording.points import PointTable
+from graphcal.simulation.drive import Drive, straight, turn
+from graphcal.simulation.scenario import ExtrinsicSpec, IntrinsicErrors, Scenario
+from graphcal.simulation.scene import street
 
 # points.parquet column types of RECORDING.md
 CONTRACT_DTYPES = {"time": np.float64, "fibre": np.int16, "range": np.float32, "azimuth": np.float32,
@@ -515,7 +515,7 @@ BATCH = 1000
 
 @pytest.fixture
 def small_batches(monkeypatch):
-    monkeypatch.setattr(graphcal.points, "BATCH_ROWS", BATCH)
+    monkeypatch.setattr(graphcal.recording.points, "BATCH_ROWS", BATCH)
     return BATCH
 
 
@@ -613,7 +613,7 @@ def test_failed_final_rename_restores_the_previous_recording(rec_dir, simulated,
             raise OSError("rename failed")
         return real_replace(src, dst)
 
-    monkeypatch.setattr(graphcal.atomic.os, "replace", replace)
+    monkeypatch.setattr(graphcal.common.atomic.os, "replace", replace)
     with pytest.raises(OSError, match="rename failed"):
         save_copy(simulated, rec_dir)
     monkeypatch.undo()
@@ -639,10 +639,10 @@ def test_saved_files_follow_the_umask(valid_dir):
 
 
 def test_a_batch_of_returns_shares_the_world_trajectory(simulated, monkeypatch):
-    import graphcal.recording
+    import graphcal.recording.directory
 
-    real, calls = graphcal.recording.to_world, []
-    monkeypatch.setattr(graphcal.recording, "to_world", lambda *args: calls.append(args) or real(*args))
+    real, calls = graphcal.recording.directory.to_world, []
+    monkeypatch.setattr(graphcal.recording.directory, "to_world", lambda *args: calls.append(args) or real(*args))
     recording = dataclasses.replace(simulated)  # its own cache
     world = recording.world
     batch = recording.with_points(PointTable.from_arrays(**recording.points.read(["time", "fibre", "range", "azimuth"])))

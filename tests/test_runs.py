@@ -21,12 +21,12 @@ from typer.testing import CliRunner
 import graphcal
 from graphcal.calibration.before_after import BeforeAfter
 from graphcal.calibration.evaluate import nominal_calibration
-from graphcal.cli import app
-from graphcal.cloud_io import las_writer
-from graphcal.corrected_cloud import write_corrected_cloud
-from graphcal.errors import ConfigError
-from graphcal.recording import Recording
-from graphcal.sim.script import load_scenario_builder
+from graphcal.cli.main import app
+from graphcal.clouds.formats import las_writer
+from graphcal.calibration.corrected_cloud import write_corrected_cloud
+from graphcal.common.errors import ConfigError
+from graphcal.recording.directory import Recording
+from graphcal.simulation.script import load_scenario_builder
 
 SIM6 = load_scenario_builder("sim6_turn")
 VIEWER_POINTS = 5000
@@ -201,7 +201,7 @@ def test_evaluate_command_matches_the_run_and_needs_truth(calibrated, tmp_path):
 @pytest.mark.parametrize("suffix", [".laz", ".ply"])
 def test_apply_writes_the_corrected_cloud_georeferenced(calibrated, tmp_path, monkeypatch, suffix):
     recording_path, folder = calibrated
-    monkeypatch.setattr("graphcal.corrected_cloud.BATCH_ROWS", 30_000)  # in several batches
+    monkeypatch.setattr("graphcal.calibration.corrected_cloud.BATCH_ROWS", 30_000)  # in several batches
     out = tmp_path / f"cloud{suffix}"
     result = CliRunner().invoke(app, ["apply", str(folder), str(recording_path), "--out", str(out), "-q"])
     assert result.exit_code == 0, result.output
@@ -235,7 +235,7 @@ def test_apply_of_a_nominal_calibration_with_a_batch_of_one_return(calibrated, t
     be equal (NaN points written as the most negative LAS integer) for a batch of one return."""
     recording = Recording.load(calibrated[0])
     nominal = nominal_calibration(recording)
-    monkeypatch.setattr("graphcal.corrected_cloud.BATCH_ROWS", len(recording.points) - 1)
+    monkeypatch.setattr("graphcal.calibration.corrected_cloud.BATCH_ROWS", len(recording.points) - 1)
     las = laspy.read(write_corrected_cloud(tmp_path / "nominal.las", nominal, recording, quiet=True))
     np.testing.assert_allclose(np.column_stack([las.x, las.y, las.z]), graphcal.apply_calibration(nominal, recording),
                                atol=5.1e-5)
@@ -286,8 +286,8 @@ def test_deskew_run_rrd_shows_raw_and_deskewed_revolutions(tmp_path):
 
 
 def test_spawn_without_a_display_warns_and_writes_the_file_whole(tmp_path, monkeypatch, capsys):
-    from graphcal.viz.log import log_summary
-    from graphcal.viz.stream import recording_stream
+    from graphcal.viewer.log import log_summary
+    from graphcal.viewer.stream import recording_stream
 
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
@@ -302,8 +302,8 @@ def test_spawn_without_a_display_warns_and_writes_the_file_whole(tmp_path, monke
 
 
 def test_run_folder_names_times_and_links_the_latest(tmp_path):
-    from graphcal.errors import RecordingError
-    from graphcal.run_folder import RunFolder, read_manifest
+    from graphcal.common.errors import RecordingError
+    from graphcal.common.run_folder import RunFolder, read_manifest
 
     first = RunFolder.create(None, "sim6_turn", "calibrate", root=tmp_path)
     assert re.fullmatch(r"sim6_turn-calibrate-\d{8}T\d{6}Z", first.path.name)

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from graphcal.cli import app
-from graphcal.demo import run_demo
-from graphcal.recording import Recording
-from graphcal.sim.script import SCENARIOS_DIR, load_scenario_builder
+from graphcal.cli.main import app
+from graphcal.cli.demo import run_demo
+from graphcal.recording.directory import Recording
+from graphcal.simulation.script import SCENARIOS_DIR, load_scenario_builder
 
 SCENARIOS = ["sim2_street", "sim6_turn", "deskew_linear", "deskew_rotation"]
 

@@ -13,7 +13,7 @@ from factors.spherical import (
     to_xyz,
     to_xyz_with_jacobian,
 )
-from graphcal.sensor import CATALOG, SensorModel, sensor_from_catalog
+from graphcal.recording.sensor import CATALOG, SensorModel, sensor_from_catalog
 
 SHARED_CALIBRATION = Path(__file__).resolve().parents[2] / "shared/data/real/nebula_velodyne_rosbag2/calibration"
 

@@ -12,7 +12,7 @@ import yaml
 
 import factors.point_to_plane
 import graphcal
-from graphcal.sim.starts import FAR_START_PRIORS
+from graphcal.simulation.starts import FAR_START_PRIORS
 from graphcal.calibration.calibrate import final_fit
 from graphcal.calibration.config import ESTIMATES, CalibrationConfig
 from graphcal.calibration.observability import INTRINSIC_NAMES, DenseMarginals
@@ -20,7 +20,7 @@ from graphcal.calibration.result import SIGMA_SHARED
 from graphcal.calibration.problem import initial_estimate, prepare
 from graphcal.calibration.shared_returns import SharedReturnsCovariance
 from graphcal.calibration.solve import I, Priors, build_graph, make_blocks, strict_pairs
-from graphcal.sim.script import load_scenario_builder
+from graphcal.simulation.script import load_scenario_builder
 
 RANGE_NOISE_M = 0.01
 INTRINSIC = ESTIMATES["intrinsic"]

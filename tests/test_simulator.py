@@ -5,18 +5,18 @@ import pytest
 from pydantic import ValidationError
 
 import graphcal
-from graphcal.errors import ConfigError
-from graphcal.geodesy import to_world
-from graphcal.georeference import georeference
-from graphcal.sim.drive import Drive, loop, straight, turn
-from graphcal.sim.scenario import (
+from graphcal.common.errors import ConfigError
+from graphcal.recording.geodesy import to_world
+from graphcal.recording.georeference import georeference
+from graphcal.simulation.drive import Drive, loop, straight, turn
+from graphcal.simulation.scenario import (
     ExtrinsicSpec,
     InsErrors,
     IntrinsicErrors,
     Scenario,
     draw_offsets,
 )
-from graphcal.sim.scene import (
+from graphcal.simulation.scene import (
     Box,
     Facade,
     Ground,
@@ -25,7 +25,7 @@ from graphcal.sim.scene import (
     RaycastScene,
     street,
 )
-from graphcal.sim.simulator import simulate
+from graphcal.simulation.simulator import simulate
 
 SPEED = 10.0
 
@@ -265,7 +265,7 @@ def test_scenario_validation_names_the_problem():
 
 
 def test_effects_are_on_or_off_by_name():
-    from graphcal.effects import build_effects
+    from graphcal.recording.effects import build_effects
 
     assert [e.name for e in build_effects({})] == ["intra_sweep_motion"]  # on by default
     assert [e.name for e in build_effects({"time_offset": {"offset_s": 0.01}})] == ["intra_sweep_motion",
@@ -280,7 +280,7 @@ def test_recorded_trajectory_covers_the_returns_at_any_ins_rate(tmp_path):
 
 
 def test_every_registered_effect_is_documented():
-    from graphcal.effects import REGISTRY
+    from graphcal.recording.effects import REGISTRY
 
     assert {"intra_sweep_motion", "time_offset", "range_scale", "azimuth_eccentricity", "heading_drift"} <= set(REGISTRY)
     for cls in REGISTRY.values():

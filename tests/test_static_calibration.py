@@ -9,16 +9,16 @@ import pytest
 import graphcal
 from graphcal.calibration.result import HALVES_FILE
 from graphcal.importers.velodyne_pcap import import_pcap
-from graphcal.points import PointTable
+from graphcal.recording.points import PointTable
 from graphcal.report.html import write_report
-from graphcal.yamlfile import read_yaml
+from graphcal.common.yamlfile import read_yaml
 
 MONTEREY = Path(__file__).resolve().parents[2] / "shared/data/real/veloview_hdl32e_vlp16_pcap/monterey-first-100-packets.pcap"
 
 
 # With the nearest return of a neighbouring fibre, the halves check on the ground fibres' heights
 # passed or failed with the random draw of the pairs (session 10); with the line-of-sight choice of
-# m (graphcal/association.py) it passed on every seed tried (0 to 15, session 11); the suite runs seed 0.
+# m (graphcal/calibration/association.py) it passed on every seed tried (0 to 15, session 11); the suite runs seed 0.
 # The failing branch is tested on the recording with one half's ground changed.
 SEED = 0
 

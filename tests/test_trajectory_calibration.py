@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import graphcal
-from graphcal.geodesy import to_world
-from graphcal.sim.script import load_scenario_builder
+from graphcal.recording.geodesy import to_world
+from graphcal.simulation.script import load_scenario_builder
 
 SIM6 = load_scenario_builder("sim6_turn")
 

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from graphcal.poses import PoseTrack
-from graphcal.trajectory_noise import measured_pose_noise
+from graphcal.recording.poses import PoseTrack
+from graphcal.recording.trajectory_noise import measured_pose_noise
 
 
 def _drive(rate_hz: float, seconds: float = 20.0):

@@ -13,7 +13,7 @@ from factors.world_point import (
     world_normals,
     world_points,
 )
-from graphcal.sensor import sensor_from_catalog
+from graphcal.recording.sensor import sensor_from_catalog
 
 N = 300
 
@@ -173,7 +173,7 @@ def test_returns_on_stand_ins_are_the_measured_points_with_offsets_held():
 
     import graphcal
     from graphcal.calibration.problem import corrections_at, initial_estimate, prepare, sight_at, world_at
-    from graphcal.sim.script import load_scenario_builder
+    from graphcal.simulation.script import load_scenario_builder
 
     recording = graphcal.simulate(load_scenario_builder("sim2_street")(size=0.1, seed=2, range_noise_m=0.01),
                                   quiet=True)

@@ -19,14 +19,14 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from graphcal.atomic import atomic_path
+from graphcal.common.atomic import atomic_path
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.evaluate import nominal_calibration, returns_for, world_of
 from graphcal.calibration.problem import ReturnData
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.calibration.solve import Association, features_at, phase_data, phase_sight
-from graphcal.errors import RecordingError
-from graphcal.recording import Recording
+from graphcal.common.errors import RecordingError
+from graphcal.recording.directory import Recording
 
 FILES = {"before": "pairs_nominal.parquet", "after": "pairs_calibrated.parquet"}
 _COLUMNS = ("row_p", "row_m", "weight", "residual_m", "x", "y", "z")

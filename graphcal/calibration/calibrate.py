@@ -10,7 +10,7 @@ import gtsam
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from graphcal.association import Correspondences
+from graphcal.calibration.association import Correspondences
 from graphcal.calibration.config import ESTIMATES, STAGES, CalibrationConfig, held_names
 from graphcal.calibration.observability import (
     EXTRINSIC_NAMES,
@@ -62,9 +62,9 @@ from graphcal.calibration.checks import (
 from graphcal.calibration.weak_analysis import layout_of, weak_at
 from graphcal.calibration.weak_directions import WeakDirections, lock_factor
 from graphcal.calibration.static_sensor import free_intrinsics, halves_over_draws, pair_draws, soft_over_draws
-from graphcal.errors import CalibrationError, ConfigError
-from graphcal.intrinsics import offsets_to_file_units
-from graphcal.recording import Recording
+from graphcal.common.errors import CalibrationError, ConfigError
+from graphcal.recording.intrinsics import offsets_to_file_units
+from graphcal.recording.directory import Recording
 
 
 def calibrate(recording: Recording, config: CalibrationConfig | None = None, quiet: bool = False) -> CalibrationResult:

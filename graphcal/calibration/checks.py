@@ -7,7 +7,7 @@ import gtsam
 import numpy as np
 
 from graphcal.calibration.weak_directions import Layout, tangent_about_nominal
-from graphcal.errors import CalibrationError
+from graphcal.common.errors import CalibrationError
 
 # calibrated elevations spread over less than this fraction of the nominal ones: the fibres collapsed
 COLLAPSE_RATIO = 0.5

@@ -9,8 +9,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from graphcal.calibration.observability import EXTRINSIC_NAMES, INTRINSIC_NAMES
-from graphcal.errors import ConfigError
-from graphcal.range_noise import noisy
+from graphcal.common.errors import ConfigError
+from graphcal.recording.range_noise import noisy
 
 Mode = Literal["auto", "intrinsic", "extrinsic", "trajectory", "joint", "joint_trajectory",
                "extrinsic_then_intrinsic", "intrinsic_then_extrinsic"]
@@ -122,7 +122,7 @@ class CalibrationConfig(BaseModel):
     extrinsic_sigma_lever_arm_m: float = Field(0.1, gt=0, description=(
         "the nominal extrinsic's stated uncertainty (1-sigma) on each lever-arm axis: a tape-measured mounting"))
     extrinsic_sigma_boresight_deg: float = Field(1.0, gt=0, description="the same for each boresight angle")
-    max_outer_iterations: int = Field(40, ge=1, description="n_max, per stage")
+    max_outer_iterations: int = Field(60, ge=1, description="n_max, per stage (coarse and fine phases together)")
     refuse_unconverged: bool = Field(True, description=(
         "a run whose outer iterations stop on max_outer_iterations before converging ends in CalibrationError "
         "(exit 3), and so does one whose J ends far above what the measured noise predicts; False returns the "

@@ -17,15 +17,15 @@ from graphcal.calibration.problem import (
     world_at,
 )
 from graphcal.calibration.result import Calibration, CalibrationResult
-from graphcal.errors import GraphcalError
+from graphcal.common.errors import GraphcalError
 from graphcal.calibration.observability import EXTRINSIC_NAMES, INTRINSIC_NAMES
-from graphcal.intrinsics import (
+from graphcal.recording.intrinsics import (
     DISPLAY_FROM_FILE_UNITS,
     DISPLAY_NAMES,
     offsets_to_file_units,
 )
-from graphcal.metrics import DistanceStats, cloud_to_cloud
-from graphcal.recording import Recording
+from graphcal.clouds.metrics import DistanceStats, cloud_to_cloud
+from graphcal.recording.directory import Recording
 
 
 def apply_calibration(calibration: Calibration, recording: Recording) -> np.ndarray:

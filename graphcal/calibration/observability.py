@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from graphcal.intrinsics import offsets_to_file_units
+from graphcal.recording.intrinsics import offsets_to_file_units
 
 POSE_TO_FILE_UNITS = np.r_[np.full(3, np.degrees(1.0)), np.ones(3)]  # [rad x3, m x3] -> [deg x3, m x3]
 INTRINSIC_NAMES = ("d_range_m", "d_azimuth_deg", "d_elevation_deg", "h_z_m")

@@ -15,13 +15,13 @@ from scipy.spatial import cKDTree
 
 from factors.spherical import beam_rays
 from factors.world_point import Corrections, Returns, world_points
-from graphcal.association import Sight
-from graphcal.extrinsic import Extrinsic
-from graphcal.poses import PoseTrack
-from graphcal.range_noise import measured_range_noise_m, noisy
-from graphcal.recording import Recording
-from graphcal.sensor import SensorModel
-from graphcal.trajectory_noise import PoseNoise, measured_pose_noise
+from graphcal.calibration.association import Sight
+from graphcal.recording.extrinsic import Extrinsic
+from graphcal.recording.poses import PoseTrack
+from graphcal.recording.range_noise import measured_range_noise_m, noisy
+from graphcal.recording.directory import Recording
+from graphcal.recording.sensor import SensorModel
+from graphcal.recording.trajectory_noise import PoseNoise, measured_pose_noise
 
 STATIC_BELOW_M = 1.0  # a sensor whose positions span less than this is static
 REVISIT_WITHIN_M = 5.0  # a drive revisits a place when it passes within this of where it was ...

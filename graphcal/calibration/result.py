@@ -14,7 +14,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from scipy.spatial.transform import Rotation
 
-from graphcal.atomic import atomic_path
+from graphcal.common.atomic import atomic_path
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.observability import (
     CONTROL_NAMES,
@@ -23,12 +23,12 @@ from graphcal.calibration.observability import (
     Uncertainty,
 )
 from graphcal.calibration.problem import Estimate, pose_of
-from graphcal.errors import RecordingError, finite_number
-from graphcal.extrinsic import Extrinsic
-from graphcal.intrinsics import offsets_from_file_units, offsets_to_file_units
-from graphcal.rotations import rpy_deg_from_rotation
-from graphcal.sensor import SensorModel
-from graphcal.yamlfile import read_yaml, write_yaml
+from graphcal.common.errors import RecordingError, finite_number
+from graphcal.recording.extrinsic import Extrinsic
+from graphcal.recording.intrinsics import offsets_from_file_units, offsets_to_file_units
+from graphcal.recording.rotations import rpy_deg_from_rotation
+from graphcal.recording.sensor import SensorModel
+from graphcal.common.yamlfile import read_yaml, write_yaml
 
 FORMAT = "graphcal-calibration/1"
 CALIBRATION_FILE = "calibration.yaml"

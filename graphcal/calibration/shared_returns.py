@@ -22,7 +22,7 @@ import numpy as np
 import scipy.sparse as sparse
 
 from factors.point_to_plane import Block, residuals
-from graphcal.association import Correspondences
+from graphcal.calibration.association import Correspondences
 from graphcal.calibration.observability import DenseMarginals
 from graphcal.calibration.problem import Estimate, ReturnData, rays_at
 

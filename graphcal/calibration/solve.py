@@ -25,7 +25,7 @@ from factors.point_to_plane import (
     pose_noise_sigma_m,
 )
 from factors.world_point import normals_to_lidar, on_stand_ins
-from graphcal.association import (
+from graphcal.calibration.association import (
     Correspondences,
     Features,
     Sight,
@@ -41,7 +41,7 @@ from graphcal.calibration.observability import (
     tangent_to_axes,
 )
 from graphcal.calibration.problem import Estimate, ReturnData, corrections_at, rays_at, sight_at, world_at
-from graphcal.progress import progress
+from graphcal.common.progress import progress
 
 I = gtsam.symbol_shorthand.I
 E = gtsam.symbol_shorthand.E  # extrinsic T_body_lidar, Pose3

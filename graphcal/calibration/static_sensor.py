@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from graphcal.association import Correspondences
+from graphcal.calibration.association import Correspondences
 from graphcal.calibration.config import ESTIMATES, CalibrationConfig
 from graphcal.calibration.observability import INTRINSIC_NAMES, soft_parameters
 from graphcal.calibration.problem import Estimate, ReturnData, world_at
@@ -32,7 +32,7 @@ from graphcal.calibration.solve import (
     solve_stage,
     strict_pairs,
 )
-from graphcal.intrinsics import offsets_to_file_units
+from graphcal.recording.intrinsics import offsets_to_file_units
 
 # estimates from the two azimuth halves differing by more than this many firm sigmas: not the sensor's
 HALVES_RATIO = 3.0

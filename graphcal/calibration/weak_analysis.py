@@ -6,7 +6,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from graphcal.association import Correspondences
+from graphcal.calibration.association import Correspondences
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.problem import Estimate, ReturnData
 from graphcal.calibration.solve import (

@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 
 from factors.effects import CANDIDATES, Channels, channel_jacobians
 from factors.world_point import Corrections, Turn, world_normals, world_points
-from graphcal.association import Features
+from graphcal.calibration.association import Features
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.problem import Estimate, initial_estimate, prepare, world_at
 from graphcal.calibration.solve import features_at
@@ -41,7 +41,7 @@ from graphcal.diagnosis.score import (
     score_candidate,
     separation,
 )
-from graphcal.recording import Recording
+from graphcal.recording.directory import Recording
 
 GATE_M = 0.3
 MAX_EFFECTS = 3

@@ -11,9 +11,9 @@ import numpy as np
 from factors.effects import CANDIDATES, Channels, Context, Motion, perturbed
 from factors.point_to_plane import EffectTerms
 from factors.world_point import world_points
-from graphcal.association import Features
+from graphcal.calibration.association import Features
 from graphcal.calibration.problem import Estimate, ReturnData, corrections_at, world_at
-from graphcal.poses import PoseTrack
+from graphcal.recording.poses import PoseTrack
 
 K = gtsam.symbol_shorthand.K  # candidate effect parameters, Vector
 

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from factors.effects import CANDIDATES
-from graphcal.atomic import atomic_path
+from graphcal.common.atomic import atomic_path
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.diagnosis.fit import Fit, baseline, refit
@@ -39,8 +39,8 @@ from graphcal.diagnosis.score import (
     separation,
     wald_at_refit,
 )
-from graphcal.progress import progress
-from graphcal.recording import Recording
+from graphcal.common.progress import progress
+from graphcal.recording.directory import Recording
 
 FORMAT = "graphcal-diagnosis/1"
 NOT_SEPARABLE_CORRELATION = 0.95
@@ -135,7 +135,7 @@ class Diagnosis:
 
     def save(self, directory: str | Path, command: str = "graphcal.diagnose") -> Path:
         """diagnosis.json, and when there is one, the re-solved calibration (calibration/calibration.yaml,
-        its effects listed). The viewer file is the run's (graphcal.runs.diagnosis_run)."""
+        its effects listed). The viewer file is the run's (graphcal.cli.runs.diagnosis_run)."""
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         with atomic_path(directory / "diagnosis.json") as tmp:
@@ -199,7 +199,7 @@ def candidate_names(fit: Fit, candidates: list[str] | None) -> list[str]:
     names = list(candidates or CANDIDATES)
     unknown = sorted(set(names) - set(CANDIDATES))
     if unknown:
-        from graphcal.errors import ConfigError
+        from graphcal.common.errors import ConfigError
         raise ConfigError(f"unknown candidate effect(s) {unknown}; known: {', '.join(CANDIDATES)}")
     return [n for n in names if n not in fit.model.names and not (n == "lever_arm" and fit.estimated[1])]
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass, replace
 import gtsam
 import numpy as np
 
-from graphcal.association import Correspondences, Features
+from graphcal.calibration.association import Correspondences, Features
 from graphcal.calibration.calibrate import calibrate
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.observability import TRAJECTORY_GAUGE
@@ -25,7 +25,7 @@ from graphcal.calibration.solve import (
     read_back,
 )
 from graphcal.diagnosis.context import EffectModel, ReturnContext, world_with_effects
-from graphcal.recording import Recording
+from graphcal.recording.directory import Recording
 
 BLOCK_S = 0.5  # time blocks of the drive: clusters of correlated residuals, and the held-out split
 VOXEL_M = 4.0

@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import stats
 
-from graphcal.association import associate
+from graphcal.calibration.association import associate
 from graphcal.calibration.problem import sight_at
 from graphcal.calibration.solve import Association
 from graphcal.diagnosis.fit import BLOCK_S, Fit, refit

@@ -14,8 +14,8 @@ import open3d as o3d
 
 from factors.spherical import beam_rays
 from graphcal.calibration.problem import Estimate, ReturnData, prepare, world_at
-from graphcal.points import PointTable
-from graphcal.recording import Recording
+from graphcal.recording.points import PointTable
+from graphcal.recording.directory import Recording
 
 POISSON_DEPTH = 11
 DENSITY_QUANTILE = 0.05  # mesh vertices supported by fewer points than this share are dropped

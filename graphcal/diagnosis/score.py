@@ -31,7 +31,7 @@ from scipy import optimize, stats
 
 from factors.effects import CANDIDATES
 from factors.point_to_plane import jacobian_by_key, residuals
-from graphcal.association import Correspondences
+from graphcal.calibration.association import Correspondences
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.observability import (
     CONTROL_NAMES,

@@ -32,16 +32,16 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from graphcal.errors import RecordingError
-from graphcal.extrinsic import Extrinsic
+from graphcal.common.errors import RecordingError
+from graphcal.recording.extrinsic import Extrinsic
 from graphcal.importers.gpstime import seconds_of_week
 from graphcal.importers.velodyne_calibration import VelodyneCalibration
-from graphcal.points import PointTable
-from graphcal.progress import progress
-from graphcal.recording import Recording
-from graphcal.rotations import rpy_deg_from_rotation, unwrap_deg
-from graphcal.sensor import SensorModel, sensor_from_catalog
-from graphcal.trajectory import Trajectory
+from graphcal.recording.points import PointTable
+from graphcal.common.progress import progress
+from graphcal.recording.directory import Recording
+from graphcal.recording.rotations import rpy_deg_from_rotation, unwrap_deg
+from graphcal.recording.sensor import SensorModel, sensor_from_catalog
+from graphcal.recording.trajectory import Trajectory
 
 _REFINE_SCANS = 5
 _OXTS_FIELDS = 30

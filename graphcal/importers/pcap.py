@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from graphcal.errors import RecordingError
+from graphcal.common.errors import RecordingError
 
 _MAGIC = {b"\xd4\xc3\xb2\xa1": ("<", 1e-6), b"\xa1\xb2\xc3\xd4": (">", 1e-6),
           b"\x4d\x3c\xb2\xa1": ("<", 1e-9), b"\xa1\xb2\x3c\x4d": (">", 1e-9)}

@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from graphcal.errors import RecordingError
-from graphcal.rotations import unwrap_deg
-from graphcal.trajectory import Trajectory
+from graphcal.common.errors import RecordingError
+from graphcal.recording.rotations import unwrap_deg
+from graphcal.recording.trajectory import Trajectory
 
 FIELDS = ("time", "lat", "lon", "alt", "velocity_x", "velocity_y", "velocity_z", "roll", "pitch", "heading",
           "wander", "acceleration_x", "acceleration_y", "acceleration_z", "rate_x", "rate_y", "rate_z")

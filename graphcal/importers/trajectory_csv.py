@@ -15,11 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from graphcal.errors import ConfigError
+from graphcal.common.errors import ConfigError
 from graphcal.importers.sbet import ned_to_enu_attitude_deg
-from graphcal.rotations import unwrap_deg
-from graphcal.tables import read_named_columns
-from graphcal.trajectory import Trajectory
+from graphcal.recording.rotations import unwrap_deg
+from graphcal.common.tables import read_named_columns
+from graphcal.recording.trajectory import Trajectory
 
 
 @dataclass(frozen=True)

@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from graphcal.errors import RecordingError, finite_number
-from graphcal.sensor import CATALOG, OPTIONAL_FIBRE_FIELDS, SensorModel
-from graphcal.yamlfile import read_yaml
+from graphcal.common.errors import RecordingError, finite_number
+from graphcal.recording.sensor import CATALOG, OPTIONAL_FIBRE_FIELDS, SensorModel
+from graphcal.common.yamlfile import read_yaml
 
 MODEL_BY_LASERS = {16: "VLP-16", 64: "HDL-64E"}  # 32 lasers: HDL-32E or VLP-32C, name it (model=...)
 # (db.xml tag, ROS YAML key, sensor.yaml column, factor to graphcal units from db.xml / from YAML)

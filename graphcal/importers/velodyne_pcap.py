@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from graphcal.errors import ConfigError, RecordingError
-from graphcal.extrinsic import Extrinsic
+from graphcal.common.errors import ConfigError, RecordingError
+from graphcal.recording.extrinsic import Extrinsic
 from graphcal.importers.gpstime import seconds_of_week
 from graphcal.importers.nmea import RmcFix, find_rmc
 from graphcal.importers.pcap import read_udp_payloads
@@ -36,11 +36,11 @@ from graphcal.importers.velodyne_packets import (
     revolution_counter,
     unwrap_hour_us,
 )
-from graphcal.points import PointTable
-from graphcal.progress import progress
-from graphcal.recording import Recording
-from graphcal.sensor import CATALOG, sensor_from_catalog
-from graphcal.trajectory import Trajectory
+from graphcal.recording.points import PointTable
+from graphcal.common.progress import progress
+from graphcal.recording.directory import Recording
+from graphcal.recording.sensor import CATALOG, sensor_from_catalog
+from graphcal.recording.trajectory import Trajectory
 
 DATA_PORT, POSITION_PORT = 2368, 8308
 POSITION_PACKET_BYTES = 512

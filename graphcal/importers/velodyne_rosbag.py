@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from graphcal.errors import ConfigError, RecordingError
+from graphcal.common.errors import ConfigError, RecordingError
 from graphcal.importers.velodyne_calibration import VelodyneCalibration
 from graphcal.importers.velodyne_packets import PACKET, PACKET_BYTES
 from graphcal.importers.velodyne_pcap import (
@@ -20,7 +20,7 @@ from graphcal.importers.velodyne_pcap import (
     decode_packets,
     recording_from_returns,
 )
-from graphcal.recording import Recording
+from graphcal.recording.directory import Recording
 
 SCAN_TYPE = "velodyne_msgs/msg/VelodyneScan"
 # ROS 2 bags do not carry message definitions: velodyne_msgs' own

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from graphcal.atomic import atomic_path
+from graphcal.common.atomic import atomic_path
 from graphcal.calibration.before_after import FILES as PAIRS_FILES
 from graphcal.calibration.before_after import BeforeAfter
 from graphcal.calibration.result import (
@@ -21,15 +21,15 @@ from graphcal.calibration.result import (
     HALVES_FILE,
     read_calibration_yaml,
 )
-from graphcal.errors import RecordingError
+from graphcal.common.errors import RecordingError
 from graphcal.report import figures
 from graphcal.report.tables import (
     INTRINSIC_COLUMNS,
     intrinsics_estimated,
     parameter_rows,
 )
-from graphcal.run_folder import MANIFEST
-from graphcal.yamlfile import read_yaml
+from graphcal.common.run_folder import MANIFEST
+from graphcal.common.yamlfile import read_yaml
 
 REPORT = "report.html"
 EVALUATION = "evaluation.yaml"
@@ -78,7 +78,7 @@ def _read_history(path: Path) -> list[dict]:
 
 def _recording(manifest: dict):
     """The run's recording when run.yaml names one that is still there, else None."""
-    from graphcal.recording import Recording
+    from graphcal.recording.directory import Recording
 
     path = manifest.get("recording")
     if not path or not Path(path, "recording.yaml").is_file():
@@ -169,7 +169,7 @@ def _parameters(calibration: dict, recording) -> str:
 
 
 def _intrinsics_figure(calibration: dict, truth) -> bytes:
-    from graphcal.intrinsics import offsets_to_file_units
+    from graphcal.recording.intrinsics import offsets_to_file_units
 
     rows = calibration["intrinsics"]
     keys = [key for key, _, _ in INTRINSIC_COLUMNS]
@@ -189,7 +189,7 @@ def _corrections_figure(corrections: list[dict], recording) -> bytes:
                       for row in corrections]) * 100.0
     truth = None
     if recording is not None and recording.truth is not None:
-        from graphcal.geodesy import to_world
+        from graphcal.recording.geodesy import to_world
 
         recorded, true = recording.world.poses, to_world(recording.truth.trajectory, recording.crs).poses
         inside = (time >= max(recorded.span[0], true.span[0])) & (time <= min(recorded.span[1], true.span[1]))

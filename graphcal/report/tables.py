@@ -5,7 +5,7 @@ table."""
 from __future__ import annotations
 
 from graphcal.calibration.observability import INTRINSIC_NAMES
-from graphcal.intrinsics import DISPLAY_FROM_FILE_UNITS
+from graphcal.recording.intrinsics import DISPLAY_FROM_FILE_UNITS
 
 UNOBSERVABLE = "held at nominal"
 WEAK = " (unobservable)"  # a value the prior decides, not the data

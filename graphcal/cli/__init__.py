@@ -1,0 +1,1 @@
+"""The command line (`graphcal ...`), the run folders its commands write, and the demo."""

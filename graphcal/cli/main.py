@@ -1,0 +1,443 @@
+"""`graphcal` command line. Bad input ends with one clear line and exit code 2."""
+
+from __future__ import annotations
+
+import functools
+import sys
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+app = typer.Typer(help="Target-free lidar self-calibration with a GTSAM factor graph.\n\n"
+                       "Commands that produce results write a run folder (runs/<recording>-<command>-<UTC time>/, "
+                       "runs/latest points at the last one): run.yaml, the results, run.rrd, report.html.\n\n"
+                       "Exit codes: 0 done; 2 bad input or an unusable environment (one line on stderr says what); "
+                       "3 a result graphcal recognises as wrong and refuses (e.g. collapsed fibres; one line says "
+                       "what); 1 an unexpected failure (a bug: the traceback is printed).",
+                  no_args_is_help=True, pretty_exceptions_enable=False)
+
+def _clear_errors(command):
+    """Turn graphcal's own errors into one line on stderr and exit code 2 (3 for a refused result)."""
+    @functools.wraps(command)
+    def wrapper(*args, **kwargs):
+        from graphcal.common.errors import CalibrationError, GraphcalError
+
+        try:
+            return command(*args, **kwargs)
+        except GraphcalError as error:
+            typer.echo(f"error: {error}", err=True)
+            raise typer.Exit(3 if isinstance(error, CalibrationError) else 2) from None
+    return wrapper
+
+
+@app.command()
+@_clear_errors
+def simulate(scenario: Annotated[str, typer.Argument(help="scenario name (sim6_turn, ...) or script path")],
+             out: Annotated[Path | None, typer.Option(help="recording directory to write")] = None,
+             size: Annotated[float, typer.Option(help="fraction of the sensor's firings kept")] = 1.0,
+             seed: Annotated[int, typer.Option(help="seed of every random draw")] = 0,
+             quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+    """Simulate a scenario and write its recording (with truth/)."""
+    from graphcal.simulation.script import load_scenario_builder
+    from graphcal.simulation.simulator import simulate as run
+
+    build = load_scenario_builder(scenario)
+    started = time.perf_counter()
+    recording = run(build(size=size, seed=seed), quiet=quiet)
+    out = out or Path("out") / recording.name
+    recording.save(out)
+    if not quiet:
+        typer.echo(f"{len(recording.points):,} returns written to {out} in {time.perf_counter() - started:.1f} s")
+
+
+@app.command()
+@_clear_errors
+def info(recording: Annotated[Path, typer.Argument(help="recording directory")]) -> None:
+    """Validate a recording (every return, in batches) and summarise it."""
+    from graphcal.recording.directory import Recording
+
+    rec = Recording.load(recording, validate=False)
+    summary = rec.validate()
+    world = rec.world
+    typer.echo(f"{rec.name}: {summary.n_points:,} returns from a {rec.sensor.model} "
+               f"({rec.sensor.n_fibres} fibres, reference {rec.sensor.reference_fibre}) over "
+               f"{summary.time_max - summary.time_min:.2f} s")
+    typer.echo(f"world frame {world.crs.to_string()}, grid scale factor {world.scale_factor.mean():.6f}, "
+               f"meridian convergence {world.convergence_deg.mean():+.4f} deg")
+    typer.echo(f"odometry: {'yes' if rec.odometry is not None else 'no'}; truth: "
+               f"{'yes' if (recording / 'truth').is_dir() else 'no'}")
+
+
+Spawn = Annotated[bool, typer.Option("--spawn", help="also stream to a live rerun viewer (needs a display)")]
+Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="no progress bars or summary")]
+ViewerPoints = Annotated[int, typer.Option(help="returns drawn per cloud in run.rrd (a random subset)", min=1000)]
+
+
+def calibration_config(mode: str, config: Path | None, overrides: dict | None = None):
+    """CalibrationConfig from --mode, the YAML file of settings and overrides, or ConfigError."""
+    import pydantic
+
+    from graphcal.calibration.config import CalibrationConfig
+    from graphcal.common.errors import ConfigError
+    from graphcal.common.yamlfile import read_yaml
+
+    settings = (read_yaml(config) or {}) if config is not None else {}
+    if not isinstance(settings, dict):
+        raise ConfigError(f"{config}: not a mapping of CalibrationConfig settings (name: value per line)")
+    try:
+        return CalibrationConfig(**{"mode": mode, **settings, **(overrides or {})})
+    except pydantic.ValidationError as error:
+        first = error.errors()[0]
+        message = first["msg"].removeprefix("Value error, ")  # pydantic's prefix for a validator's ValueError
+        raise ConfigError(f"{config or '--mode'}: {'.'.join(map(str, first['loc']))}: {message}") from None
+
+
+@app.command()
+@_clear_errors
+def calibrate(recording: Annotated[Path, typer.Argument(help="recording directory")],
+              mode: Annotated[str, typer.Option(help="auto (what a mapping drive needs), intrinsic, extrinsic, "
+                                                     "trajectory, joint, joint_trajectory, extrinsic_then_intrinsic, "
+                                                     "intrinsic_then_extrinsic")] = "auto",
+              config: Annotated[Path | None, typer.Option(help="YAML file of CalibrationConfig settings")] = None,
+              out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-calibrate-<UTC time>)")] = None,
+              evaluate: Annotated[bool, typer.Option(help="compare with truth/ when the recording has one")] = True,
+              spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, quiet: Quiet = False) -> None:
+    """Self-calibrate a recording into a run folder: results, run.rrd, report.html.
+
+    The run folder gets calibration.yaml (estimates, 1-sigmas, unobservable parameters),
+    config.yaml, history.csv, residuals.parquet, pairs_nominal.parquet, pairs_calibrated.parquet,
+    evaluation.yaml (with truth), run.rrd, report.html and run.yaml (seconds per stage).
+
+    Example: graphcal calibrate out/sim6_turn --mode trajectory --spawn
+    """
+    from graphcal.cli.runs import calibration_run
+
+    run = calibration_run(recording, calibration_config(mode, config), out, spawn, evaluate, viewer_points,
+                          quiet=quiet)
+    if not quiet:
+        _print_calibration(run)
+
+
+def _print_calibration(run) -> None:
+    result, evaluation = run.result, run.evaluation
+    before, after = result.energy_cm2
+    typer.echo(f"J {before:.3g} -> {after:.3g} cm^2 in {result.seconds:.1f} s ({len(result.history)} outer iterations)")
+    noise_m = result.config.range_noise_m
+    if noise_m is not None:
+        typer.echo(f"range noise {noise_m * 1000:.2g} mm: pairs {result.config.pair_noise}, features from "
+                   + (f"{result.config.feature_voxel_m} m voxels" if result.config.feature_voxel_m else "every return"))
+    if result.unobservable:
+        shown = ", ".join(result.unobservable[:12]) + (f" and {len(result.unobservable) - 12} more"
+                                                       if len(result.unobservable) > 12 else "")
+        typer.echo(f"unobservable ({len(result.unobservable)}, kept at nominal where the data do not see them; "
+                   f"why: calibration.yaml unobservable_reasons): {shown}")
+    if evaluation is not None:
+        typer.echo(f"against truth, cloud-to-cloud mean {evaluation.cloud_before.mean * 100:.3g} -> "
+                   f"{evaluation.cloud_after.mean * 100:.3g} cm ({evaluation.cloud_after_gauge_free.mean * 100:.3g} cm "
+                   "once the unobservable common motion is removed)")
+    typer.echo(f"wrote {run.folder}: calibration.yaml, report.html, run.rrd")
+    typer.echo(f"open {run.folder / 'report.html'} in a browser; graphcal view {run.folder}")
+
+
+@app.command()
+@_clear_errors
+def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory")],
+             simulation: Annotated[Path | None, typer.Option(help="a simulation of the same drive with nominal "
+                                                                   "physics: name the effect explaining the difference")] = None,
+             rescan: Annotated[bool, typer.Option(help="no scene model: simulate the drive on a mesh of the "
+                                                       "calibrated cloud, then compare with it")] = False,
+             mode: Annotated[str, typer.Option(help="calibration mode of the nominal model (see calibrate)")] = "joint",
+             config: Annotated[Path | None, typer.Option(help="YAML file of CalibrationConfig settings")] = None,
+             max_effects: Annotated[int, typer.Option(help="most effects added")] = 3,
+             refit_iterations: Annotated[int, typer.Option(help="outer iterations of each re-solve with an effect "
+                                                                "added", min=1)] = 4,
+             out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-diagnose-<UTC time>)")] = None,
+             spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, quiet: Quiet = False) -> None:
+    """Find where the model and the recording disagree, name the physics left out, model it, show the
+    fit improve (docs/diagnose.md).
+
+    The run folder gets diagnosis.json, the re-solved calibration in calibration/ (its effects
+    listed), run.rrd (the residual field) and run.yaml (seconds per stage).
+
+    Example: graphcal diagnose out/concealed --mode joint
+    """
+    from graphcal.cli.runs import diagnosis_run
+
+    run = diagnosis_run(recording, calibration_config(mode, config), simulation, rescan, max_effects, out, spawn,
+                        viewer_points, refit_iterations, quiet)
+    if not quiet:
+        typer.echo(run.diagnosis.summary())
+        typer.echo(f"wrote {run.folder}: diagnosis.json, run.rrd in {run.diagnosis.seconds:.1f} s; "
+                   f"graphcal view {run.folder}")
+
+
+@app.command()
+@_clear_errors
+def deskew(recording: Annotated[Path, typer.Argument(help="recording directory")],
+           source: Annotated[str, typer.Option(help="motion during the sweep: ins, odometry, or none (raw scans)")] = "ins",
+           cloud_format: Annotated[str, typer.Option("--format", help="ply, las, laz, or uos (3DTK .3d)")] = "ply",
+           out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-deskew-<source>-<UTC time>)")]
+           = None,
+           gyro: Annotated[bool, typer.Option(help="odometry: yaw from the gyro column when there is one")] = True,
+           spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, quiet: Quiet = False) -> None:
+    """Deskew every revolution into its end-of-scan lidar frame (seed 002).
+
+    The run folder gets one cloud and one 3DTK pose per revolution, poses.csv, deskew.yaml,
+    run.rrd (raw vs deskewed) and run.yaml."""
+    from graphcal.clouds.formats import FORMATS
+    from graphcal.deskewing.deskew import SOURCES
+    from graphcal.common.errors import ConfigError
+    from graphcal.cli.runs import deskew_run
+
+    if source not in SOURCES:
+        raise ConfigError(f"--source {source!r}: expected one of {', '.join(SOURCES)}")
+    if cloud_format not in FORMATS:
+        raise ConfigError(f"--format {cloud_format!r}: expected one of {', '.join(FORMATS)}")
+    started = time.perf_counter()
+    folder, scans = deskew_run(recording, source, cloud_format, out, gyro, spawn, viewer_points, quiet)
+    if not quiet:
+        typer.echo(f"{scans} revolutions deskewed ({source}) into {folder} in {time.perf_counter() - started:.1f} s; "
+                   f"graphcal view {folder}")
+
+
+@app.command("evaluate")
+@_clear_errors
+def evaluate_command(calibration: Annotated[Path, typer.Argument(help="run folder or calibration.yaml")],
+                     recording: Annotated[Path, typer.Argument(help="simulated recording directory (with truth/)")],
+                     quiet: Quiet = False) -> None:
+    """Compare a calibration with the recording's truth/ and print the table.
+
+    Writes evaluation.yaml next to calibration.yaml (and refreshes report.html when there is one)."""
+    from graphcal.cli.runs import evaluation_run
+
+    evaluation, path = evaluation_run(calibration, recording, quiet)
+    typer.echo(evaluation.table())
+    if not quiet:
+        typer.echo(f"wrote {path}")
+
+
+@app.command("apply")
+@_clear_errors
+def apply_command(calibration: Annotated[Path, typer.Argument(help="run folder or calibration.yaml")],
+                  recording: Annotated[Path, typer.Argument(help="recording directory")],
+                  out: Annotated[Path | None, typer.Option(help=".las, .laz or .ply file (default: cloud.laz in a "
+                                                                 "run folder runs/<name>-apply-<UTC time>)")] = None,
+                  quiet: Quiet = False) -> None:
+    """Write the recording's cloud corrected by a calibration (LAS, LAZ or PLY).
+
+    World CRS coordinates (the CRS in the LAS header), GPS time, intensity, and fibre and
+    residual_m as extra dimensions."""
+    from graphcal.cli.runs import apply_run
+
+    path = apply_run(calibration, recording, out, quiet)
+    if not quiet:
+        typer.echo(f"wrote {path}")
+
+
+@app.command()
+@_clear_errors
+def report(run_folder: Annotated[Path, typer.Argument(help="calibration run folder")], quiet: Quiet = False) -> None:
+    """Write report.html (self-contained: figures inside) from a calibration run folder."""
+    from graphcal.report.html import write_report
+
+    path = write_report(run_folder)
+    if not quiet:
+        typer.echo(f"wrote {path}")
+
+
+@app.command()
+@_clear_errors
+def view(run: Annotated[Path, typer.Argument(help="run folder (its run.rrd) or an .rrd file")],
+         web: Annotated[bool, typer.Option(help="serve the web viewer over HTTP instead (no display needed)")] = False,
+         port: Annotated[int, typer.Option(help="--web: HTTP port of the web viewer")] = 9090) -> None:
+    """Open a run in the rerun viewer (its layout is in the file)."""
+    import subprocess
+
+    from graphcal.common.errors import ConfigError, RecordingError
+    from graphcal.viewer.stream import RRD, no_viewer_reason, viewer_executable
+
+    path = run / RRD if run.is_dir() else run
+    if not path.is_file():
+        raise RecordingError(path, "file not found", expected="a run folder with run.rrd, or an .rrd file")
+    if web:
+        if viewer_executable() is None:
+            raise ConfigError("the rerun viewer executable is not installed (pip install rerun-sdk)")
+        typer.echo(f"serving {path} at http://localhost:{port} (Ctrl-C stops)")
+        sys.exit(subprocess.call([viewer_executable(), "--web-viewer", "--web-viewer-port", str(port), str(path)]))
+    reason = no_viewer_reason()
+    if reason is not None:
+        raise ConfigError(f"cannot open the viewer here: {reason}; use graphcal view {run} --web, or open {path} "
+                          "with `rerun` on a machine with a screen")
+    subprocess.Popen([viewer_executable(), str(path)], start_new_session=True)
+    typer.echo(f"opened {path} in the rerun viewer")
+
+
+@app.command()
+@_clear_errors
+def demo(out: Annotated[Path, typer.Option(help="folder of the demo: its recording and its run")] = Path("out/demo"),
+         size: Annotated[float, typer.Option(help="fraction of the sensor's firings kept")] = 0.5,
+         max_points: Annotated[int, typer.Option(help="returns the calibration draws", min=1000)] = 250_000,
+         spawn: Spawn = False, quiet: Quiet = False) -> None:
+    """Flagship demo, end to end: simulate, calibrate, evaluate, run.rrd, report.
+
+    Simulates sim6_turn, calibrates its trajectory, compares with truth, writes run.rrd and
+    report.html, and says what to open (2 to 2.5 minutes on 2 shared cores)."""
+    from graphcal.cli.demo import run_demo
+
+    run_demo(out, size=size, max_points=max_points, spawn=spawn, quiet=quiet)
+
+
+import_app = typer.Typer(help="Import real data into the recording format (docs/importers.md).", no_args_is_help=True)
+app.add_typer(import_app, name="import")
+
+
+def _numbers(text: str | None, option: str, count: int = 3) -> tuple[float, ...] | None:
+    """'a,b,c' -> (a, b, c), or ConfigError naming the option."""
+    from graphcal.common.errors import ConfigError
+
+    if text is None:
+        return None
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != count:
+        raise ConfigError(f"{option}: {text!r} is not {count} comma-separated numbers")
+    return values
+
+
+def _print_notes(recording, out: Path, quiet: bool) -> None:
+    if not quiet:
+        for note in recording.source["notes"]:
+            typer.echo(f"  {note}")
+        typer.echo(f"{len(recording.points):,} returns written to {out}")
+
+
+@import_app.command("pcap")
+@_clear_errors
+def import_pcap_command(
+        pcap: Annotated[Path, typer.Argument(help="Velodyne capture (HDL-32E, VLP-16, HDL-64E): libpcap file or "
+                                                   "ROS bag of velodyne_msgs/VelodyneScan")],
+        out: Annotated[Path | None, typer.Option(help="recording directory (default out/<pcap name>)")] = None,
+        model: Annotated[str | None, typer.Option(help="force the model: HDL-32E, VLP-16 or HDL-64E")] = None,
+        calibration: Annotated[Path | None, typer.Option(help="db.xml or ROS velodyne YAML of the unit")] = None,
+        trajectory: Annotated[Path | None, typer.Option(help="SBET (.out) or trajectory.csv, GPS seconds of week")] = None,
+        crs: Annotated[str, typer.Option(help="world CRS (needed for a projected trajectory.csv)")] = "auto",
+        position: Annotated[str | None, typer.Option(help="static position LAT,LON,ALT (deg, deg, m)")] = None,
+        attitude: Annotated[str, typer.Option(help="static attitude ROLL,PITCH,YAW (deg, ENU)")] = "0,0,0",
+        lever_arm: Annotated[str | None, typer.Option(help="nominal lever arm X,Y,Z (m, body frame)")] = None,
+        boresight: Annotated[str | None, typer.Option(help="nominal boresight ROLL,PITCH,YAW (deg)")] = None,
+        block_azimuth: Annotated[bool, typer.Option(help="one azimuth per firing sequence (VeloView 3) instead "
+                                                         "of each laser's own")] = False,
+        topic: Annotated[str | None, typer.Option(help="ROS bag: the VelodyneScan topic (default: the only one)")] = None,
+        quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+    """Velodyne pcap (or ROS bag) -> recording. Without --trajectory the sensor is taken as STATIC
+    at the GPRMC fix of its position packets (or --position).
+
+    Example: graphcal import pcap drive.pcap --trajectory sbet.out --lever-arm 0.8,0,1.9 --boresight 0,0,90
+    """
+    from graphcal.recording.extrinsic import Extrinsic
+    from graphcal.importers.velodyne_calibration import read_velodyne_calibration
+    from graphcal.importers.velodyne_pcap import import_pcap
+
+    extrinsic = None
+    if lever_arm is not None or boresight is not None:
+        extrinsic = Extrinsic(lever_arm_m=_numbers(lever_arm, "--lever-arm") or (0.0, 0.0, 0.0),
+                              boresight_deg=_numbers(boresight, "--boresight") or (0.0, 0.0, 0.0))
+    options = {"model": model, "calibration": read_velodyne_calibration(calibration) if calibration else None,
+               "trajectory": _read_trajectory(trajectory) if trajectory else None,
+               "position": _numbers(position, "--position"), "attitude_deg": _numbers(attitude, "--attitude"),
+               "extrinsic": extrinsic, "interpolate_azimuth": not block_azimuth, "quiet": quiet}
+    if pcap.is_dir() or pcap.suffix.lower() in (".bag", ".db3", ".mcap"):
+        from graphcal.importers.velodyne_rosbag import import_rosbag
+
+        recording = import_rosbag(pcap, topic=topic, **options)
+    else:
+        recording = import_pcap(pcap, **options)
+    recording.crs = crs
+    out = out or Path("out") / recording.name
+    recording.save(out)
+    _print_notes(recording, out, quiet)
+
+
+def _read_trajectory(path: Path):
+    from graphcal.importers.sbet import import_sbet
+    from graphcal.recording.trajectory import Trajectory
+
+    return Trajectory.load_csv(path) if path.suffix.lower() == ".csv" else import_sbet(path)
+
+
+@import_app.command("kitti")
+@_clear_errors
+def import_kitti_command(
+        drive: Annotated[Path, typer.Argument(help="KITTI raw drive folder (..._drive_NNNN_sync)")],
+        out: Annotated[Path | None, typer.Option(help="recording directory (default out/<drive name>)")] = None,
+        calibration: Annotated[Path | None, typer.Option(help="db.xml or ROS YAML to start the fibre fit from")] = None,
+        quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+    """KITTI raw drive -> recording. Per-return times are DERIVED from the azimuth (KITTI has none)."""
+    from graphcal.importers.kitti import import_kitti
+    from graphcal.importers.velodyne_calibration import read_velodyne_calibration
+
+    recording = import_kitti(drive, calibration=read_velodyne_calibration(calibration) if calibration else None,
+                             quiet=quiet)
+    out = out or Path("out") / recording.name
+    recording.save(out)
+    _print_notes(recording, out, quiet)
+
+
+@import_app.command("sbet")
+@_clear_errors
+def import_sbet_command(sbet: Annotated[Path, typer.Argument(help="Applanix SBET file (17 float64 per record)")],
+                        out: Annotated[Path, typer.Option(help="trajectory.csv to write")] = Path("trajectory.csv"),
+                        start: Annotated[float | None, typer.Option(help="first GPS second of week to keep")] = None,
+                        end: Annotated[float | None, typer.Option(help="last GPS second of week to keep")] = None,
+                        quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+    """Applanix SBET -> trajectory.csv (geodetic, ENU attitude, GPS seconds of week)."""
+    from graphcal.importers.sbet import import_sbet
+
+    span = None if start is None and end is None else (start if start is not None else -float("inf"),
+                                                       end if end is not None else float("inf"))
+    trajectory = import_sbet(sbet, span)
+    trajectory.save_csv(out)
+    if not quiet:
+        typer.echo(f"{len(trajectory.time):,} poses over [{trajectory.time[0]:.3f}, {trajectory.time[-1]:.3f}] s "
+                   f"written to {out}")
+
+
+@import_app.command("csv")
+@_clear_errors
+def import_csv_command(
+        csv: Annotated[Path, typer.Argument(help="trajectory CSV with a header line")],
+        out: Annotated[Path, typer.Option(help="trajectory.csv to write")] = Path("trajectory.csv"),
+        columns: Annotated[str, typer.Option(help="FIELD=COLUMN,... e.g. time=gps_s,lat=latitude,heading=hdg")] = "",
+        position: Annotated[str, typer.Option(help="geodetic (lat, lon, alt) or projected (x, y, z)")] = "geodetic",
+        attitude: Annotated[str, typer.Option(help="enu (roll, pitch, yaw) or ned (roll, pitch, heading)")] = "enu",
+        radians: Annotated[bool, typer.Option(help="angles in radians (default degrees)")] = False,
+        delimiter: Annotated[str, typer.Option(help="column separator")] = ",",
+        time_offset: Annotated[float, typer.Option(help="seconds added to the time column")] = 0.0,
+        quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+    """A CSV trajectory with your own column names and units -> trajectory.csv of the recording format."""
+    from graphcal.common.errors import ConfigError
+    from graphcal.importers.trajectory_csv import (
+        CsvTrajectoryFormat,
+        import_trajectory_csv,
+    )
+
+    mapping = {}
+    for pair in filter(None, columns.split(",")):
+        field, sep, column = pair.partition("=")
+        if not sep or not field.strip() or not column.strip():
+            raise ConfigError(f"--columns: {pair!r} is not FIELD=COLUMN")
+        mapping[field.strip()] = column.strip()
+    fmt = CsvTrajectoryFormat(columns=mapping, position=position, attitude=attitude, radians=radians,
+                              delimiter=delimiter, time_offset_s=time_offset)
+    trajectory = import_trajectory_csv(csv, fmt)
+    trajectory.save_csv(out)
+    if not quiet:
+        typer.echo(f"{len(trajectory.time):,} poses written to {out}")
+
+
+def main() -> None:  # pragma: no cover - console entry
+    sys.exit(app())

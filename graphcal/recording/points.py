@@ -1,0 +1,177 @@
+"""points.parquet: raw returns, read lazily in row batches, validated batch by batch."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from graphcal.common.atomic import atomic_path
+from graphcal.common.errors import RecordingError
+
+# column -> (arrow type written, kinds accepted on read, required)
+SCHEMA = {
+    "time": (pa.float64(), ("float64",), True),
+    "fibre": (pa.int16(), ("int",), True),
+    "range": (pa.float32(), ("float",), True),
+    "azimuth": (pa.float32(), ("float",), True),
+    "intensity": (pa.float32(), ("float", "int"), True),
+    "scan": (pa.int32(), ("int",), False),
+}
+BATCH_ROWS = 1 << 20
+
+
+def _kind_ok(arrow_type: pa.DataType, kinds: Sequence[str]) -> bool:
+    return any({"float64": pa.types.is_float64, "float": pa.types.is_floating,
+                "int": pa.types.is_integer}[k](arrow_type) for k in kinds)
+
+
+def _type_name(arrow_type: pa.DataType) -> str:
+    """The contract's spelling of a type (float64, int16, ...), Arrow's for non-numeric ones."""
+    if pa.types.is_floating(arrow_type) or pa.types.is_integer(arrow_type):
+        return np.dtype(arrow_type.to_pandas_dtype()).name
+    return str(arrow_type)
+
+
+def _expected_type(written: pa.DataType, kinds: Sequence[str]) -> str:
+    accepted = {"float64": None, "float": "floating-point", "int": "integer"}
+    extra = [accepted[k] for k in kinds if accepted[k]]
+    return _type_name(written) + (f" (any {' or '.join(extra)} type is read)" if extra else "")
+
+
+@dataclass(frozen=True)
+class PointSummary:
+    """What validation learnt in one pass: row count, time span [s], returns per fibre."""
+
+    n_points: int
+    time_min: float
+    time_max: float
+    count_per_fibre: np.ndarray
+
+
+class PointTable:
+    """Raw returns, either in memory (dict of arrays) or in a Parquet file read on demand."""
+
+    def __init__(self, arrays: dict[str, np.ndarray] | None = None, path: Path | None = None):
+        self._arrays, self.path = arrays, path
+        self._file = pq.ParquetFile(path) if path is not None else None
+
+    @classmethod
+    def from_arrays(cls, **arrays) -> PointTable:
+        typed = {name: np.ascontiguousarray(values, dtype=SCHEMA[name][0].to_pandas_dtype())
+                 for name, values in arrays.items() if values is not None}
+        return cls(arrays=typed)
+
+    @classmethod
+    def open(cls, path: Path) -> PointTable:
+        path = Path(path)
+        if not path.is_file():
+            raise RecordingError(path, "file not found")
+        try:
+            return cls(path=path)
+        except (pa.ArrowInvalid, OSError) as error:
+            raise RecordingError(path, f"not a Parquet file: {error}") from None
+
+    @property
+    def column_names(self) -> list[str]:
+        return list(self._arrays) if self._file is None else self._file.schema_arrow.names
+
+    def __len__(self) -> int:
+        return len(self._arrays["time"]) if self._file is None else self._file.metadata.num_rows
+
+    def read(self, columns: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+        """Whole columns as NumPy arrays (all of them if columns is None)."""
+        columns = list(columns or self.column_names)
+        if self._file is None:
+            return {name: self._arrays[name] for name in columns}
+        table = self._file.read(columns=columns)
+        return {name: table.column(name).to_numpy() for name in columns}
+
+    def iter_batches(self, columns: Sequence[str], batch_rows: int | None = None) -> Iterator[dict[str, np.ndarray]]:
+        """Row batches of the given columns, so that no more than batch_rows rows are in memory
+        (BATCH_ROWS, read at call time, when not given)."""
+        batch_rows = BATCH_ROWS if batch_rows is None else batch_rows
+        if self._file is None:
+            for start in range(0, len(self), batch_rows):
+                yield {name: self._arrays[name][start:start + batch_rows] for name in columns}
+            return
+        for batch in self._file.iter_batches(batch_size=batch_rows, columns=list(columns)):
+            yield {name: batch.column(name).to_numpy(zero_copy_only=False) for name in columns}
+
+    def save(self, path: Path) -> None:
+        """Write atomically with the contract's column types, in row groups of BATCH_ROWS."""
+        schema = pa.schema([(name, SCHEMA[name][0]) for name in SCHEMA if name in self.column_names])
+        with atomic_path(path) as tmp, pq.ParquetWriter(tmp, schema, compression="zstd") as writer:
+            for batch in self.iter_batches(schema.names):
+                writer.write_table(pa.table({n: pa.array(batch[n], type=schema.field(n).type) for n in schema.names}),
+                                   row_group_size=BATCH_ROWS)
+
+    def validate(self, n_fibres: int, source: Path | str = "points.parquet") -> PointSummary:
+        """Check types, values and time order batch by batch; return what was learnt."""
+        self._check_schema(source)
+        names = [n for n in SCHEMA if n in self.column_names]
+        counts = np.zeros(n_fibres, dtype=np.int64)
+        previous_time, start = -np.inf, 0
+        time_min, time_max = np.inf, -np.inf
+        for batch in self.iter_batches(names):
+            _check_batch(batch, start, previous_time, n_fibres, source)
+            time = batch["time"]
+            if len(time):
+                previous_time = time[-1]
+                time_min, time_max = min(time_min, time[0]), time[-1]
+            counts += np.bincount(batch["fibre"].astype(np.int64), minlength=n_fibres)
+            start += len(time)
+        if start == 0:
+            raise RecordingError(source, "no returns", expected="at least one row")
+        return PointSummary(start, float(time_min), float(time_max), counts)
+
+    def _check_schema(self, source) -> None:
+        types = (dict(zip(self._file.schema_arrow.names, self._file.schema_arrow.types)) if self._file is not None
+                 else {n: pa.from_numpy_dtype(a.dtype) for n, a in self._arrays.items()})
+        for name, (written, kinds, required) in SCHEMA.items():
+            if name not in types:
+                if required:
+                    raise RecordingError(source, "missing column", field=name,
+                                         expected=f"a column of type {_expected_type(written, kinds)}")
+                continue
+            if not _kind_ok(types[name], kinds):
+                raise RecordingError(source, f"column type is {_type_name(types[name])}", field=name,
+                                     expected=_expected_type(written, kinds))
+
+
+def _check_batch(batch, start, previous_time, n_fibres, source) -> None:
+    def fail(name, mask, problem, expected):
+        index = int(np.flatnonzero(mask)[0])
+        raise RecordingError(source, f"{problem} {batch[name][index].item()!r} at row index {start + index}",
+                             field=name, expected=expected)
+
+    for name in batch:  # every column: Parquet nulls read as NaN, in integer columns too
+        finite = np.isfinite(batch[name])
+        if not finite.all():
+            fail(name, ~finite, "value", "finite numbers")
+    fibre = batch["fibre"]
+    if len(fibre) and (fibre.min() < 0 or fibre.max() >= n_fibres):
+        fail("fibre", (fibre < 0) | (fibre >= n_fibres), "fibre id", f"an id of sensor.yaml, 0..{n_fibres - 1}")
+    if (batch["range"] < 0).any():
+        fail("range", batch["range"] < 0, "negative range", "ranges >= 0 m")
+    intensity = batch["intensity"]
+    if len(intensity) and (intensity.min() < 0 or intensity.max() > 255):
+        fail("intensity", (intensity < 0) | (intensity > 255), "intensity", "reflectivity within 0-255")
+    azimuth = batch["azimuth"]
+    if (np.abs(azimuth) > 2 * np.pi + 1e-4).any():
+        fail("azimuth", np.abs(azimuth) > 2 * np.pi + 1e-4, "azimuth", "radians within +-2 pi (degrees given?)")
+    time = batch["time"]
+    if len(time) and time[0] < previous_time:
+        raise RecordingError(source, f"time {float(time[0])!r} at row index {start} is before "
+                                     f"{float(previous_time)!r}",
+                             field="time", expected="rows sorted by time")
+    decreasing = np.diff(time) < 0
+    if decreasing.any():
+        index = int(np.flatnonzero(decreasing)[0]) + 1
+        raise RecordingError(source, f"time {float(time[index])!r} at row index {start + index} is before "
+                                     f"{float(time[index - 1])!r}",
+                             field="time", expected="rows sorted by time")

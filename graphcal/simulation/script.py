@@ -1,0 +1,50 @@
+"""Command-line entry shared by the scenario scripts in scenarios/: simulate, then save."""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import inspect
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from graphcal.common.errors import ConfigError
+from graphcal.simulation.scenario import Scenario
+from graphcal.simulation.simulator import simulate
+
+# the scenario scripts of scenarios/, shipped inside the package as graphcal.scenarios (pyproject.toml)
+SCENARIOS_DIR = Path(importlib.util.find_spec("graphcal.scenarios").submodule_search_locations[0])
+
+
+def load_scenario_builder(name_or_path: str) -> Callable[..., Scenario]:
+    """The `scenario(size=, seed=)` function of a scenario script, by path or by name in scenarios/."""
+    path = Path(name_or_path)
+    if not path.suffix:
+        path = SCENARIOS_DIR / f"{name_or_path}.py"
+    if not path.is_file():
+        known = ", ".join(sorted(p.stem for p in SCENARIOS_DIR.glob("[!_]*.py")))
+        raise ConfigError(f"{name_or_path}: no such scenario (a script path, or one of: {known})")
+    spec = importlib.util.spec_from_file_location(f"graphcal_scenario_{path.stem}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    if not hasattr(module, "scenario"):
+        raise ConfigError(f"{path}: a scenario script must define scenario(size=..., seed=...)")
+    return module.scenario
+
+
+def run_scenario_script(build: Callable[..., Scenario], argv: list[str] | None = None) -> Path:
+    """Parse --out/--size/--seed/--quiet, simulate build(size=, seed=) and write the recording."""
+    name = Path(inspect.getfile(build)).stem
+    parser = argparse.ArgumentParser(description=(build.__doc__ or name).strip().splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("out") / name, help="recording directory to write")
+    parser.add_argument("--size", type=float, default=1.0, help="fraction of the sensor's firings kept (0-1]")
+    parser.add_argument("--seed", type=int, default=0, help="seed of every random draw")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    args = parser.parse_args(argv)
+    started = time.perf_counter()
+    recording = simulate(build(size=args.size, seed=args.seed), quiet=args.quiet)
+    recording.save(args.out)
+    if not args.quiet:
+        print(f"{len(recording.points):,} returns written to {args.out} in {time.perf_counter() - started:.1f} s")
+    return args.out

@@ -1,0 +1,149 @@
+"""graphcal.simulate(scenario) -> Recording: raycast a spinning multi-beam lidar on a moving vehicle.
+
+For every firing: its own time -> true pose (PoseTrack of the truth) -> true beam (eq. 4.2
+with the true offsets, true extrinsic) -> open3d raycast -> the raw values a real sensor
+reports (inverse of eq. 4.2 with the true offsets, encoder azimuth, noise, effects).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pyproj import CRS
+
+from factors.spherical import FactoryTerms, beam_rays, from_xyz
+from graphcal.recording.effects import Effect, build_effects, describe
+from graphcal.recording.extrinsic import Extrinsic
+from graphcal.recording.points import PointTable
+from graphcal.recording.poses import PoseTrack
+from graphcal.common.progress import progress
+from graphcal.recording.directory import Recording
+from graphcal.recording.sensor import SensorModel, sensor_from_catalog
+from graphcal.simulation.ins import recorded_poses, to_trajectory, true_poses
+from graphcal.simulation.odometry import simulate_odometry
+from graphcal.simulation.scenario import Scenario, draw_offsets
+from graphcal.simulation.scene import RaycastScene
+from graphcal.recording.truth import Truth
+
+# the lidar records inside the trajectory span, this far from each end [s]
+_EDGE_S = 0.1
+
+
+@dataclass(frozen=True)
+class _Rig:
+    """The true state the rays are cast from."""
+
+    sensor: SensorModel
+    offsets: np.ndarray  # (n_fibres, 4) true offsets, m rad rad m
+    extrinsic: Extrinsic
+    poses: PoseTrack  # true T_local_body
+    effects: list[Effect]
+    noise_m: float
+    min_range_m: float
+    max_range_m: float
+
+
+def simulate(scenario: Scenario, quiet: bool = False) -> Recording:
+    """Simulate a recording (with truth/) from a scenario. Deterministic for a given seed."""
+    rng = np.random.default_rng(scenario.seed)
+    sensor = sensor_from_catalog(scenario.sensor_model, scenario.rotation_hz)
+    effects = build_effects(scenario.effects)
+    spec = scenario.extrinsic
+    nominal = Extrinsic(spec.lever_arm_m, spec.boresight_deg)
+    true_extrinsic = Extrinsic(tuple(np.add(spec.lever_arm_m, spec.error_lever_arm_m)),
+                               tuple(np.add(spec.boresight_deg, spec.error_boresight_deg)))
+    offsets = draw_offsets(scenario.intrinsic_errors, sensor.n_fibres, sensor.reference_fibre, rng)
+    truth_poses = true_poses(scenario.drive, scenario.start_time_s, scenario.duration_s, scenario.truth_rate_hz)
+    rig = _Rig(sensor, offsets, true_extrinsic, truth_poses, effects, scenario.range_noise_m,
+               scenario.min_range_m, scenario.max_range_m)
+
+    columns, world = _cast_all(scenario, rig, RaycastScene(scenario.scene), rng, quiet)
+    crs = CRS.from_user_input(scenario.crs)
+    geodetic = scenario.trajectory_format == "geodetic"
+    ins = recorded_poses(truth_poses, scenario.ins, effects, rng)
+    odometry = (None if scenario.odometry is None else
+                simulate_odometry(scenario.drive, scenario.odometry, scenario.start_time_s, scenario.duration_s, rng))
+    truth = Truth(intrinsics=offsets, extrinsic=true_extrinsic,
+                  trajectory=to_trajectory(truth_poses, scenario.origin_m, crs, geodetic),
+                  effects=describe(effects), _world_points=world + np.asarray(scenario.origin_m))
+    return Recording(name=scenario.name, crs=scenario.crs, sensor=sensor, extrinsic=nominal,
+                     trajectory=to_trajectory(ins, scenario.origin_m, crs, geodetic),
+                     points=PointTable.from_arrays(**columns), odometry=odometry, _truth=truth)
+
+
+def firing_times(scenario: Scenario, sensor: SensorModel, effects: list[Effect]) -> tuple[np.ndarray, float]:
+    """Start time of every kept firing cycle [s] (every 1/size-th cycle) and the lidar start.
+    The lidar keeps clear of the trajectory's ends so that every stamped time is inside it."""
+    timing = sensor.timing
+    stride = max(int(round(1.0 / scenario.size)), 1)
+    margin = _EDGE_S + sum(effect.max_stamp_shift_s() for effect in effects)
+    lidar_start = scenario.start_time_s + margin
+    lidar_end = scenario.start_time_s + scenario.duration_s - margin
+    n_cycles = int((lidar_end - lidar_start) / timing.cycle_s)
+    return lidar_start + np.arange(0, n_cycles, stride) * timing.cycle_s, lidar_start
+
+
+def _cast_all(scenario, rig: _Rig, scene: RaycastScene, rng, quiet):
+    cycles, lidar_start = firing_times(scenario, rig.sensor, rig.effects)
+    chunk_s = 0.01 if scene.moving else 0.25
+    edges = np.searchsorted(cycles, np.arange(cycles[0], cycles[-1] + chunk_s, chunk_s))
+    chunks = [slice(a, b) for a, b in zip(edges, np.r_[edges[1:], len(cycles)]) if b > a]
+    parts = [_cast_chunk(cycles[c], lidar_start, scenario, rig, scene, rng)
+             for c in progress(chunks, f"simulating {scenario.name}", total=len(chunks), quiet=quiet)]
+    columns = {name: np.concatenate([p[0][name] for p in parts]) for name in parts[0][0]}
+    world = np.concatenate([p[1] for p in parts])
+    order = np.argsort(columns["time"], kind="stable")
+    if not np.array_equal(order, np.arange(len(order))):
+        columns = {name: values[order] for name, values in columns.items()}
+        world = world[order]
+    return columns, world
+
+
+def _cast_chunk(cycle_start, lidar_start, scenario, rig: _Rig, scene, rng):
+    sensor, n = rig.sensor, rig.sensor.n_fibres
+    fibre = np.tile(np.arange(n, dtype=np.int16), len(cycle_start))
+    t_fire = (cycle_start[:, None] + sensor.timing.laser_spacing_s * np.arange(n)[None, :]).ravel()
+    spin_hz = sensor.rotation_hz
+    for effect in rig.effects:
+        spin_hz = effect.spin_hz(spin_hz)
+    turns = spin_hz * (t_fire - lidar_start)
+    revolution = np.floor(turns)
+    t_rev = lidar_start + revolution / spin_hz
+    encoder = 2 * np.pi * (turns - revolution)
+
+    t_pose, beam_azimuth = t_rev, encoder
+    for effect in rig.effects:
+        t_pose = effect.pose_time(t_pose, t_fire, t_rev)
+        beam_azimuth = effect.beam_azimuth(beam_azimuth)
+    factory = _true_factory_terms(sensor, fibre, rig.effects)
+    origin_lidar, direction_lidar = beam_rays(beam_azimuth, factory, rig.offsets[fibre])
+    position, rotation = rig.poses.interpolate(t_pose)
+    origin = rotation.apply(rig.extrinsic.lidar_to_body(origin_lidar)) + position
+    direction = rotation.apply(direction_lidar @ rig.extrinsic.R_body_lidar.T)
+    distance, hit_object, normal = scene.cast(origin, direction, float(np.mean(t_fire)) - scenario.start_time_s)
+
+    hit = np.isfinite(distance) & (distance >= rig.min_range_m) & (distance <= rig.max_range_m)
+    fibre, encoder, t_fire, t_rev = fibre[hit], encoder[hit], t_fire[hit], t_rev[hit]
+    # the raw range a perfect sensor reports, by the inverse of eq. 4.2 with the true offsets
+    p_lidar = origin_lidar[hit] + distance[hit, None] * direction_lidar[hit]
+    ideal_range, _, _ = from_xyz(p_lidar, _true_factory_terms(sensor, fibre, rig.effects), rig.offsets[fibre])
+    cos_incidence = np.abs(np.sum(normal[hit] * direction[hit], axis=1))
+    range_m, t_rec = ideal_range, t_fire
+    for effect in rig.effects:
+        range_m = effect.measured_range(range_m, cos_incidence)
+        t_rec = effect.recorded_time(t_rec, t_fire, t_rev)
+    range_m = range_m + rng.normal(0.0, rig.noise_m, len(range_m)) if rig.noise_m > 0 else range_m
+    intensity = np.clip(255.0 * scene.reflectivity[hit_object[hit]] * cos_incidence, 0, 255)
+    columns = {"time": t_rec, "fibre": fibre, "range": range_m, "azimuth": encoder, "intensity": intensity,
+               "scan": revolution[hit].astype(np.int32)}
+    world = origin[hit] + distance[hit, None] * direction[hit]
+    return columns, world
+
+
+def _true_factory_terms(sensor: SensorModel, fibre: np.ndarray, effects: list[Effect]) -> FactoryTerms:
+    """The factory terms of the returns' fibres as the effects make them (nominal by default)."""
+    factory = sensor.factory_terms(fibre)
+    for effect in effects:
+        factory = effect.factory_terms(factory, fibre)
+    return factory
