@@ -6,7 +6,7 @@ Cases (each in its own process, so each has its own peak memory):
   sigmas (the inverse of the final information matrix, pairs as independent; sigma0 = the true 1 cm)
   and of the sigmas that count each return's noise once over the pairs sharing it. The measured
   range noise makes it a noisy head: pairs whitened by the noise along their two lines of sight,
-  features from 0.1 m voxels (docs/math.md); use --seeds for the comparison;
+  features from 0.1 m voxels (docs/reference/math.md); use --seeds for the comparison;
 - sim2_noise_plain: the same with the settings of a noise-free head (uniform pairs, every return's
   features), the defaults before session 12;
 - sim2_extrinsic_then_intrinsic, sim2_intrinsic_then_extrinsic, sim2_joint: the section 4.5.2
@@ -19,7 +19,7 @@ Cases (each in its own process, so each has its own peak memory):
 - sim6_joint_trajectory: intrinsics, extrinsic and trajectory at once, from the section 4.5.2 start
   (pitched head) with the piecewise INS error: with the level head of sim6_turn's nominal start,
   the fibres that see only the flat ground can all move their rings up or down together, a
-  direction the energy barely sees, and the run slides into the fibres' collapse (docs/math.md).
+  direction the energy barely sees, and the run slides into the fibres' collapse (docs/reference/math.md).
 Prints the figures, writes benchmarks/results/calibrate.json and, when the three turn
 cases ran, benchmarks/results/joint_vs_successive.png (J per outer iteration).
 """
@@ -42,12 +42,12 @@ RESULTS = Path(__file__).resolve().parent / "results"
 SECTION_4_5_2 = {"start": "section_4_5_2"}
 TURN_4_5_2 = {"start": "section_4_5_2", "piecewise_error_m": 0.0}
 HEADING = {"heading_error_deg": 0.5, "piecewise_error_m": 0.0}
-FAR = FAR_START_PRIORS  # the seed's starts are no factory calibration: their stated uncertainty is wide
+FAR = {"priors": FAR_START_PRIORS}  # the seed's starts are no factory calibration: their stated uncertainty is wide
 CASES = {"sim2_intrinsic": ("sim2_street", {}, {"mode": "intrinsic", **FAR}),
-         "sim2_noise": ("sim2_street", {"range_noise_m": 0.01}, {"mode": "intrinsic", "sigma0_m": 0.01, **FAR}),
+         "sim2_noise": ("sim2_street", {"range_noise_m": 0.01}, {"mode": "intrinsic", "weighting": {"sigma0_m": 0.01}, **FAR}),
          "sim2_noise_plain": ("sim2_street", {"range_noise_m": 0.01},
-                              {"mode": "intrinsic", "sigma0_m": 0.01, "pair_noise": "uniform", "feature_voxel_m": 0.0,
-                               **FAR}),
+                              {"mode": "intrinsic", "weighting": {"sigma0_m": 0.01, "pair_noise": "uniform"},
+                               "features": {"voxel_m": 0.0}, **FAR}),
          "sim2_extrinsic_then_intrinsic": ("sim2_street", SECTION_4_5_2, {"mode": "extrinsic_then_intrinsic", **FAR}),
          "sim2_intrinsic_then_extrinsic": ("sim2_street", SECTION_4_5_2, {"mode": "intrinsic_then_extrinsic", **FAR}),
          "sim2_joint": ("sim2_street", SECTION_4_5_2, {"mode": "joint", **FAR}),
@@ -55,9 +55,9 @@ CASES = {"sim2_intrinsic": ("sim2_street", {}, {"mode": "intrinsic", **FAR}),
          "turn_intrinsic_then_extrinsic": ("sim6_turn", TURN_4_5_2, {"mode": "intrinsic_then_extrinsic", **FAR}),
          "turn_joint": ("sim6_turn", TURN_4_5_2, {"mode": "joint", **FAR}),
          "sim6_trajectory": ("sim6_turn", {}, {"mode": "trajectory"}),
-         "sim6_trajectory_pose": ("sim6_turn", {}, {"mode": "trajectory", "pose_corrections": True}),
+         "sim6_trajectory_pose": ("sim6_turn", {}, {"mode": "trajectory", "trajectory": {"pose_corrections": True}}),
          "sim6_heading_translation": ("sim6_turn", HEADING, {"mode": "trajectory"}),
-         "sim6_heading_pose": ("sim6_turn", HEADING, {"mode": "trajectory", "pose_corrections": True}),
+         "sim6_heading_pose": ("sim6_turn", HEADING, {"mode": "trajectory", "trajectory": {"pose_corrections": True}}),
          "sim6_joint_trajectory": ("sim6_turn", SECTION_4_5_2, {"mode": "joint_trajectory", **FAR})}
 JOINT_VS_SUCCESSIVE = ("turn_extrinsic_then_intrinsic", "turn_intrinsic_then_extrinsic", "turn_joint")
 
@@ -103,7 +103,7 @@ def _case(name: str, size: float, max_points: int | None, seed: int, queue) -> N
                 sigma = np.nan_to_num(uncertainty.intrinsics)
                 row[key] = intrinsic_rms(offsets_from_file_units(sigma), np.zeros_like(sigma),
                                          recording.sensor.reference_fibre).tolist()
-        row["range_noise_m"] = result.config.range_noise_m
+        row["range_noise_m"] = result.config.weighting.range_noise_m
     queue.put(row)
 
 

@@ -25,8 +25,8 @@ RESULTS = Path(__file__).resolve().parent / "results"
 def _config(mode: str, max_points: int, outer_iterations: int = 6):
     from graphcal.calibration.config import CalibrationConfig
 
-    return CalibrationConfig(mode=mode, max_outer_iterations=outer_iterations, max_points=max_points, tolerance_m=1e-4,
-                             refuse_unconverged=False)
+    return CalibrationConfig(mode=mode, max_points=max_points, stopping={
+        "max_outer_iterations": outer_iterations, "tolerance_m": 1e-4, "refuse_unconverged": False})
 
 
 def _effect(effects: tuple[str, ...], size: float, max_points: int, queue) -> None:
@@ -67,7 +67,7 @@ def _budget(max_points: int, queue) -> None:
     from graphcal.simulation.script import load_scenario_builder
 
     # pitched head: a level one in this flat courtyard gives the joint baseline a direction it slides along
-    # into the fibres' collapse (docs/math.md), which calibrate refuses. No INS error: joint mode does not
+    # into the fibres' collapse (docs/reference/math.md), which calibrate refuses. No INS error: joint mode does not
     # correct the trajectory and the candidates then explain its 0.35 m error with wrong physics (measured:
     # spin_rate, range_scale, fibre_horizontal_offset named)
     recording = graphcal.simulate(load_scenario_builder("sim6_turn")(size=1.0, seed=0, start="section_4_5_2",

@@ -5,7 +5,7 @@ return, makes the pairs on that noisy cloud at the true calibration (the pipelin
 stand-ins, features, gates) and takes one Gauss-Newton step there. The RMS over the draws of that step
 (per parameter type, eq. 4.6 units) is set against the RMS of the shared-returns sigmas
 (graphcal/calibration/shared_returns.py) of each draw's pairs, as calibrate reports them: a ratio above
-1 is variance the sandwich leaves out (docs/math.md "Observability", docs/STATUS.md). No outer loop and
+1 is variance the sandwich leaves out (docs/reference/math.md "Observability", docs/STATUS.md). No outer loop and
 no pair-draw luck of one run: the measurement for changes to the noisy-head association.
 """
 
@@ -32,9 +32,10 @@ TO_CM_DEG = np.array([100.0, np.degrees(1.0), np.degrees(1.0), 100.0])
 def main() -> None:
     import graphcal
     from graphcal.calibration.config import ESTIMATES, CalibrationConfig
-    from graphcal.calibration.problem import initial_estimate, prepare
+    from graphcal.calibration.priors import Priors
+    from graphcal.calibration.problem import Problem
+    from graphcal.calibration.returns import initial_estimate, prepare
     from graphcal.calibration.shared_returns import SharedReturnsCovariance
-    from graphcal.calibration.solve import Priors, build_graph, make_blocks, strict_pairs
     from graphcal.common.progress import progress
     from graphcal.simulation.script import load_scenario_builder
 
@@ -52,27 +53,23 @@ def main() -> None:
     started = time.perf_counter()
     recording = graphcal.simulate(load_scenario_builder("sim2_street")(size=args.size, seed=args.seed), quiet=True)
     noise_m = args.range_noise_m
-    config = CalibrationConfig(mode="intrinsic", sigma0_m=noise_m, range_noise_m=noise_m, seed=args.seed,
-                               max_points=args.max_points, **FAR_START_PRIORS)  # Table 4.1's truth
-    clean = prepare(recording, config.control_interval_s, config.max_points, np.random.default_rng(config.seed),
-                    range_noise_m=noise_m)
+    config = CalibrationConfig(mode="intrinsic", weighting={"sigma0_m": noise_m, "range_noise_m": noise_m},
+                               seed=args.seed, max_points=args.max_points, priors=FAR_START_PRIORS)  # Table 4.1's truth
+    clean = prepare(recording, config.trajectory.control_interval_s, config.max_points,
+                    np.random.default_rng(config.seed), range_noise_m=noise_m)
     config = config.for_sensor(clean.static, np.nan)
     truth = replace(initial_estimate(recording, clean), offsets=recording.truth.intrinsics)
-    priors = Priors.of(config, clean.sensor.n_fibres, len(clean.control_times_s))
-    estimates = ESTIMATES["intrinsic"]
-
-    def at_truth(data, pairs):
-        blocks = make_blocks(data, truth, pairs, config, estimates)
-        graph, values = build_graph(data, truth, pairs, config, estimates, truth.extrinsic, priors, damped=False,
-                                    blocks=blocks)
-        return graph, values, blocks
+    problem = Problem(clean, config, ESTIMATES["intrinsic"], truth.extrinsic,
+                      Priors.of(config, clean.sensor.n_fibres, len(clean.control_times_s)))
 
     rng = np.random.default_rng(args.seed)
     steps, variances = [], []
     for _ in progress(range(args.draws), "noise draws"):
         noisy = replace(clean, range_m=clean.range_m + rng.normal(0.0, noise_m, len(clean.range_m)))
-        pairs = strict_pairs(noisy, truth, config)[1]
-        graph, values, blocks = at_truth(noisy, pairs)
+        on_noisy = replace(problem, full=noisy, data=noisy, cache=None)
+        pairs = on_noisy.associate(truth)
+        blocks = on_noisy.blocks(truth, pairs)
+        graph, values = on_noisy.graph(truth, pairs, damped=False, blocks=blocks)
         keys = list(values.keys())
         step = graph.linearize(values).optimize()
         steps.append([step.at(key) for key in keys])

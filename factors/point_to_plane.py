@@ -13,7 +13,7 @@ point noise (so r is whitened: the cost is (W / sigma0^2) J with J the normalise
 4.4/5.2 and W the weight sum), or one sigma per pair (along its lines of sight, incidence_sigma_m).
 Both points move: p and m are each placed at their own time between their own control times
 (eq. 5.4); each may be placed at its range's stand-in plus an offset held in its sensor frame
-(Block.p_held_l), so that its own range noise stays out of the Jacobians (docs/math.md).
+(Block.p_held_l), so that its own range noise stays out of the Jacobians (docs/reference/math.md).
 
 Keys of a row, by slot: intrinsic_p, intrinsic_m (Vector4; none for the reference fibre, whose
 offsets stay zero), extrinsic (Pose3, one for the whole block; none when held fixed), p_lo, p_hi,

@@ -4,7 +4,7 @@ finder (graphcal.diagnose). The nominal model the finder compares with has none 
 
 The head is pitched 20 deg as mobile mapping mounts it (PITCHED_HEAD). Level, in this flat
 courtyard, the fibres that see only the ground can rise together unseen and the joint baseline
-slides into the fibres' collapse (docs/math.md); its drift also showed as a false range scale of
+slides into the fibres' collapse (docs/reference/math.md); its drift also showed as a false range scale of
 ~400 ppm on clean recordings and hid projection_scale and fibre_horizontal_offset.
 
 CONCEALED[effect] gives the effect's parameters, the calibration mode whose parameters absorb it,

@@ -42,8 +42,8 @@ def street_with_traffic(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def street_result(street_with_traffic):
-    return calibrate(street_with_traffic, CalibrationConfig(mode="intrinsic", max_outer_iterations=40,
-                                                            tolerance_m=1e-4, **FAR_START_PRIORS), quiet=True)
+    return calibrate(street_with_traffic, CalibrationConfig(mode="intrinsic", priors=FAR_START_PRIORS, stopping={
+        "max_outer_iterations": 40, "tolerance_m": 1e-4}), quiet=True)
 
 
 def test_intrinsics_from_table_4_1_start_despite_moving_clutter(street_with_traffic, street_result):
@@ -106,9 +106,9 @@ def test_level_head_leaves_what_the_road_cannot_tell_apart_unobservable():
     on the road. At the true calibration the weak directions must name parameters of those fibres, and
     not the range, azimuth or elevation of the top fibre, which sees the facades."""
     from graphcal.calibration.config import ESTIMATES
-    from graphcal.calibration.problem import initial_estimate, prepare
-    from graphcal.calibration.solve import Priors, strict_pairs
-    from graphcal.calibration.weak_analysis import layout_of, weak_at
+    from graphcal.calibration.priors import Priors
+    from graphcal.calibration.problem import Problem
+    from graphcal.calibration.returns import initial_estimate, prepare
 
     scenario = SIM2(size=0.1, seed=2).model_copy(update={
         "extrinsic": ExtrinsicSpec(boresight_deg=(0.0, 0.0, 90.0)), "intrinsic_errors": IntrinsicErrors()})
@@ -116,10 +116,9 @@ def test_level_head_leaves_what_the_road_cannot_tell_apart_unobservable():
     data = prepare(recording, 1.0)
     config = CalibrationConfig().for_sensor(data.static, data.range_noise_m)
     truth = initial_estimate(recording, data)  # no intrinsic error was drawn: the nominal model is the truth
-    priors = Priors.of(config, data.sensor.n_fibres, len(data.control_times_s))
-    layout = layout_of(data, priors, ESTIMATES["intrinsic"], truth.extrinsic)
-    named = weak_at(data, truth, strict_pairs(data, truth, config)[1], config.fine(), ESTIMATES["intrinsic"], priors,
-                    layout).named()
+    problem = Problem(data, config, ESTIMATES["intrinsic"], truth.extrinsic,
+                      Priors.of(config, data.sensor.n_fibres, len(data.control_times_s)))
+    named = problem.weak_directions(truth).named()
     by_elevation = recording.sensor.fibres_by_elevation()
     for fibre in by_elevation[:2]:
         assert any(name.startswith(f"fibre_{fibre}.") for name in named), named
@@ -139,7 +138,7 @@ def test_straight_drive_leaves_the_lever_arm_and_roll_unobservable(tmp_path):
         "extrinsic": scenario.extrinsic.model_copy(update={"error_lever_arm_m": (0.1, -0.1, 0.2),
                                                           "error_boresight_deg": (0.5, -0.4, 0.6)})})
     recording = graphcal.Recording.load(graphcal.simulate(scenario, quiet=True).save(tmp_path / "rec"))
-    result = calibrate(recording, CalibrationConfig(mode="extrinsic", max_outer_iterations=15), quiet=True)
+    result = calibrate(recording, CalibrationConfig(mode="extrinsic", stopping={"max_outer_iterations": 15}), quiet=True)
     unseen = {"extrinsic.roll_deg", "extrinsic.lever_arm_x_m", "extrinsic.lever_arm_y_m", "extrinsic.lever_arm_z_m"}
     assert set(result.unobservable) == unseen
     estimate = result.calibration.estimate.extrinsic

@@ -28,23 +28,24 @@ def test_fibres_pushed_onto_the_reference_are_refused():
 
 def test_a_static_sensor_holds_the_elevations_and_features_from_voxels():
     static, moving = CalibrationConfig().for_sensor(True, 0.0), CalibrationConfig().for_sensor(False, 0.0)
-    assert static.feature_voxel_m > 0 and moving.feature_voxel_m == 0
+    assert static.features.voxel_m > 0 and moving.features.voxel_m == 0
     # a noisy head (range noise measured at 1 mm or more, or unknown): voxel features and pairs whitened along
     # their lines of sight; a noise-free one keeps every return's features and uniform pairs
     for noise_m in (0.01, np.nan):
         noisy_moving = CalibrationConfig().for_sensor(False, noise_m)
-        assert noisy_moving.feature_voxel_m > 0 and noisy_moving.pair_noise == "incidence"
-    assert moving.pair_noise == "uniform" and moving.range_noise_m == 0.0
-    assert CalibrationConfig(pair_noise="uniform", feature_voxel_m=0.0).for_sensor(False, 0.01).pair_noise == "uniform"
-    assert moving.hold == () and static.hold == ("fibre_*.d_elevation_deg", "fibre_*.d_range_m",
-                                                 "fibre_*.d_azimuth_deg", "fibre_*.h_z_m")
-    assert static.hold_soft and static.check_halves and static.fixed_association
-    assert not (moving.hold_soft or moving.check_halves or moving.fixed_association)
-    held = held_names(static.hold, 32, 15)
+        assert noisy_moving.features.voxel_m > 0 and noisy_moving.weighting.pair_noise == "incidence"
+    assert moving.weighting.pair_noise == "uniform" and moving.weighting.range_noise_m == 0.0
+    chosen_noise = CalibrationConfig(weighting={"pair_noise": "uniform"}, features={"voxel_m": 0.0}).for_sensor(False, 0.01)
+    assert chosen_noise.weighting.pair_noise == "uniform"
+    assert moving.static.hold == () and static.static.hold == ("fibre_*.d_elevation_deg", "fibre_*.d_range_m",
+                                                               "fibre_*.d_azimuth_deg", "fibre_*.h_z_m")
+    assert static.static.hold_soft and static.static.check_halves and static.association.fixed
+    assert not (moving.static.hold_soft or moving.static.check_halves or moving.association.fixed)
+    held = held_names(static.static.hold, 32, 15)
     assert held == [f"fibre_{i}.{name}" for i in range(32) if i != 15
                     for name in ("d_range_m", "d_azimuth_deg", "d_elevation_deg", "h_z_m")]
-    chosen = CalibrationConfig(hold=(), feature_voxel_m=0.2, fixed_association=False).for_sensor(True)
-    assert chosen.hold == () and chosen.feature_voxel_m == 0.2 and not chosen.fixed_association  # the user's choice
+    chosen = CalibrationConfig(static={"hold": ()}, features={"voxel_m": 0.2}, association={"fixed": False}).for_sensor(True)
+    assert chosen.static.hold == () and chosen.features.voxel_m == 0.2 and not chosen.association.fixed  # the user's
 
 
 def test_hold_names_parameters_or_says_what_it_expected():
@@ -68,8 +69,8 @@ def test_a_hold_naming_nothing_is_refused_when_the_settings_are_read(tmp_path):
     from graphcal.cli.main import calibration_config
 
     settings = tmp_path / "settings.yaml"
-    settings.write_text("hold: ['fibre_*.d_elevation']\n")  # the unit is missing
-    with pytest.raises(ConfigError, match=r"settings.yaml: hold: .*'fibre_\*.d_elevation' names no parameter"):
+    settings.write_text("static: {hold: ['fibre_*.d_elevation']}\n")  # the unit is missing
+    with pytest.raises(ConfigError, match=r"settings.yaml: static.hold: .*'fibre_\*.d_elevation' names no parameter"):
         calibration_config("intrinsic", settings)
 
 
@@ -111,7 +112,7 @@ def test_an_energy_the_noise_does_not_explain_is_refused():
 
 
 def test_auto_estimates_the_trajectory_only_where_the_drive_comes_back():
-    from graphcal.calibration.problem import revisits
+    from graphcal.calibration.returns import revisits
     from graphcal.recording.poses import PoseTrack
 
     t = np.arange(0.0, 60.0, 0.1)

@@ -5,7 +5,8 @@ import gtsam
 import numpy as np
 import pytest
 
-from graphcal.calibration.solve import HELD_SIGMA, levenberg_marquardt, on_plateau
+from graphcal.calibration.priors import HELD_SIGMA
+from graphcal.calibration.problem import levenberg_marquardt, on_plateau
 
 # fine-phase J [cm^2] of sim6_turn at full size, joint_trajectory (session 7 benchmark): it stops
 # falling near 0.001 while the association's jitter keeps the largest step above tolerance_m
@@ -66,7 +67,7 @@ def test_lm_steps_where_the_default_damping_cannot():
 
 def test_features_are_computed_again_only_when_the_cloud_changes_shape():
     from graphcal.calibration.config import CalibrationConfig
-    from graphcal.calibration.solve import FeatureCache, moved_m
+    from graphcal.calibration.pairing import FeatureCache, moved_m
 
     rng = np.random.default_rng(0)
     plane = np.column_stack([rng.uniform(0, 5, 2000), rng.uniform(0, 5, 2000), np.zeros(2000)])
@@ -80,7 +81,7 @@ def test_features_are_computed_again_only_when_the_cloud_changes_shape():
     assert moved_m(turned, plane, 0.5) == pytest.approx(0.5e-3, rel=1e-6)
     assert moved_m(plane, None, 0.5) == np.inf and moved_m(plane[:10], plane, 0.5) == np.inf
 
-    cache = FeatureCache(CalibrationConfig(refresh_above_m=0.001).for_sensor(False))
+    cache = FeatureCache(CalibrationConfig(features={"refresh_above_m": 0.001}).for_sensor(False).features)
     features, computed = cache.at(plane)
     assert computed and np.allclose(np.abs(features.normal[:, 2]), 1.0)
     assert cache.at(plane + [0.0, 0.0, 0.3]) == (features, False)
@@ -91,7 +92,7 @@ def test_features_are_computed_again_only_when_the_cloud_changes_shape():
 
 
 def test_the_coarse_phase_sample_keeps_each_return_whole():
-    from graphcal.calibration.problem import ReturnData
+    from graphcal.calibration.returns import ReturnData
     from graphcal.recording.sensor import sensor_from_catalog
 
     rng = np.random.default_rng(3)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import graphcal
-from graphcal.calibration.problem import initial_estimate, prepare, sight_at, world_at
+from graphcal.calibration.returns import initial_estimate, prepare, sight_at, world_at
 from graphcal.recording.range_noise import NOISY_ABOVE_M, measured_range_noise_m
 from graphcal.simulation.script import load_scenario_builder
 

@@ -38,7 +38,8 @@ def calibrated(tmp_path_factory):
     recording = graphcal.simulate(SIM6(size=0.02, seed=1), quiet=True).save(root / "rec")
     settings = root / "settings.yaml"
     # the coarse phase on a subsample: the residuals "before" must be its first iteration's pairs still
-    settings.write_text("max_outer_iterations: 3\nrefuse_unconverged: false\nmax_points: 20000\ncoarse_max_points: 10000\n")
+    settings.write_text("max_points: 20000\nstopping: {max_outer_iterations: 3, refuse_unconverged: false}\n"
+                        "association: {coarse: {max_points: 10000}}\n")
     result = CliRunner().invoke(app, ["calibrate", str(recording), "--mode", "trajectory", "--config", str(settings),
                                       "--out", str(root / "run"), "--viewer-points", str(VIEWER_POINTS), "-q"])
     assert result.exit_code == 0, result.output
@@ -59,7 +60,9 @@ def test_calibrate_writes_a_complete_run_folder(calibrated):
     manifest = yaml.safe_load((folder / "run.yaml").read_text())
     assert manifest["format"] == "graphcal-run/1" and manifest["recording"] == str(recording.resolve())
     config = yaml.safe_load((folder / "config.yaml").read_text())  # resolved for the recording: noise-free sim6
-    assert 0 <= config["range_noise_m"] < 1e-3 and config["pair_noise"] == "uniform" and config["feature_voxel_m"] == 0
+    weighting = config["weighting"]
+    assert 0 <= weighting["range_noise_m"] < 1e-3 and weighting["pair_noise"] == "uniform"
+    assert config["features"]["voxel_m"] == 0
     stages = manifest["timings_s"]
     for stage in ("load and validate the recording", "calibrate: prepare", "calibrate: solve trajectory (coarse)",
                   "calibrate: weak directions at the start", "calibrate: weak directions, fine phase",

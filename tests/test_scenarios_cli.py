@@ -78,14 +78,18 @@ def test_cli_calibrate_writes_a_run_folder_and_rejects_a_bad_config(tmp_path):
     assert runner.invoke(app, ["simulate", "sim2_street", "--out", str(recording), "--size", "0.01", "-q"]).exit_code == 0
     settings = tmp_path / "settings.yaml"
     # Table 4.1's start is no factory calibration: its stated uncertainty is wide; a quick look may stop early
-    settings.write_text("max_outer_iterations: 2\nrefuse_unconverged: false\nintrinsic_sigma_range_m: 0.3\n"
-                        "intrinsic_sigma_angle_deg: 10\n")
+    settings.write_text("stopping: {max_outer_iterations: 2, refuse_unconverged: false}\n"
+                        "priors: {intrinsic_range_m: 0.3, intrinsic_angle_deg: 10}\n")
     result = runner.invoke(app, ["calibrate", str(recording), "--config", str(settings), "--out", str(tmp_path / "run")])
     assert result.exit_code == 0, result.output
     assert "J " in result.output and (tmp_path / "run" / "calibration.yaml").is_file()
-    settings.write_text("max_outer_iterations: 0\n")
+    settings.write_text("stopping: {max_outer_iterations: 0}\n")
     result = runner.invoke(app, ["calibrate", str(recording), "--config", str(settings)])
     assert result.exit_code == 2 and "max_outer_iterations" in result.output and "Traceback" not in result.output
+    settings.write_text("max_outer_iterations: 5\nhold: ['fibre_3.h_z_m']\n")  # the former flat layout
+    result = runner.invoke(app, ["calibrate", str(recording), "--config", str(settings)])
+    assert result.exit_code == 2 and "max_outer_iterations -> stopping.max_outer_iterations" in result.output
+    assert "hold -> static.hold" in result.output and "Traceback" not in result.output
     settings.write_text("- mode: joint\n")
     result = runner.invoke(app, ["calibrate", str(recording), "--config", str(settings)])
     assert result.exit_code == 2 and "settings.yaml: not a mapping" in result.output

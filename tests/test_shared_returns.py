@@ -12,15 +12,16 @@ import yaml
 
 import factors.point_to_plane
 import graphcal
-from graphcal.simulation.starts import FAR_START_PRIORS
-from graphcal.calibration.calibrate import final_fit
 from graphcal.calibration.config import ESTIMATES, CalibrationConfig
+from graphcal.calibration.keys import I
 from graphcal.calibration.observability import INTRINSIC_NAMES, DenseMarginals
+from graphcal.calibration.priors import Priors
+from graphcal.calibration.problem import Problem
 from graphcal.calibration.result import SIGMA_SHARED
-from graphcal.calibration.problem import initial_estimate, prepare
+from graphcal.calibration.returns import initial_estimate, prepare
 from graphcal.calibration.shared_returns import SharedReturnsCovariance
-from graphcal.calibration.solve import I, Priors, build_graph, make_blocks, strict_pairs
 from graphcal.simulation.script import load_scenario_builder
+from graphcal.simulation.starts import FAR_START_PRIORS
 
 RANGE_NOISE_M = 0.01
 INTRINSIC = ESTIMATES["intrinsic"]
@@ -32,26 +33,28 @@ def at_truth():
     pairs whitened along their lines of sight), the true calibration and the strict pairs there."""
     recording = graphcal.simulate(load_scenario_builder("sim2_street")(size=0.02, seed=4), quiet=True)
     data = prepare(recording, 1.0)
-    config = CalibrationConfig(mode="intrinsic", sigma0_m=RANGE_NOISE_M, range_noise_m=RANGE_NOISE_M,
-                               **FAR_START_PRIORS)  # the truth is Table 4.1's, far from the nominal
+    config = CalibrationConfig(mode="intrinsic", weighting={"sigma0_m": RANGE_NOISE_M, "range_noise_m": RANGE_NOISE_M},
+                               priors=FAR_START_PRIORS)  # the truth is Table 4.1's, far from the nominal
     config = config.for_sensor(data.static, np.nan)
-    assert config.pair_noise == "incidence"
+    assert config.weighting.pair_noise == "incidence"
     truth = replace(initial_estimate(recording, data), offsets=recording.truth.intrinsics)
-    priors = Priors.of(config, data.sensor.n_fibres, len(data.control_times_s))
-    return data, config, truth, priors, strict_pairs(data, truth, config)[1]
+    problem = Problem(data, config, INTRINSIC, truth.extrinsic,
+                      Priors.of(config, data.sensor.n_fibres, len(data.control_times_s)))
+    return problem, truth, problem.associate(truth)
 
 
 def test_the_plane_model_term_takes_the_edges_bias_out_of_the_step_at_the_truth(at_truth):
     """A noise-free cloud with a noisy head's settings: the Gauss-Newton step at the true calibration is
     what the pair model alone gets wrong. Voxel normals tilt near edges and the pairs there pull the
-    offsets (docs/math.md "Observability"); with each pair's out-of-plane scatter in its sigma the step
+    offsets (docs/reference/math.md "Observability"); with each pair's out-of-plane scatter in its sigma the step
     is several times smaller for every parameter type (measured: 4x to 10x)."""
-    data, config, truth, priors, pairs = at_truth
+    problem, truth, pairs = at_truth
+    sensor = problem.data.sensor
 
     def rms_step(pairs_used) -> np.ndarray:
-        graph, values = build_graph(data, truth, pairs_used, config, INTRINSIC, truth.extrinsic, priors, damped=False)
+        graph, values = problem.graph(truth, pairs_used, damped=False)
         step = graph.linearize(values).optimize()
-        fibres = [f for f in range(data.sensor.n_fibres) if f != data.sensor.reference_fibre]
+        fibres = [f for f in range(sensor.n_fibres) if f != sensor.reference_fibre]
         return np.sqrt((np.array([step.at(I(f)) for f in fibres]) ** 2).mean(axis=0))
 
     assert pairs.out_of_plane_m is not None and np.all(pairs.out_of_plane_m >= 0)
@@ -62,7 +65,7 @@ def test_the_plane_model_term_takes_the_edges_bias_out_of_the_step_at_the_truth(
 def test_without_shared_returns_it_is_the_marginals(at_truth):
     """Pairs that share no return, unit weights: each pair's residual carries its own noise, as the
     Marginals assume, so both covariances agree (up to the weak priors, which only lower the sandwich)."""
-    data, config, truth, priors, pairs = at_truth
+    problem, truth, pairs = at_truth
     used, alone = set(), np.zeros(len(pairs), bool)
     for k, (p, m) in enumerate(zip(pairs.index_p.tolist(), pairs.index_m.tolist())):
         if p not in used and m not in used:
@@ -70,7 +73,7 @@ def test_without_shared_returns_it_is_the_marginals(at_truth):
             alone[k] = True
     assert alone.sum() > 3000
     lone = replace(pairs.take(alone), weight=np.ones(alone.sum()))
-    fit = final_fit(data, truth, config, INTRINSIC, truth.extrinsic, priors, lone, shared_returns=True)
+    fit = problem.final(truth, lone, shared_returns=True)
     estimated = ~np.isnan(fit.uncertainty.intrinsics).all(axis=1)
     marginal, shared = fit.uncertainty.intrinsics[estimated], fit.shared_returns.intrinsics[estimated]
     assert np.all(shared <= marginal * (1 + 1e-9))
@@ -87,16 +90,16 @@ def test_it_is_the_spread_of_the_estimate_over_range_noise_draws(at_truth, monke
     (about the draws' mean) per parameter, 1 when the covariance is right, within 2.6 % at 24 draws of
     124 parameters (60 draws: 0.98 with the sandwich, 2.4 with the Marginals)."""
     monkeypatch.setattr(factors.point_to_plane, "INCIDENCE_FLOOR", 0.0)
-    data, config, truth, priors, pairs = at_truth
-    blocks = make_blocks(data, truth, pairs, config, INTRINSIC)
-    graph, values = build_graph(data, truth, pairs, config, INTRINSIC, truth.extrinsic, priors, damped=False,
-                                blocks=blocks)
+    problem, truth, pairs = at_truth
+    data = problem.data
+    blocks = problem.blocks(truth, pairs)
+    graph, values = problem.graph(truth, pairs, damped=False, blocks=blocks)
     keys = [I(f) for f in range(data.sensor.n_fibres) if f != data.sensor.reference_fibre]
     rng = np.random.default_rng(11)
     steps = []
     for _ in range(24):
         noisy = replace(data, range_m=data.range_m + rng.normal(0.0, RANGE_NOISE_M, len(data.range_m)))
-        graph_d, values_d = build_graph(noisy, truth, pairs, config, INTRINSIC, truth.extrinsic, priors, damped=False)
+        graph_d, values_d = replace(problem, full=noisy, data=noisy).graph(truth, pairs, damped=False)
         step = graph_d.linearize(values_d).optimize()
         steps.append(np.concatenate([step.at(key) for key in keys]))
     deviation = np.array(steps) - np.mean(steps, axis=0)
@@ -118,10 +121,10 @@ def test_calibrate_reports_the_shared_returns_sigmas_for_a_noisy_head(tmp_path):
     than the Marginals assume) and says so in its provenance."""
     recording = graphcal.simulate(load_scenario_builder("sim2_street")(size=0.05, seed=1, range_noise_m=0.01),
                                   quiet=True)
-    result = graphcal.calibrate(recording, CalibrationConfig(mode="intrinsic", max_outer_iterations=6, refuse_unconverged=False,
-                                                             **FAR_START_PRIORS),
+    result = graphcal.calibrate(recording, CalibrationConfig(mode="intrinsic", priors=FAR_START_PRIORS, stopping={
+        "max_outer_iterations": 6, "refuse_unconverged": False}),
                                 quiet=True)
-    assert result.config.pair_noise == "incidence"
+    assert result.config.weighting.pair_noise == "incidence"
     shared, marginal = result.shared_returns_uncertainty.intrinsics, result.uncertainty.intrinsics
     free = np.array([[f"fibre_{f}.{name}" not in result.unobservable and f != recording.sensor.reference_fibre
                       for name in INTRINSIC_NAMES] for f in range(len(shared))])
@@ -140,11 +143,11 @@ def test_calibrate_reports_the_shared_returns_sigmas_for_a_noisy_head(tmp_path):
 def test_without_pairs_the_estimate_carries_no_range_noise(at_truth):
     """No pair: the priors alone fix the estimate, and no return's noise reaches it: its covariance is the
     priors' (the nominal value is off by the prior's sigma)."""
-    data, config, truth, priors, pairs = at_truth
+    problem, truth, pairs = at_truth
+    data, priors = problem.data, problem.priors
     none = pairs.take(np.zeros(0, np.int64))
-    blocks = make_blocks(data, truth, none, config, INTRINSIC)
-    graph, values = build_graph(data, truth, none, config, INTRINSIC, truth.extrinsic, priors, damped=False,
-                                blocks=blocks)
+    blocks = problem.blocks(truth, none)
+    graph, values = problem.graph(truth, none, damped=False, blocks=blocks)
     covariance = SharedReturnsCovariance(graph, values, blocks, none, data, truth, RANGE_NOISE_M)
     assert not blocks
     prior = priors.intrinsic[0 if data.sensor.reference_fibre else 1]

@@ -1,5 +1,5 @@
 """The first real calibration: the static HDL-32E recording (VeloView's monterey pcap) is calibrated
-on what a static head determines, and the rest is named (docs/math.md "A static sensor")."""
+on what a static head determines, and the rest is named (docs/reference/math.md "A static sensor")."""
 
 from pathlib import Path
 
@@ -36,7 +36,7 @@ HEIGHTS_FREE = ("fibre_*.d_elevation_deg", "fibre_*.d_range_m", "fibre_*.d_azimu
 
 @pytest.fixture(scope="module")
 def monterey(imported):
-    config = graphcal.CalibrationConfig(mode="intrinsic", seed=SEED, hold=HEIGHTS_FREE)
+    config = graphcal.CalibrationConfig(mode="intrinsic", seed=SEED, static={"hold": HEIGHTS_FREE})
     return imported, graphcal.calibrate(imported, config, quiet=True)
 
 
@@ -81,7 +81,7 @@ def test_heights_that_fit_one_half_of_the_scene_are_not_returned(imported, tmp_p
     the report shows the evidence."""
     recording = one_half_lowered(imported)
     result = graphcal.calibrate(recording, graphcal.CalibrationConfig(mode="intrinsic", seed=SEED,
-                                                                      hold=HEIGHTS_FREE), quiet=True)
+                                                                      static={"hold": HEIGHTS_FREE}), quiet=True)
     halves = result.halves
     assert not halves["passed"]
     held_out = [fold["held_out_energy_cm2"] for fold in halves["folds"]]

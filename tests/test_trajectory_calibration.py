@@ -22,7 +22,7 @@ def piecewise_error():
 
 def test_translation_corrections_remove_the_piecewise_error(piecewise_error):
     recording = piecewise_error
-    result = graphcal.calibrate(recording, graphcal.CalibrationConfig(mode="trajectory", max_outer_iterations=20),
+    result = graphcal.calibrate(recording, graphcal.CalibrationConfig(mode="trajectory", stopping={"max_outer_iterations": 20}),
                                 quiet=True)
     assert result.unobservable == ("trajectory.common_translation",)
     evaluation = graphcal.evaluate(result, recording)
@@ -45,7 +45,8 @@ def test_an_ins_heading_error_needs_pose_corrections():
     recording = graphcal.simulate(SIM6(size=0.02, seed=5, piecewise_error_m=0.0, heading_error_deg=0.5), quiet=True)
     after = {}
     for pose in (False, True):
-        config = graphcal.CalibrationConfig(mode="trajectory", pose_corrections=pose, max_outer_iterations=15)
+        config = graphcal.CalibrationConfig(mode="trajectory", trajectory={"pose_corrections": pose},
+                                            stopping={"max_outer_iterations": 15})
         result = graphcal.calibrate(recording, config, quiet=True)
         after[pose] = graphcal.evaluate(result, recording)
     assert after[False].cloud_before.mean > 0.05

@@ -172,7 +172,7 @@ def test_returns_on_stand_ins_are_the_measured_points_with_offsets_held():
     import dataclasses
 
     import graphcal
-    from graphcal.calibration.problem import corrections_at, initial_estimate, prepare, sight_at, world_at
+    from graphcal.calibration.returns import corrections_at, initial_estimate, prepare, sight_at, world_at
     from graphcal.simulation.script import load_scenario_builder
 
     recording = graphcal.simulate(load_scenario_builder("sim2_street")(size=0.1, seed=2, range_noise_m=0.01),

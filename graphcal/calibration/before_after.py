@@ -2,29 +2,29 @@
 report's histograms and the viewer's residual colours show.
 
 In each cloud (nominal, calibrated) the returns the calibration used are paired as its first
-outer iteration pairs them (same candidates, features at that cloud, coarse settings, gate_start_m,
-seed; the fine settings with fixed_association), and each pair's signed point-to-plane distance
+outer iteration pairs them (same candidates, features at that cloud, the coarse gates at gate_start_m,
+seed; the fine gates with association.fixed), and each pair's signed point-to-plane distance
 n·(p_w - m_w) [m] (eq. 4.4) is taken. In the nominal cloud these are exactly the first iteration's pairs: their weighted mean square is the
 history's first J. The coarse settings cut nothing on the distance to the plane, so the blur of
 the nominal cloud shows whole; they also keep some pairs across edges, which leave about 0.3 cm²
-of J even at the true calibration (docs/math.md).
+of J even at the true calibration (docs/reference/math.md).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from graphcal.common.atomic import atomic_path
-from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.evaluate import nominal_calibration, returns_for, world_of
-from graphcal.calibration.problem import ReturnData
+from graphcal.calibration.priors import Priors
+from graphcal.calibration.problem import Problem
 from graphcal.calibration.result import Calibration, CalibrationResult
-from graphcal.calibration.solve import Association, features_at, phase_data, phase_sight
+from graphcal.calibration.returns import pose_of
+from graphcal.common.atomic import atomic_path
 from graphcal.common.errors import RecordingError
 from graphcal.recording.directory import Recording
 
@@ -88,22 +88,20 @@ def residuals_before_after(recording: Recording, result: CalibrationResult) -> B
     """The pairs and residuals of the nominal and of the calibrated cloud (module docstring)."""
     config = result.config
     # calibrate's returns, and its range noise: the same choice of m as the first outer iteration's
-    data = returns_for(result.calibration, recording, config.max_points, config.seed, config.range_noise_m)
-    phase = "fine" if config.fixed_association else "coarse"  # fixed: fine only
-    data, settings = phase_data(data, config, phase)
-    association = Association.of(data, settings)
-    return BeforeAfter(*(pairs_in(data, calibration, association, settings, phase)
-                         for calibration in (nominal_calibration(recording), result.calibration)))
+    data = returns_for(result.calibration, recording, config.max_points, config.seed, config.weighting.range_noise_m)
+    problem = Problem(data, config, result.estimated, pose_of(recording.extrinsic),
+                      Priors.of(config, data.sensor.n_fibres, len(data.control_times_s)))
+    problem = problem.in_phase("fine" if config.association.fixed else "coarse")  # fixed: fine only
+    return BeforeAfter(*(pairs_in(problem, calibration) for calibration in (nominal_calibration(recording),
+                                                                            result.calibration)))
 
 
-def pairs_in(data: ReturnData, calibration: Calibration, association: Association, settings: CalibrationConfig,
-             phase: str) -> Pairs:
-    """The first outer iteration's association (settings and choice of m of its phase) in the cloud of
+def pairs_in(problem: Problem, calibration: Calibration) -> Pairs:
+    """The first outer iteration's association (the gates and choice of m of its phase) in the cloud of
     `calibration`."""
+    data = problem.data
     points = world_of(calibration, data) - data.origin_m
-    sight = phase_sight(data, calibration.estimate, points, phase)
-    features = features_at(points, settings)
-    pairs = association.pairs(points, data.fibre, features, settings.gate_start_m, settings, sight, phase)
+    pairs = replace(problem, fixed_pairs=None).associate(calibration.estimate, points)
     residual = np.einsum("ni,ni->n", pairs.normal, points[pairs.index_p] - points[pairs.index_m])
     return Pairs(data.rows[pairs.index_p], data.rows[pairs.index_m], pairs.weight, residual,
                  points[pairs.index_p] + data.origin_m)

@@ -21,7 +21,7 @@ def check_fibres_apart(elevation_deg: np.ndarray, d_elevation_rad: np.ndarray, w
     The self-consistency energy has a trivial minimum: fibres that sweep one cone see the same
     points, and every point-to-plane distance between them vanishes. A run that starts far from
     the truth, or stops early, or whose scene leaves it a direction it cannot see (a level head
-    over flat ground, docs/math.md), can slide towards it (J falls while the cloud gets worse); no
+    over flat ground, docs/reference/math.md), can slide towards it (J falls while the cloud gets worse); no
     real sensor has its beams' spread halved, so such a result is refused, not returned."""
     calibrated = elevation_deg + np.degrees(d_elevation_rad)
     nominal_spread, spread = float(np.std(elevation_deg)), float(np.std(calibrated))
@@ -30,9 +30,9 @@ def check_fibres_apart(elevation_deg: np.ndarray, d_elevation_rad: np.ndarray, w
             f"{where}: the fibres' calibrated elevations collapsed together (spread "
             f"{spread:.2f} deg against {nominal_spread:.2f} deg nominal): a degenerate minimum where neighbouring "
             "fibres coincide, not a calibration; start closer to the truth (smaller offsets), allow more outer "
-            "iterations (max_outer_iterations), or tighten the angle prior (intrinsic_sigma_angle_deg). A level "
+            "iterations (stopping.max_outer_iterations), or tighten the angle prior (priors.intrinsic_angle_deg). A level "
             "head over flat ground slides there even from the truth: its fibres that see only the ground can rise "
-            "together unseen (docs/math.md); calibrate its intrinsics from a drive with the head pitched or with "
+            "together unseen (docs/reference/math.md); calibrate its intrinsics from a drive with the head pitched or with "
             "objects at many heights")
 
 
@@ -46,8 +46,8 @@ def check_energy_fell(history: list[dict], where: str) -> None:
         raise CalibrationError(
             f"{where}: the calibration diverged (J {start:.3g} cm2 at the start, "
             f"{end:.3g} cm2 at the end): the nominal model fits this recording better than the estimate; tighten "
-            "the priors (intrinsic_sigma_range_m, intrinsic_sigma_angle_deg), hold what the drive cannot observe "
-            "(hold), or use a recording with more surfaces and motion")
+            "the priors (priors.intrinsic_range_m, priors.intrinsic_angle_deg), hold what the drive cannot observe "
+            "(static.hold), or use a recording with more surfaces and motion")
 
 
 
@@ -59,13 +59,13 @@ ENERGY_EXCESS = 4.0
 
 def check_converged(history: list[dict], where: str) -> None:
     """Raise when the last stage did not end converged in its fine phase: it stopped on the cap of outer
-    iterations (config.max_outer_iterations) in the coarse phase (it never reached the basin) or in the
+    iterations (stopping.max_outer_iterations) in the coarse phase (it never reached the basin) or in the
     fine phase (the estimate was still moving), or the cap left the fine phase no iteration."""
     last = history[-1]
     if last.get("stop") != "converged":
         raise CalibrationError(
             f"{where}: the calibration did not converge: it stopped after {len(history)} outer iterations still "
-            f"in the {last['phase']} phase (last step {last['max_step']:.2g}); allow more (max_outer_iterations), "
+            f"in the {last['phase']} phase (last step {last['max_step']:.2g}); allow more (stopping.max_outer_iterations), "
             "or start from a nominal model closer to the truth")
 
 
@@ -84,7 +84,7 @@ def check_rings_in_order(elevation_deg: np.ndarray, d_elevation_rad: np.ndarray,
         a, b = order[crossed[0]], order[crossed[0] + 1]
         raise CalibrationError(
             f"{where}: the calibrated rings of fibres {a} and {b} cross ({calibrated[crossed[0]]:.3f} and "
-            f"{calibrated[crossed[0] + 1]:.3f} deg): the elevations slid; hold them (hold) or use a drive with "
+            f"{calibrated[crossed[0] + 1]:.3f} deg): the elevations slid; hold them (static.hold) or use a drive with "
             "surfaces at many heights")
 
 
@@ -102,8 +102,8 @@ def check_within_priors(estimate, nominal_extrinsic: gtsam.Pose3, layout: Layout
         listed = ", ".join(f"{name} ({z:.0f} sigmas)" for name, z in sorted(far, key=lambda x: -x[1])[:5])
         raise CalibrationError(
             f"{where}: {len(far)} parameter(s) slid far outside the nominal model's stated uncertainty: {listed}; "
-            "if the nominal model is known to be that far off, give its uncertainty (intrinsic_sigma_range_m, "
-            "intrinsic_sigma_angle_deg, extrinsic_sigma_*), else hold them (hold) or use a drive that shows them")
+            "if the nominal model is known to be that far off, give its uncertainty (priors.intrinsic_range_m, "
+            "priors.intrinsic_angle_deg, priors.extrinsic_*), else hold them (static.hold) or use a drive that shows them")
 
 
 def check_energy_explained(energy_cm2: float, expected_cm2: float | None, range_noise_m: float, where: str) -> None:

@@ -1,4 +1,11 @@
-"""Calibration settings (validated, with defaults that work on the scenarios)."""
+"""Calibration settings: one validated model of nested sections (association and its two phases,
+features, weighting, priors, trajectory, stopping, static sensor), with defaults for a mapping drive.
+
+Lengths in m, angles in deg, times in s. Each stage runs a coarse phase (loose association, the gate
+opening from gate_start_m to gate_max_m) until the largest step falls below stopping.fine_below_m, then a
+fine phase (strict association: only clearly planar p and m on the same surface, a fixed gate) until the
+largest step falls below stopping.tolerance_m, J stops falling, or stopping.max_outer_iterations is
+reached. A settings file of the former flat layout is refused with the section each field moved to."""
 
 from __future__ import annotations
 
@@ -6,7 +13,7 @@ import fnmatch
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from graphcal.calibration.observability import EXTRINSIC_NAMES, INTRINSIC_NAMES
 from graphcal.common.errors import ConfigError
@@ -14,133 +21,163 @@ from graphcal.recording.range_noise import noisy
 
 Mode = Literal["auto", "intrinsic", "extrinsic", "trajectory", "joint", "joint_trajectory",
                "extrinsic_then_intrinsic", "intrinsic_then_extrinsic"]
-
+Phase = Literal["coarse", "fine"]
 
 # what each single-stage mode estimates: (intrinsics, extrinsic, trajectory)
 ESTIMATES = {"intrinsic": (True, False, False), "extrinsic": (False, True, False),
              "trajectory": (False, False, True), "joint": (True, True, False),
              "joint_trajectory": (True, True, True)}
+STAGES = {"extrinsic_then_intrinsic": ("extrinsic", "intrinsic"),
+          "intrinsic_then_extrinsic": ("intrinsic", "extrinsic")}
 FEATURE_VOXEL_M = 0.1  # static sensors and noisy heads; spans the HDL-32E's rings on walls within ~10 m
 # a static sensor's fibres can all slide onto one cone, where every pair's distance vanishes; its range and
 # azimuth offsets fit the surfaces between the rings, not the sensor, and a ring's height cannot be told from
-# the ground's radial shape (docs/math.md "A static sensor"): everything is held; free Hz with `hold` to try it
+# the ground's radial shape (docs/reference/math.md "A static sensor"): everything is held; free Hz with `hold`
 STATIC_HOLD = ("fibre_*.d_elevation_deg", "fibre_*.d_range_m", "fibre_*.d_azimuth_deg", "fibre_*.h_z_m")
 MAX_FIBRES = 128  # the most fibres of a supported head: the vocabulary of `hold` before the sensor is known
-STAGES = {"extrinsic_then_intrinsic": ("extrinsic", "intrinsic"),
-          "intrinsic_then_extrinsic": ("intrinsic", "extrinsic")}
+
+_SECTION = ConfigDict(frozen=True, extra="forbid")
 
 
-class CalibrationConfig(BaseModel):
-    """Settings of graphcal.calibrate. Lengths in m, angles in deg, times in s.
+class PhaseGates(BaseModel):
+    """What a pair of one phase must pass, and how many are drawn: p and m both at least min_planarity
+    planar, their normals within max_normal_angle_deg, m within max_plane_distance_m of the plane at p and
+    within the gate of p (opening from gate_start_m by gate_growth per outer iteration up to gate_max_m);
+    pairs_per_fibre_pair drawn per (i, j) fibre pair; the phase's returns, a random subset of max_points
+    of the calibration's (None: all)."""
 
-    Each stage runs a coarse phase (loose association, the gate opening from gate_start_m to
-    gate_max_m) until the largest step falls below fine_below_m, then a fine phase (strict
-    association: only clearly planar p and m on the same surface, a fixed gate) until the largest
-    step falls below tolerance_m or max_outer_iterations is reached."""
+    model_config = _SECTION
+    min_planarity: float = Field(ge=0, le=1)
+    max_normal_angle_deg: float = Field(gt=0, le=90)
+    max_plane_distance_m: float = Field(gt=0)
+    gate_start_m: float = Field(gt=0)
+    gate_max_m: float = Field(gt=0)
+    gate_growth: float = Field(ge=1)
+    pairs_per_fibre_pair: int = Field(ge=10)
+    max_points: int | None = Field(None, ge=1000)
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
-    mode: Mode = Field("auto", description=(
-        "what to estimate; auto: what a mapping drive needs, intrinsics and extrinsic (joint), plus trajectory "
-        "corrections when the drive comes back to where it was (joint_trajectory: only a second pass shows the "
-        "trajectory's errors, trajectory_revisits); a static sensor: intrinsic (held by its checks)"))
-    max_points: int | None = Field(1_000_000, ge=1000, description=(
-        "use a random subset of this many returns (None: all); the pairs per fibre pair are capped "
-        "(max_pairs_per_fibre_pair), so more returns mostly sharpen the normals and cost time"))
-    neighbours: int = Field(2, ge=1, description="N: fibres j in [i-N, i+N] in elevation order")
-    refresh_every: int = Field(2, ge=1, description="K: outer iterations between feature refreshes")
-    refresh_above_m: float = Field(0.001, ge=0, description=(
-        "features are refreshed (every K iterations) only once some point has moved more than this since they were "
-        "computed, the cloud's best rigid motion removed (or that motion turned the normals by more than this over "
-        "feature_radius_m): late in the fine phase the cloud's shape changes by fractions of a millimetre"))
-    feature_radius_m: float = Field(0.5, gt=0)
-    feature_neighbours: int = Field(20, ge=5)
-    feature_voxel_m: float | None = Field(None, ge=0, description=(
-        "features from the cloud averaged in voxels of this size (0: from every return); None: "
-        f"{FEATURE_VOXEL_M} m for a static sensor (it sees the same spots every revolution) or a noisy head "
-        "(range_noise_m; normals of 20 returns near the head are mostly noise), else 0"))
-    hold: tuple[str, ...] | None = Field(None, description=(
-        "parameters held at nominal and named unobservable, e.g. 'fibre_*.d_elevation_deg' (shell wildcards); "
-        f"None: {', '.join(STATIC_HOLD)} for a static sensor (docs/math.md \"A static sensor\"), else none"))
-    hold_soft: bool | None = Field(None, description=(
-        "before solving, also hold the intrinsics that the data at the start (strict association) determine "
-        "worse than firm_sigma_m / firm_sigma_deg, alone or in combination (observability.soft_parameters); "
-        "None: for a static sensor"))
-    firm_sigma_m: float = Field(0.01, gt=0, description="hold_soft: largest 1-sigma of a determined length")
-    firm_sigma_deg: float = Field(0.05, gt=0, description="hold_soft: largest 1-sigma of a determined angle")
-    check_halves: bool | None = Field(None, description=(
-        "before solving, fit the intrinsics on each azimuth half of the scene and hold those whose two estimates "
-        "differ by more than 3 firm sigmas (a sensor's offset is the same in every direction); None: for a "
-        "static sensor"))
-    fixed_association: bool | None = Field(None, description=(
-        "pair and estimate normals once, with the strict (fine) settings at the start, and keep them: the energy "
-        "is then a plain least-squares fit; None: for a static sensor, whose re-associated energy falls by "
-        "dropping pairs and by re-shaping the ground (docs/math.md)"))
-    min_planarity: float = Field(0.3, ge=0, le=1, description="coarse phase: p and m both at least this planar")
-    max_normal_angle_deg: float = Field(30.0, gt=0, le=90, description="coarse phase: normals at p and m agree within")
-    max_plane_distance_m: float = Field(np.inf, gt=0, description="coarse phase: m this close to the plane at p")
-    gate_start_m: float = Field(0.3, gt=0, description="association gate at the first iteration")
-    gate_max_m: float = Field(1.0, gt=0, description="the gate opens by gate_growth per iteration up to this")
-    gate_growth: float = Field(1.2, ge=1)
-    fine_below_m: float = Field(0.01, gt=0, description="switch to the fine phase when max |dX| is below")
-    fine_min_planarity: float = Field(0.7, ge=0, le=1)
-    fine_max_normal_angle_deg: float = Field(10.0, gt=0, le=90)
-    fine_max_plane_distance_m: float = Field(0.05, gt=0)
-    fine_gate_m: float = Field(0.3, gt=0)
-    max_pairs_per_fibre_pair: int = Field(4000, ge=10, description="fine phase: pairs drawn per (i, j) fibre pair")
-    coarse_max_points: int | None = Field(250_000, ge=1000, description=(
-        "coarse phase: a random subset of this many of the returns used (None: all); features, association and "
-        "graph cost in proportion"))
-    coarse_pairs_per_fibre_pair: int = Field(1000, ge=10, description=(
-        "coarse phase: pairs drawn per (i, j) fibre pair (at most max_pairs_per_fibre_pair); it only has to reach "
-        "the basin, the fine phase sets the accuracy"))
-    sigma0_m: float = Field(0.01, gt=0, description="nominal point noise: residuals are whitened by it")
-    range_noise_m: float | None = Field(None, ge=0, description=(
-        "the head's range noise (1-sigma); None: measured from the recording's returns (range_noise.py), and "
-        "written here in the results' config.yaml. From 1 mm on (range_noise.NOISY_ABOVE_M) the head is noisy: m "
-        "is chosen by the returns' stand-ins, which its noise does not move (below: nearest returns), and "
-        "pair_noise and feature_voxel_m left None resolve for it (docs/math.md \"Which m\")"))
-    pair_noise: Literal["uniform", "incidence"] | None = Field(None, description=(
-        "uniform: every pair's residual whitened by sigma0; incidence: sigma0 is the range noise, which moves a "
-        "return along its line of sight u, so pair k's residual n.(p - m) has (sigma0^2 ((n.u_p)^2 + (n.u_m)^2 + "
-        "f^2) + s3^2)^1/2 (f = INCIDENCE_FLOOR for the normals' errors; s3 the out-of-plane scatter of p's "
-        "neighbourhood, the plane model's error, 0 with fixed_association), in the fine phase: the efficient weighting "
-        "when range noise dominates (with feature_voxel_m 0.1, docs/math.md); the reported sigmas then count each "
-        "return's noise once over the pairs that share it (calibration/shared_returns.py); None: incidence for a "
-        "noisy head (range_noise_m), else uniform"))
-    control_interval_s: float = Field(1.0, gt=0)
-    block_controls: int = Field(4, ge=1, description="control intervals of p grouped in one block factor")
-    pose_corrections: bool = Field(False, description="Pose3 trajectory corrections (else Point3)")
-    lambda_rigid: float = Field(1e-6, gt=0, description=(
-        "weight of E_def against the normalised energy J (eq. 5.4, both m^2): the seed's 1e2 is against the "
-        "un-normalised sum of eq. 5.5 over a full cloud's pairs (weight sum ~1e7), 1e-5 here; 1e-6 measured "
-        "better (docs/math.md)"))
-    deformation: Literal["prior", "monnier"] = "prior"
-    intrinsic_sigma_range_m: float = Field(0.02, gt=0, description=(
-        "the nominal model's stated uncertainty (1-sigma) on d_range and Hz, a prior about the nominal 0: a "
-        "factory calibration is good to about 2 cm and 0.2 deg; give more for a start known to be further off"))
-    intrinsic_sigma_angle_deg: float = Field(0.2, gt=0, description="the same for d_azimuth and d_elevation")
-    extrinsic_sigma_lever_arm_m: float = Field(0.1, gt=0, description=(
-        "the nominal extrinsic's stated uncertainty (1-sigma) on each lever-arm axis: a tape-measured mounting"))
-    extrinsic_sigma_boresight_deg: float = Field(1.0, gt=0, description="the same for each boresight angle")
-    max_outer_iterations: int = Field(60, ge=1, description="n_max, per stage (coarse and fine phases together)")
-    refuse_unconverged: bool = Field(True, description=(
-        "a run whose outer iterations stop on max_outer_iterations before converging ends in CalibrationError "
-        "(exit 3), and so does one whose J ends far above what the measured noise predicts; False returns the "
-        "estimate unchecked on both counts (a quick look with a small max_outer_iterations)"))
-    tolerance_m: float = Field(1e-5, gt=0, description="delta: stop when max |dX| (m, or rad x 1 m) is below")
-    plateau_iterations: int = Field(6, ge=2, description=(
-        "fine phase: also stop when J has not reached a new low (by plateau_improvement) in this many outer "
-        "iterations: the association's jitter can keep max |dX| above tolerance_m at a J that no longer falls"))
-    plateau_improvement: float = Field(0.01, ge=0, lt=1, description="relative fall of J that counts as a new low")
-    step_sigma_m: float = Field(0.02, gt=0, description="damping of one outer step, lengths")
-    step_sigma_deg: float = Field(0.5, gt=0, description="damping of one outer step, angles")
-    lm_iterations: int | None = Field(None, ge=1, description=(
-        "Levenberg-Marquardt iterations per outer iteration; None: 2 when the association is refreshed (the pairs "
-        "change at the next outer iteration, so the inner problem need not be solved to the end: sim6_turn "
-        "joint_trajectory full size 5 -> 67 s, 2 -> 48 s with the same accuracy, 1 -> 72 s), 5 on fixed pairs"))
+
+COARSE = PhaseGates(min_planarity=0.3, max_normal_angle_deg=30.0, max_plane_distance_m=np.inf, gate_start_m=0.3,
+                    gate_max_m=1.0, gate_growth=1.2, pairs_per_fibre_pair=1000, max_points=250_000)
+FINE = PhaseGates(min_planarity=0.7, max_normal_angle_deg=10.0, max_plane_distance_m=0.05, gate_start_m=0.3,
+                  gate_max_m=0.3, gate_growth=1.0, pairs_per_fibre_pair=4000)
+
+
+class AssociationSettings(BaseModel):
+    """Which fibres pair (neighbours: j in [i-N, i+N] in elevation order), the gates of the coarse phase
+    (it only has to reach the basin; the fine phase sets the accuracy) and of the fine phase, and fixed:
+    pair and estimate normals once, at the start with the fine gates, and keep them (the energy is then a
+    plain least-squares fit; None: for a static sensor, whose re-associated energy falls by dropping pairs
+    and re-shaping the ground)."""
+
+    model_config = _SECTION
+    neighbours: int = Field(2, ge=1)
+    coarse: PhaseGates = COARSE
+    fine: PhaseGates = FINE
+    fixed: bool | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _phases_from_their_defaults(cls, data):
+        """A phase given in part (a settings file naming one of its gates) keeps that phase's other defaults."""
+        if isinstance(data, dict):
+            data = dict(data)
+            for phase, default in (("coarse", COARSE), ("fine", FINE)):
+                if isinstance(data.get(phase), dict):
+                    data[phase] = {**default.model_dump(), **data[phase]}
+        return data
+
+
+class FeatureSettings(BaseModel):
+    """Normals and planarity from the neighbours (at most `neighbours` within radius_m) of each return, or
+    of the cloud averaged in voxels of voxel_m (0: every return's; None: FEATURE_VOXEL_M for a static sensor,
+    which sees the same spots every revolution, or a noisy head, whose normals of 20 returns near it are
+    mostly noise; else 0); refreshed every refresh_every outer iterations once some point has moved more
+    than refresh_above_m since they were computed (the cloud's best rigid motion removed)."""
+
+    model_config = _SECTION
+    radius_m: float = Field(0.5, gt=0)
+    neighbours: int = Field(20, ge=5)
+    voxel_m: float | None = Field(None, ge=0)
+    refresh_every: int = Field(2, ge=1)
+    refresh_above_m: float = Field(0.001, ge=0)
+
+
+class WeightingSettings(BaseModel):
+    """How each pair's residual is whitened: sigma0_m, the nominal point noise; range_noise_m, the head's
+    range noise (None: measured from the recording, recording/range_noise.py; from 1 mm on the head is
+    noisy: m chosen by stand-ins, features from voxels); pair_noise: uniform (sigma0 for every pair) or
+    incidence (the range noise along the pair's two lines of sight, the plane model's error and the
+    trajectory's jitter, fine phase only; None: incidence for a noisy head); a robust loss in units of
+    sigma0 (robust_k)."""
+
+    model_config = _SECTION
+    sigma0_m: float = Field(0.01, gt=0)
+    range_noise_m: float | None = Field(None, ge=0)
+    pair_noise: Literal["uniform", "incidence"] | None = None
     robust: Literal["none", "huber", "cauchy"] = "none"
-    robust_k: float = Field(2.0, gt=0, description="in units of sigma0")
-    seed: int = 0
+    robust_k: float = Field(2.0, gt=0)
+
+
+class PriorSettings(BaseModel):
+    """The nominal model's stated uncertainty (1-sigma), a prior about it: a factory calibration is good to
+    about 2 cm and 0.2 deg per fibre, a tape-measured mounting to about 10 cm and 1 deg; give more for a
+    start known to be further off."""
+
+    model_config = _SECTION
+    intrinsic_range_m: float = Field(0.02, gt=0, description="d_range and Hz")
+    intrinsic_angle_deg: float = Field(0.2, gt=0, description="d_azimuth and d_elevation")
+    extrinsic_lever_arm_m: float = Field(0.1, gt=0, description="each lever-arm axis")
+    extrinsic_boresight_deg: float = Field(1.0, gt=0, description="each boresight angle")
+
+
+class TrajectorySettings(BaseModel):
+    """Trajectory corrections at control times control_interval_s apart (seed 001: about 1 s), Point3 or
+    Pose3 (pose_corrections), held by E_def (eq. 5.3/5.4: lambda_rigid against the normalised energy J,
+    both m^2) or Monnier's successive differences (deformation); block_controls control intervals of p per
+    block factor."""
+
+    model_config = _SECTION
+    control_interval_s: float = Field(1.0, gt=0)
+    block_controls: int = Field(4, ge=1)
+    pose_corrections: bool = False
+    lambda_rigid: float = Field(1e-6, gt=0)
+    deformation: Literal["prior", "monnier"] = "prior"
+
+
+class StoppingSettings(BaseModel):
+    """The outer loop: at most max_outer_iterations per stage (both phases); the fine phase from a largest
+    step below fine_below_m; converged when the largest step (m, or rad x 1 m) falls below tolerance_m or J
+    makes no new low (by plateau_improvement) in plateau_iterations; each outer step damped by a prior at the
+    current estimate (step_sigma_m, step_sigma_deg); lm_iterations Levenberg-Marquardt iterations per outer
+    iteration (None: 2 when the pairs are re-made, 5 on fixed pairs); refuse_unconverged: a run that stops on
+    the cap, or whose J ends far above what the measured noise predicts, ends in CalibrationError (exit 3)
+    (False: the estimate is returned unchecked on both counts, for a quick look)."""
+
+    model_config = _SECTION
+    max_outer_iterations: int = Field(60, ge=1)
+    tolerance_m: float = Field(1e-5, gt=0)
+    fine_below_m: float = Field(0.01, gt=0)
+    plateau_iterations: int = Field(6, ge=2)
+    plateau_improvement: float = Field(0.01, ge=0, lt=1)
+    step_sigma_m: float = Field(0.02, gt=0)
+    step_sigma_deg: float = Field(0.5, gt=0)
+    lm_iterations: int | None = Field(None, ge=1)
+    refuse_unconverged: bool = True
+
+
+class StaticSettings(BaseModel):
+    """What a static sensor (or a user who asks) holds and checks: hold, parameters held at nominal (shell
+    wildcards, e.g. 'fibre_*.d_elevation_deg'; None: STATIC_HOLD for a static sensor, else none); hold_soft,
+    also hold what the start's strict pairs determine worse than firm_sigma_m / firm_sigma_deg; check_halves,
+    fit each azimuth half of the scene and hold what they disagree on (None: for a static sensor)."""
+
+    model_config = _SECTION
+    hold: tuple[str, ...] | None = None
+    hold_soft: bool | None = None
+    firm_sigma_m: float = Field(0.01, gt=0)
+    firm_sigma_deg: float = Field(0.05, gt=0)
+    check_halves: bool | None = None
 
     @field_validator("hold")
     @classmethod
@@ -149,6 +186,73 @@ class CalibrationConfig(BaseModel):
             held_names(hold, MAX_FIBRES, None)
         return hold
 
+
+# the former flat settings -> their section (and name there), for a clear refusal of an old settings file
+MOVED = {"neighbours": "association.neighbours", "fixed_association": "association.fixed",
+         "min_planarity": "association.coarse.min_planarity",
+         "max_normal_angle_deg": "association.coarse.max_normal_angle_deg",
+         "max_plane_distance_m": "association.coarse.max_plane_distance_m",
+         "gate_start_m": "association.coarse.gate_start_m", "gate_max_m": "association.coarse.gate_max_m",
+         "gate_growth": "association.coarse.gate_growth", "coarse_max_points": "association.coarse.max_points",
+         "coarse_pairs_per_fibre_pair": "association.coarse.pairs_per_fibre_pair",
+         "fine_min_planarity": "association.fine.min_planarity",
+         "fine_max_normal_angle_deg": "association.fine.max_normal_angle_deg",
+         "fine_max_plane_distance_m": "association.fine.max_plane_distance_m",
+         "fine_gate_m": "association.fine.gate_start_m and gate_max_m",
+         "max_pairs_per_fibre_pair": "association.fine.pairs_per_fibre_pair",
+         "feature_radius_m": "features.radius_m", "feature_neighbours": "features.neighbours",
+         "feature_voxel_m": "features.voxel_m", "refresh_every": "features.refresh_every",
+         "refresh_above_m": "features.refresh_above_m", "sigma0_m": "weighting.sigma0_m",
+         "range_noise_m": "weighting.range_noise_m", "pair_noise": "weighting.pair_noise",
+         "robust": "weighting.robust", "robust_k": "weighting.robust_k",
+         "intrinsic_sigma_range_m": "priors.intrinsic_range_m", "intrinsic_sigma_angle_deg": "priors.intrinsic_angle_deg",
+         "extrinsic_sigma_lever_arm_m": "priors.extrinsic_lever_arm_m",
+         "extrinsic_sigma_boresight_deg": "priors.extrinsic_boresight_deg",
+         "control_interval_s": "trajectory.control_interval_s", "block_controls": "trajectory.block_controls",
+         "pose_corrections": "trajectory.pose_corrections", "lambda_rigid": "trajectory.lambda_rigid",
+         "deformation": "trajectory.deformation", "max_outer_iterations": "stopping.max_outer_iterations",
+         "tolerance_m": "stopping.tolerance_m", "fine_below_m": "stopping.fine_below_m",
+         "plateau_iterations": "stopping.plateau_iterations", "plateau_improvement": "stopping.plateau_improvement",
+         "step_sigma_m": "stopping.step_sigma_m", "step_sigma_deg": "stopping.step_sigma_deg",
+         "lm_iterations": "stopping.lm_iterations", "refuse_unconverged": "stopping.refuse_unconverged",
+         "hold": "static.hold", "hold_soft": "static.hold_soft", "firm_sigma_m": "static.firm_sigma_m",
+         "firm_sigma_deg": "static.firm_sigma_deg", "check_halves": "static.check_halves"}
+
+
+class CalibrationConfig(BaseModel):
+    """Settings of graphcal.calibrate (module docstring): what to estimate (mode: auto, what a mapping drive
+    needs, intrinsics and extrinsic, plus trajectory corrections when the drive comes back to where it was;
+    a static sensor's intrinsics, held by its checks), how many of the recording's returns to use
+    (max_points, a seeded random subset; None: all: the pairs per fibre pair are capped, so more returns
+    mostly sharpen the normals), the seed of every random draw, and the sections."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+    mode: Mode = "auto"
+    max_points: int | None = Field(1_000_000, ge=1000)
+    seed: int = 0
+    association: AssociationSettings = AssociationSettings()
+    features: FeatureSettings = FeatureSettings()
+    weighting: WeightingSettings = WeightingSettings()
+    priors: PriorSettings = PriorSettings()
+    trajectory: TrajectorySettings = TrajectorySettings()
+    stopping: StoppingSettings = StoppingSettings()
+    static: StaticSettings = StaticSettings()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_flat_fields(cls, data):
+        if isinstance(data, dict):
+            moved = [f"{name} -> {MOVED[name]}" for name in data if name in MOVED]
+            if moved:
+                raise ValueError(f"settings moved into sections: {'; '.join(moved)}")
+        return data
+
+    def with_settings(self, **sections: dict) -> CalibrationConfig:
+        """A copy with some fields of some sections changed and validated, e.g.
+        with_settings(stopping={"tolerance_m": 1e-4}, association={"coarse": {"max_points": 100_000}})."""
+        return self.model_copy(update={name: type(getattr(self, name)).model_validate(
+            {**getattr(self, name).model_dump(), **fields}) for name, fields in sections.items()})
+
     def for_sensor(self, static: bool, range_noise_m: float = np.nan, revisits: bool = False) -> CalibrationConfig:
         """The settings left to the recording (None, mode auto) resolved for a static or a moving sensor whose
         range noise is range_noise_m (as measured when it was not set; NaN: unknown, left as set) and whose
@@ -156,34 +260,30 @@ class CalibrationConfig(BaseModel):
         mode = self.mode
         if mode == "auto":
             mode = "intrinsic" if static else ("joint_trajectory" if revisits else "joint")
-        noise_m = self.range_noise_m if np.isnan(range_noise_m) else float(range_noise_m)
+        noise_m = self.weighting.range_noise_m if np.isnan(range_noise_m) else float(range_noise_m)
         noisy_head = noisy(np.nan if noise_m is None else noise_m)
-        voxel_m = self.feature_voxel_m
+        voxel_m = self.features.voxel_m
         if voxel_m is None:
             voxel_m = FEATURE_VOXEL_M if static or noisy_head else 0.0
-        hold = (STATIC_HOLD if static else ()) if self.hold is None else self.hold
-        fixed = static if self.fixed_association is None else self.fixed_association
-        return self.model_copy(update={
-            "lm_iterations": (5 if fixed else 2) if self.lm_iterations is None else self.lm_iterations,
-            "feature_voxel_m": voxel_m, "hold": hold,
-            "hold_soft": static if self.hold_soft is None else self.hold_soft,
-            "check_halves": static if self.check_halves is None else self.check_halves,
-            "fixed_association": fixed, "range_noise_m": noise_m, "mode": mode,
-            "pair_noise": self.pair_noise or ("incidence" if noisy_head else "uniform")})
+        fixed = static if self.association.fixed is None else self.association.fixed
+        lm = (5 if fixed else 2) if self.stopping.lm_iterations is None else self.stopping.lm_iterations
+        return self.model_copy(update={"mode": mode}).with_settings(
+            association={"fixed": fixed}, features={"voxel_m": voxel_m},
+            weighting={"range_noise_m": noise_m,
+                       "pair_noise": self.weighting.pair_noise or ("incidence" if noisy_head else "uniform")},
+            stopping={"lm_iterations": lm},
+            static={"hold": (STATIC_HOLD if static else ()) if self.static.hold is None else self.static.hold,
+                    "hold_soft": static if self.static.hold_soft is None else self.static.hold_soft,
+                    "check_halves": static if self.static.check_halves is None else self.static.check_halves})
 
-    def coarse(self) -> CalibrationConfig:
-        """The settings of the coarse phase: uniform pair noise (far from the solution the residuals are
-        the calibration's errors, not the range noise's)."""
-        return self.model_copy(update={"max_pairs_per_fibre_pair": min(self.max_pairs_per_fibre_pair,
-                                                                       self.coarse_pairs_per_fibre_pair),
-                                       "pair_noise": "uniform"})
+    def gates(self, phase: Phase) -> PhaseGates:
+        """The association gates of a phase."""
+        return self.association.coarse if phase == "coarse" else self.association.fine
 
-    def fine(self) -> CalibrationConfig:
-        """The settings of the fine phase."""
-        return self.model_copy(update={"min_planarity": self.fine_min_planarity,
-                                       "max_normal_angle_deg": self.fine_max_normal_angle_deg,
-                                       "max_plane_distance_m": self.fine_max_plane_distance_m,
-                                       "gate_start_m": self.fine_gate_m, "gate_max_m": self.fine_gate_m})
+    def in_phase(self, phase: Phase) -> CalibrationConfig:
+        """The settings a phase solves with: the coarse phase whitens every pair by sigma0 (far from the
+        solution the residuals are the calibration's errors, not the range noise's)."""
+        return self.with_settings(weighting={"pair_noise": "uniform"}) if phase == "coarse" else self
 
 
 def held_names(patterns: tuple[str, ...], n_fibres: int, reference_fibre: int | None) -> list[str]:

@@ -9,7 +9,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from graphcal.calibration.observability import TRAJECTORY_GAUGE
-from graphcal.calibration.problem import (
+from graphcal.calibration.returns import (
     Estimate,
     ReturnData,
     pose_of,

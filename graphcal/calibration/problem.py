@@ -1,184 +1,474 @@
-"""Fixed per-return data of a calibration and the current estimate: world points at an estimate.
+"""One calibration problem: the returns, the settings, the nominal model, its priors and which groups are
+estimated; it associates, builds and solves the factor graph, runs the outer loop, finds the weak
+directions and gives the final fit with its sigmas.
 
-World frame minus a local origin [m] (float precision); control times ~control_interval_s
-apart span the returns (seed 001: about 1 s); each return sits between controls c and c+1
-with weight alpha (eq. 5.4).
+The outer loop (Algorithm 1 of the thesis, ICP-like): associate -> one GTSAM graph -> Levenberg-Marquardt
+-> update. Energy of eq. 4.4/5.2: J = sum w d^2 / sum w, reported in cm^2, with d the point-to-plane
+distance; the graph's cost is (W / sigma0^2) (J + lambda_rigid E_def) + priors, eq. 5.4 with J normalised
+by the weight sum W, so E_def's prior has sigma = sigma0 / sqrt(lambda_rigid W) on each control: the
+balance of data and rigidity does not depend on how many pairs are drawn.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
-from scipy.spatial import cKDTree
 
-from factors.spherical import beam_rays
-from factors.world_point import Corrections, Returns, world_points
-from graphcal.calibration.association import Sight
-from graphcal.recording.extrinsic import Extrinsic
-from graphcal.recording.poses import PoseTrack
-from graphcal.recording.range_noise import measured_range_noise_m, noisy
+from graphcal.calibration.association import Correspondences, Features, Sight
+from factors.point_to_plane import make_factor
+from graphcal.calibration.blocks import make_blocks
+from graphcal.calibration.config import ESTIMATES, STAGES, CalibrationConfig, Phase, PhaseGates, held_names
+from graphcal.calibration.keys import E, I, X
+from graphcal.calibration.observability import (
+    POSE_TO_FILE_UNITS,
+    Marginals,
+    Uncertainty,
+    intrinsic_sigmas,
+    pose_sigmas,
+)
+from graphcal.calibration.pairing import Association, FeatureCache
+from graphcal.calibration.priors import HELD_SIGMA, Priors, control_prior_sigma
+from graphcal.calibration.returns import Estimate, ReturnData, pose_of, prepare, revisits, sight_at, world_at
+from graphcal.calibration.shared_returns import SharedReturnsCovariance
+from graphcal.calibration.weak_directions import Layout, WeakDirections, lock_factor
+from graphcal.common.errors import ConfigError
+from graphcal.common.progress import progress
 from graphcal.recording.directory import Recording
-from graphcal.recording.sensor import SensorModel
-from graphcal.recording.trajectory_noise import PoseNoise, measured_pose_noise
+from graphcal.recording.intrinsics import offsets_to_file_units
 
-STATIC_BELOW_M = 1.0  # a sensor whose positions span less than this is static
-REVISIT_WITHIN_M = 5.0  # a drive revisits a place when it passes within this of where it was ...
-REVISIT_AFTER_S = 20.0  # ... at least this much earlier
+PHASES: tuple[Phase, ...] = ("coarse", "fine")
+# Levenberg-Marquardt's damping bound: the Hessian's diagonal spans from held priors (1/HELD_SIGMA^2 = 1e14)
+# to loose ones
+LAMBDA_UPPER_BOUND = 1e12
+
+
+@dataclass
+class History:
+    """Per outer iteration: J [cm^2] before/after the solve, weight sum, pairs, gate [m], step, and on the
+    last of a stage's phase why it stopped (stop: converged, coarse done, or cap: n_max reached)."""
+
+    rows: list = field(default_factory=list)
+
+    def add(self, **row) -> None:
+        self.rows.append(row)
 
 
 @dataclass(frozen=True)
-class ReturnData:
-    """Per-return arrays (N) of the returns used (rows: their row in points.parquet), the control
-    times [s], the head's range noise [m] (1-sigma; NaN: unknown) and the recorded trajectory's white
-    noise (trajectory_noise.PoseNoise)."""
+class FinalFit:
+    """The strict pairs at the final estimate, their residuals [m], the sigmas of gtsam.Marginals
+    (uncertainty) and, for pairs whitened by the range noise, those counting each return's noise once
+    over the pairs that share it (shared_returns; None otherwise), and the J [cm^2] the pairs' noise model
+    predicts when they are whitened by the measured noise (None otherwise)."""
 
-    sensor: SensorModel
-    rows: np.ndarray
-    fibre: np.ndarray
-    range_m: np.ndarray
-    azimuth_rad: np.ndarray
-    time_s: np.ndarray
-    R_nav: np.ndarray
-    X_nav: np.ndarray
-    control: np.ndarray
-    alpha: np.ndarray
-    control_times_s: np.ndarray
-    origin_m: np.ndarray
-    range_noise_m: float
-    pose_noise: PoseNoise = PoseNoise.none()
+    pairs: Correspondences
+    residual_m: np.ndarray
+    uncertainty: Uncertainty
+    shared_returns: Uncertainty | None
+    expected_energy_cm2: float | None
+
+
+@dataclass(frozen=True)
+class Problem:
+    """A calibration problem in one phase (coarse: a subsample of the returns and the loose gates; fine: all
+    returns and the strict gates). full: every return used; settings: the configuration resolved for the
+    recording (CalibrationConfig.for_sensor); estimated: (intrinsics, extrinsic, trajectory); nominal:
+    the nominal T_body_lidar; held: parameters held at nominal by the settings or the static checks;
+    fixed_pairs: pairs made once and kept (a static sensor); lock: the factor holding the weak directions;
+    effects: candidate effects modelled in every block (graphcal.diagnosis's EffectModel; None: none)."""
+
+    full: ReturnData
+    settings: CalibrationConfig
+    estimated: tuple[bool, bool, bool]
+    nominal: gtsam.Pose3
+    priors: Priors
+    held: tuple[str, ...] = ()
+    phase: Phase = "fine"
+    data: ReturnData | None = None
+    fixed_pairs: Correspondences | None = None
+    lock: gtsam.CustomFactor | None = None
+    effects: object | None = None
+    cache: FeatureCache | None = None
+
+    def __post_init__(self):
+        if self.data is None:
+            object.__setattr__(self, "data", self.full)
+        if self.cache is None:
+            object.__setattr__(self, "cache", FeatureCache(self.settings.features))
+
+    # --- what it is ------------------------------------------------------------------------------
+    @classmethod
+    def of(cls, recording: Recording, config: CalibrationConfig) -> Problem:
+        """The returns of the recording (a seeded subset of config.max_points) and the settings resolved for
+        it; the parameters config.static.hold names held at nominal."""
+        data = prepare(recording, config.trajectory.control_interval_s, config.max_points,
+                       np.random.default_rng(config.seed), range_noise_m=config.weighting.range_noise_m)
+        config = config.for_sensor(data.static, data.range_noise_m, revisits(recording.world.poses))
+        try:  # the settings allow any head's fibres: this recording's head may have fewer, or fix the one named
+            held = held_names(config.static.hold, data.sensor.n_fibres, data.sensor.reference_fibre)
+        except ConfigError as error:
+            raise ConfigError(f"{recording.path or recording.name}: hold: {error} (sensor {data.sensor.model}, "
+                              f"{data.sensor.n_fibres} fibres, reference fibre {data.sensor.reference_fibre})") from None
+        stages = STAGES.get(config.mode, (config.mode,))
+        estimated = tuple(any(ESTIMATES[stage][k] for stage in stages) for k in range(3))
+        priors = Priors.of(config, data.sensor.n_fibres, len(data.control_times_s)).holding(held)
+        return cls(data, config, estimated, pose_of(recording.extrinsic), priors, tuple(held))
 
     @property
-    def static(self) -> bool:
-        """The sensor's positions span less than STATIC_BELOW_M (a tripod, a parked car)."""
-        return bool(np.ptp(self.X_nav, axis=0).max() < STATIC_BELOW_M)
+    def config(self) -> CalibrationConfig:
+        """The settings this phase solves with."""
+        return self.settings.in_phase(self.phase)
 
-    def sample(self, n: int, rng: np.random.Generator) -> ReturnData:
-        """A random subset of n of the returns (all of them when there are no more), same control times."""
-        if len(self.rows) <= n:
-            return self
-        keep = np.sort(rng.choice(len(self.rows), n, replace=False))
-        per_return = ("rows", "fibre", "range_m", "azimuth_rad", "time_s", "R_nav", "X_nav", "control", "alpha")
-        return replace(self, **{name: getattr(self, name)[keep] for name in per_return})
+    @property
+    def gates(self) -> PhaseGates:
+        return self.settings.gates(self.phase)
 
-    def returns(self, rows: np.ndarray) -> Returns:
-        """The factor-side view of some rows."""
-        return Returns(self.range_m[rows], self.azimuth_rad[rows], self.sensor.factory_terms(self.fibre[rows]),
-                       self.R_nav[rows], self.X_nav[rows], self.alpha[rows])
+    @property
+    def stages(self) -> tuple[str, ...]:
+        return STAGES.get(self.settings.mode, (self.settings.mode,))
+
+    def in_phase(self, phase: Phase) -> Problem:
+        """This problem in a phase: the coarse one on a seeded subset of its returns (with its own features);
+        on fixed pairs (made on every return) there is only the fine phase."""
+        if phase == "fine" or self.fixed_pairs is not None:
+            return replace(self, phase="fine", data=self.full, cache=None if self.phase == "coarse" else self.cache)
+        most = self.settings.association.coarse.max_points
+        sample = self.full if most is None else self.full.sample(most, np.random.default_rng(self.settings.seed))
+        return replace(self, phase="coarse", data=sample, cache=None if sample is not self.full else self.cache)
+
+    def in_stage(self, stage: str) -> Problem:
+        """This problem estimating what one stage of the mode estimates."""
+        return replace(self, estimated=ESTIMATES[stage])
+
+    def holding(self, names: list[str]) -> Problem:
+        """This problem with the named parameters held at nominal."""
+        return replace(self, priors=self.priors.holding(names), held=self.held + tuple(n for n in names if n not in self.held))
+
+    def locking(self, weak: WeakDirections) -> Problem:
+        """This problem with the weak directions (of the groups it estimates) held at nominal."""
+        held = weak.restricted(*self.estimated[:2])
+        return replace(self, lock=lock_factor(held, [I(f) for f in held.layout.fibres],
+                                              E(0) if held.layout.extrinsic else None, self.nominal))
+
+    # --- association ---------------------------------------------------------------------------------
+    def points(self, estimate: Estimate) -> np.ndarray:
+        """World points [m] (minus the origin) of the phase's returns at the estimate."""
+        if self.effects is not None:
+            return self.effects.world(self.data, estimate, self.config.trajectory.pose_corrections)
+        return world_at(self.data, estimate, self.config.trajectory.pose_corrections)
+
+    def sight(self, estimate: Estimate, points_m: np.ndarray) -> Sight | None:
+        """What the association chooses m by: stand-ins (sight_at) in the fine phase; plain nearest returns in
+        the coarse phase, which only has to reach the basin (and whose subsample leaves most returns without
+        firing neighbours near enough for a stand-in)."""
+        return sight_at(self.data, estimate, points_m) if self.phase == "fine" else None
+
+    def association(self) -> Association:
+        settings = self.settings
+        return Association.of(self.data, self.gates, settings.association.neighbours, settings.seed)
+
+    def associate(self, estimate: Estimate, points_m: np.ndarray | None = None,
+                  features: Features | None = None) -> Correspondences:
+        """The pairs at the estimate with the phase's gates at their starting gate (fixed_pairs when set);
+        features from the cache when the cloud has not moved since they were computed."""
+        if self.fixed_pairs is not None:
+            return self.fixed_pairs
+        points_m = self.points(estimate) if points_m is None else points_m
+        features = self.cache.at(points_m)[0] if features is None else features
+        return self.association().pairs(points_m, self.data.fibre, features, self.gates.gate_start_m,
+                                        self.sight(estimate, points_m))
+
+    # --- the factor graph ----------------------------------------------------------------------------
+    def blocks(self, estimate: Estimate, pairs: Correspondences) -> list:
+        return make_blocks(self.data, estimate, pairs, self.config, self.estimated, self.effects)
+
+    def graph(self, estimate: Estimate, pairs: Correspondences, damped: bool = True,
+              blocks: list | None = None) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+        """One graph: the block factors of the pairs, the priors, the lock, the candidate effects. damped adds a
+        prior at the current estimate on every key (stopping.step_sigma_*): one outer iteration cannot run far
+        along directions the current pairs barely see; it leaves the fixed point unchanged and is left out when
+        sigmas are computed."""
+        weighting = self.config.weighting
+        robust = None
+        if weighting.robust != "none":
+            scheme = gtsam.noiseModel.mEstimator.Base.ReweightScheme.Scalar
+            create = {"huber": gtsam.noiseModel.mEstimator.Huber, "cauchy": gtsam.noiseModel.mEstimator.Cauchy}
+            robust = create[weighting.robust].Create(weighting.robust_k, scheme)
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        for _, block in self.blocks(estimate, pairs) if blocks is None else blocks:
+            graph.add(make_factor(block, compressed=robust is None, robust=robust))
+        if self.effects is not None:
+            self.effects.with_values(estimate.effects).add_to(graph, values)
+        if self.lock is not None:
+            graph.add(self.lock)
+        self._add_priors(graph, values, estimate, damped, float(pairs.weight.sum()))
+        return graph, values
+
+    def _add_priors(self, graph, values, estimate: Estimate, damped: bool, weight_sum: float) -> None:
+        """Values and priors of the estimated keys (and the damping priors, see graph)."""
+        est_int, est_ext, est_traj = self.estimated
+        stopping = self.config.stopping
+        step_m, step_rad = stopping.step_sigma_m, np.radians(stopping.step_sigma_deg)
+        if est_int:
+            for fibre in range(self.data.sensor.n_fibres):
+                if fibre != self.data.sensor.reference_fibre:
+                    values.insert(I(fibre), estimate.offsets[fibre])
+                    graph.add(gtsam.PriorFactorVector(I(fibre), np.zeros(4),
+                                                      gtsam.noiseModel.Diagonal.Sigmas(self.priors.intrinsic[fibre])))
+                    if damped:
+                        graph.add(gtsam.PriorFactorVector(I(fibre), estimate.offsets[fibre], gtsam.noiseModel.Diagonal.Sigmas(
+                            np.array([step_m, step_rad, step_rad, step_m]))))
+        if est_ext:
+            values.insert(E(0), estimate.extrinsic)
+            graph.add(gtsam.PriorFactorPose3(E(0), self.nominal,
+                                             self.priors.extrinsic_noise(self.nominal.rotation().matrix())))
+            if damped:
+                graph.add(gtsam.PriorFactorPose3(E(0), estimate.extrinsic, gtsam.noiseModel.Diagonal.Sigmas(
+                    np.r_[np.full(3, step_rad), np.full(3, step_m)])))
+        if est_traj:
+            self._add_trajectory(graph, values, estimate, damped, control_prior_sigma(self.config, weight_sum))
+
+    def _add_trajectory(self, graph, values, estimate: Estimate, damped: bool, sigma: float) -> None:
+        """Control corrections and E_def (eq. 5.3) or Monnier's successive differences."""
+        trajectory, stopping = self.config.trajectory, self.config.stopping
+        pose = trajectory.pose_corrections
+        noise = gtsam.noiseModel.Isotropic.Sigma(6 if pose else 3, sigma)  # rotations: rad x 1 m
+        step = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, np.radians(stopping.step_sigma_deg)),
+                                                      np.full(3, stopping.step_sigma_m)] if pose
+                                                else np.full(3, stopping.step_sigma_m))
+        prior = (lambda c, n: gtsam.PriorFactorPose3(X(c), gtsam.Pose3(), n)) if pose else \
+            (lambda c, n: gtsam.PriorFactorPoint3(X(c), np.zeros(3), n))
+        for c, correction in enumerate(estimate.corrections):
+            values.insert(X(c), correction if pose else correction.translation())
+            if damped:
+                graph.add(gtsam.PriorFactorPose3(X(c), correction, step) if pose
+                          else gtsam.PriorFactorPoint3(X(c), correction.translation(), step))
+            if trajectory.deformation == "prior" or c == 0:
+                graph.add(prior(c, noise))
+            if trajectory.deformation == "monnier" and c > 0:
+                graph.add(gtsam.BetweenFactorPose3(X(c - 1), X(c), gtsam.Pose3(), noise) if pose
+                          else gtsam.BetweenFactorPoint3(X(c - 1), X(c), np.zeros(3), noise))
+            if self.priors.control_held[c].any():
+                graph.add(prior(c, gtsam.noiseModel.Diagonal.Sigmas(np.where(self.priors.control_held[c], HELD_SIGMA,
+                                                                              1e6))))
+
+    def step(self, estimate: Estimate, pairs: Correspondences) -> Estimate:
+        """One solve on the pairs (stopping.lm_iterations of Levenberg-Marquardt), read back."""
+        graph, values = self.graph(estimate, pairs)
+        solved = levenberg_marquardt(graph, values, self.config.stopping.lm_iterations)
+        return self.read_back(solved, estimate)
+
+    def read_back(self, values: gtsam.Values, estimate: Estimate) -> Estimate:
+        """The estimate held in solved values."""
+        est_int, est_ext, est_traj = self.estimated
+        offsets = estimate.offsets.copy()
+        if est_int:
+            for fibre in range(self.data.sensor.n_fibres):
+                if fibre != self.data.sensor.reference_fibre:
+                    offsets[fibre] = values.atVector(I(fibre))
+        extrinsic = values.atPose3(E(0)) if est_ext else estimate.extrinsic
+        corrections = estimate.corrections
+        if est_traj:
+            pose = self.config.trajectory.pose_corrections
+            corrections = tuple(values.atPose3(X(c)) if pose else gtsam.Pose3(gtsam.Rot3(), values.atPoint3(X(c)))
+                                for c in range(len(corrections)))
+        effects = estimate.effects if self.effects is None else self.effects.read(values)
+        return Estimate(offsets, extrinsic, corrections, effects)
+
+    # --- the outer loop ------------------------------------------------------------------------------
+    def fit(self, estimate: Estimate, history: History, label: str, phases: tuple[Phase, ...] = PHASES,
+            max_iterations: int | None = None, quiet: bool = True) -> Estimate:
+        """Outer iterations of one stage from this problem: the coarse phase (its subsample, the gate opening
+        by gate_growth) until the largest step falls below stopping.fine_below_m, then the fine phase until it
+        falls below stopping.tolerance_m, J plateaus, or n_max (max_iterations, else stopping.max_outer_iterations,
+        both phases together). phases: the phases to run (("coarse",): stop at the switch; ("fine",): start
+        there). On fixed pairs, the fine phase only. Features are refreshed every features.refresh_every outer
+        iterations, when the cloud has moved."""
+        stopping, refresh_every = self.settings.stopping, self.settings.features.refresh_every
+        n_max = stopping.max_outer_iterations if max_iterations is None else max_iterations
+        fine = self.fixed_pairs is not None or phases[0] == "fine"
+        if (fine and "fine" not in phases) or n_max < 1:
+            return estimate
+        problem = self.in_phase("fine" if fine else "coarse")
+        gate, association = problem.gates.gate_start_m, problem.association()
+        features, refreshed, points, since_refresh, fine_energies = None, False, None, refresh_every, []
+        for _ in progress(range(n_max), f"calibrating ({label})", total=n_max, quiet=quiet):
+            points = problem.points(estimate) if points is None else points
+            if problem.fixed_pairs is None and (features is None or since_refresh >= refresh_every):
+                features, refreshed = problem.cache.at(points)
+                since_refresh = 0 if refreshed else since_refresh
+            since_refresh += 1
+            pairs = problem.fixed_pairs if problem.fixed_pairs is not None else association.pairs(
+                points, problem.data.fibre, features, gate, problem.sight(estimate, points))
+            before, weight_sum = energy_cm2(points[pairs.index_p], points[pairs.index_m], pairs)
+            updated = problem.step(estimate, pairs)
+            step = step_size(estimate, updated)
+            points = problem.points(updated)  # the next iteration's too
+            after, _ = energy_cm2(points[pairs.index_p], points[pairs.index_m], pairs)
+            history.add(mode=label, iteration=len(history.rows), phase=problem.phase, energy_cm2=before,
+                        energy_after_cm2=after, weight_sum=weight_sum, pairs=len(pairs), gate_m=gate, max_step=step,
+                        refreshed=refreshed, stop="")
+            estimate, refreshed = updated, False
+            if problem.phase == "fine":
+                fine_energies.append(before)
+                if step < stopping.tolerance_m or on_plateau(fine_energies, stopping.plateau_iterations,
+                                                             stopping.plateau_improvement):
+                    history.rows[-1]["stop"] = "converged"
+                    break
+            elif step < stopping.fine_below_m:
+                if "fine" not in phases:
+                    history.rows[-1]["stop"] = "coarse done"
+                    break
+                problem = self.in_phase("fine")
+                gate, association = problem.gates.gate_start_m, problem.association()
+                since_refresh, features, points = refresh_every, None, None
+            else:
+                gate = min(gate * problem.gates.gate_growth, problem.gates.gate_max_m)
+        else:
+            if history.rows:
+                history.rows[-1]["stop"] = "cap"
+        return estimate
+
+    # --- what the data see ---------------------------------------------------------------------------
+    def layout(self) -> Layout:
+        """The parameters a weak-direction analysis covers: the intrinsics of every fibre but the reference
+        (when estimated) and the extrinsic (when estimated), with their prior sigmas."""
+        data, estimated = self.full, self.estimated
+        fibres = tuple(f for f in range(data.sensor.n_fibres) if f != data.sensor.reference_fibre) if estimated[0] else ()
+        sigma = np.r_[self.priors.intrinsic[list(fibres)].ravel(), self.priors.extrinsic if estimated[1] else np.zeros(0)]
+        return Layout(fibres, estimated[1], sigma, self.nominal.rotation().matrix())
+
+    def weak_directions(self, estimate: Estimate) -> WeakDirections:
+        """The weak directions of the data's information at the estimate, on this phase's pairs there."""
+        layout = self.layout()
+        if not layout.size:
+            return WeakDirections.none(layout)
+        keys = [I(f) for f in layout.fibres] + ([E(0)] if layout.extrinsic else [])
+        return WeakDirections.of(self.information(estimate, self.associate(estimate), keys), layout)
+
+    def information(self, estimate: Estimate, pairs: Correspondences, keys: list[int]) -> np.ndarray:
+        """The Gauss-Newton information (in the keys' tangent coordinates) that the pairs alone carry on the
+        given intrinsic and extrinsic keys, the trajectory corrections, when estimated, marginalised out with
+        their own priors (E_def, held components): no prior on the calibration's keys is in it."""
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        for _, block in self.blocks(estimate, pairs):
+            graph.add(make_factor(block))
+        self._add_priors(gtsam.NonlinearFactorGraph(), values, estimate, False, float(pairs.weight.sum()))
+        controls = []
+        if self.estimated[2]:
+            controls = [X(c) for c in range(len(estimate.corrections))]
+            self._add_trajectory(graph, gtsam.Values(), estimate, False,
+                                 control_prior_sigma(self.config, float(pairs.weight.sum())))
+        ordering = list(keys) + controls
+        widths = {key: values.zeroVectors().at(key).size for key in ordering}
+        present = set(graph.keys())
+        reached = [key for key in ordering if key in present]
+        reached_information, _ = graph.linearize(values).hessian(gtsam.Ordering(reached))
+        starts = np.r_[0, np.cumsum([widths[key] for key in ordering])]
+        spans = {key: np.arange(a, b) for key, a, b in zip(ordering, starts[:-1], starts[1:])}
+        columns = np.concatenate([spans[key] for key in reached]) if reached else np.zeros(0, int)
+        information = np.zeros((starts[-1], starts[-1]))
+        information[np.ix_(columns, columns)] = reached_information
+        # a control no pair reaches keeps only its own prior: invertible for the Schur complement
+        information[starts[len(keys)]:, starts[len(keys)]:] += np.eye(starts[-1] - starts[len(keys)]) * 1e-12
+        return schur_complement(information, int(starts[len(keys)]))
+
+    # --- the result ----------------------------------------------------------------------------------
+    def final(self, estimate: Estimate, pairs: Correspondences | None = None, shared_returns: bool = False) -> FinalFit:
+        """The fit at the estimate on the given pairs (None: the strict association at the estimate): residuals,
+        the Marginals of the undamped graph without the lock (the weak directions' uncertainty is their
+        priors'), and with shared_returns the sigmas of shared_returns.py when the pairs are whitened by the
+        range noise and no robust loss reweights them."""
+        problem = replace(self.in_phase("fine"), lock=None)
+        pairs = problem.associate(estimate) if pairs is None else pairs
+        points = problem.points(estimate)
+        residual = np.einsum("ni,ni->n", pairs.normal, points[pairs.index_p] - points[pairs.index_m])
+        blocks = problem.blocks(estimate, pairs)
+        graph, values = problem.graph(estimate, pairs, damped=False, blocks=blocks)
+        control_sigma = control_prior_sigma(problem.config, float(pairs.weight.sum()))
+        weighting = problem.config.weighting
+        shared = expected = None
+        if weighting.pair_noise == "incidence":
+            if shared_returns and weighting.robust == "none":
+                shared = problem.uncertainty(SharedReturnsCovariance(graph, values, blocks, pairs, problem.data, estimate,
+                                                                     weighting.sigma0_m), estimate, control_sigma)
+            if blocks:  # pairs whitened by the measured noise: the J it predicts
+                weight = np.concatenate([block.weight for _, block in blocks])
+                sigma = np.concatenate([np.broadcast_to(block.sigma0_m, len(block.weight)) for _, block in blocks])
+                expected = float((weight * sigma ** 2).sum() / weight.sum() * 1e4)
+        return FinalFit(pairs, residual, problem.uncertainty(Marginals(graph, values), estimate, control_sigma), shared,
+                        expected)
+
+    def uncertainty(self, marginals, estimate: Estimate, control_sigma: float) -> Uncertainty:
+        """Posterior and prior sigmas in file units (m, deg) for every estimated parameter."""
+        est_int, est_ext, est_traj = self.estimated
+        data, priors = self.data, self.priors
+        n = data.sensor.n_fibres
+        intrinsics = np.full((n, 4), np.nan)
+        if est_int:
+            for fibre in range(n):
+                if fibre != data.sensor.reference_fibre:
+                    intrinsics[fibre] = intrinsic_sigmas(marginals, I(fibre))
+        extrinsic = extrinsic_prior = None
+        if est_ext:
+            extrinsic = pose_sigmas(marginals.marginalCovariance(E(0)), estimate.extrinsic.rotation().matrix())
+            extrinsic_prior = priors.extrinsic * POSE_TO_FILE_UNITS
+        controls = controls_prior = None
+        if est_traj:
+            rows, prior_rows = [], []
+            for c, correction in enumerate(estimate.corrections):
+                cov = marginals.marginalCovariance(X(c))
+                if self.config.trajectory.pose_corrections:
+                    rows.append(pose_sigmas(cov, correction.rotation().matrix()))
+                else:
+                    rows.append(np.r_[np.full(3, np.nan), np.sqrt(np.diag(cov))])
+                held = np.r_[np.zeros(6 - priors.control_held.shape[1], bool), priors.control_held[c]]
+                prior_rows.append(np.where(held, HELD_SIGMA, control_sigma) * POSE_TO_FILE_UNITS)
+            controls, controls_prior = np.array(rows), np.array(prior_rows)
+        return Uncertainty(intrinsics, offsets_to_file_units(priors.intrinsic), extrinsic, extrinsic_prior, controls,
+                           controls_prior)
 
 
-@dataclass(frozen=True)
-class Estimate:
-    """Current calibration: offsets (n_fibres, 4) in (m, rad, rad, m), T_body_lidar, and the
-    trajectory corrections at each control time (Pose3; identity rotation when translation-only)."""
-
-    offsets: np.ndarray
-    extrinsic: gtsam.Pose3
-    corrections: tuple
+def energy_cm2(p_m: np.ndarray, m_m: np.ndarray, pairs: Correspondences) -> tuple[float, float]:
+    """(J [cm^2], weight sum) of eq. 4.4 for the paired world points p, m (K,3) [m], with the
+    correspondences' fixed normals and weights."""
+    d = np.einsum("ni,ni->n", pairs.normal, p_m - m_m)
+    weight_sum = float(pairs.weight.sum())
+    return float((pairs.weight * d * d).sum() / weight_sum * 1e4), weight_sum
 
 
-def prepare(recording: Recording, control_interval_s: float, max_points: int | None = None,
-            rng: np.random.Generator | None = None, control_times_s: np.ndarray | None = None,
-            range_noise_m: float | None = None) -> ReturnData:
-    """Read the returns (a random subset of max_points if given) and the INS pose at each one's
-    time; control times control_interval_s apart from the trajectory's first pose span them,
-    unless given; the head's range noise [m] measured from all the returns (range_noise.measured_range_noise_m)
-    unless given; the trajectory's white noise measured from its poses (trajectory_noise.py)."""
-    columns = recording.points.read(["time", "fibre", "range", "azimuth"])
-    rows = np.arange(len(columns["time"]))
-    if range_noise_m is None:
-        range_noise_m = measured_range_noise_m(columns["fibre"], columns["range"])
-    if max_points is not None and len(rows) > max_points:
-        rows = np.sort((rng or np.random.default_rng(0)).choice(len(rows), max_points, replace=False))
-    time = columns["time"][rows]
-    position, rotation = recording.world.poses.interpolate(time)
-    origin = np.round(position.mean(axis=0))
-    if control_times_s is None:
-        control_times = control_grid(recording.world.poses.span[0], time[0], time[-1], control_interval_s)
-    else:
-        control_times = np.asarray(control_times_s, dtype=np.float64)
-    control = np.clip(np.searchsorted(control_times, time, side="right") - 1, 0, len(control_times) - 2)
-    alpha = np.clip((time - control_times[control]) / (control_times[control + 1] - control_times[control]), 0, 1)
-    return ReturnData(recording.sensor, rows, columns["fibre"][rows].astype(np.int64),
-                      columns["range"][rows].astype(np.float64), columns["azimuth"][rows].astype(np.float64),
-                      time, rotation.as_matrix(), position - origin, control, alpha, control_times, origin, range_noise_m,
-                      measured_pose_noise(recording.world.poses))
+def step_size(a: Estimate, b: Estimate) -> float:
+    """max |dX| over every parameter: m for lengths, rad (x 1 m) for angles."""
+    steps = [np.abs(a.offsets - b.offsets).max(), np.abs(a.extrinsic.localCoordinates(b.extrinsic)).max()]
+    steps += [np.abs(x.localCoordinates(y)).max() for x, y in zip(a.corrections, b.corrections)]
+    return float(max(steps))
 
 
-def revisits(poses: PoseTrack) -> bool:
-    """Whether the drive comes back to where it was (within REVISIT_WITHIN_M of a position it held at least
-    REVISIT_AFTER_S earlier): only then do pairs between two passes show the trajectory's errors."""
-    times = np.arange(poses.span[0], poses.span[1], 1.0)
-    if len(times) < 2:
+def on_plateau(energies: list[float], iterations: int, improvement: float) -> bool:
+    """True when none of the last `iterations` energies fell below (1 - improvement) times the
+    lowest one before them: J has stopped falling (it only jitters with the association)."""
+    if len(energies) <= iterations:
         return False
-    position, _ = poses.interpolate(times)
-    tree = cKDTree(position)
-    for a, b in tree.query_pairs(REVISIT_WITHIN_M):
-        if abs(times[a] - times[b]) >= REVISIT_AFTER_S:
-            return True
-    return False
+    return min(energies[-iterations:]) > (1.0 - improvement) * min(energies[:-iterations])
 
 
-def control_grid(anchor_s: float, first_s: float, last_s: float, interval_s: float) -> np.ndarray:
-    """Control times [s] anchor_s + k interval_s (k integer) covering [first_s, last_s]: anchored
-    at the trajectory's first pose, so they do not shift with the subset of returns used. An
-    infinite interval gives the two controls [first_s, last_s] (one second apart when the returns
-    share one time, e.g. a batch of one: interpolating between equal times would give NaN)."""
-    if not np.isfinite(interval_s):
-        return np.array([first_s, last_s if last_s > first_s else first_s + 1.0])
-    k_first = np.floor((first_s - anchor_s) / interval_s + 1e-9)
-    k_last = max(np.ceil((last_s - anchor_s) / interval_s - 1e-9), k_first + 1)
-    return anchor_s + interval_s * np.arange(k_first, k_last + 1)
+def levenberg_marquardt(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, iterations: int) -> gtsam.Values:
+    """GTSAM's Levenberg-Marquardt with damping scaled by the Hessian's diagonal. With GTSAM's default
+    (lambda times the identity, lambda <= 1e5) a graph whose diagonal reaches 1e14 (a held parameter
+    beside millimetre-sharp ones) gets Gauss-Newton steps whatever lambda, and when that step overshoots
+    LM rejects every lambda and returns the values unchanged: measured on diagnose's refit with a
+    pitched head (time offset stuck at 0, with this damping 5.14 ms for a true 5 ms)."""
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(iterations)
+    params.setDiagonalDamping(True)
+    params.setlambdaUpperBound(LAMBDA_UPPER_BOUND)
+    return gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
 
 
-def pose_of(extrinsic: Extrinsic) -> gtsam.Pose3:
-    """T_body_lidar of an extrinsic.yaml / calibration.yaml extrinsic as a GTSAM Pose3."""
-    return gtsam.Pose3(gtsam.Rot3(extrinsic.R_body_lidar), np.asarray(extrinsic.lever_arm_m, dtype=np.float64))
-
-
-def initial_estimate(recording: Recording, data: ReturnData) -> Estimate:
-    """Zero offsets, the nominal extrinsic of extrinsic.yaml, no trajectory correction."""
-    return Estimate(np.zeros((recording.sensor.n_fibres, 4)), pose_of(recording.extrinsic),
-                    tuple(gtsam.Pose3() for _ in data.control_times_s))
-
-
-def corrections_at(estimate: Estimate, control: np.ndarray, pose: bool) -> Corrections:
-    """Per-return corrections at the controls before/after each return."""
-    translation = np.array([c.translation() for c in estimate.corrections])
-    if not pose:
-        return Corrections(translation[control], translation[control + 1])
-    rotation = np.array([c.rotation().matrix() for c in estimate.corrections])
-    rotvec = np.array([gtsam.Rot3.Logmap(c.rotation()) for c in estimate.corrections])
-    return Corrections(translation[control], translation[control + 1], rotation[control], rotation[control + 1],
-                       rotvec[control], rotvec[control + 1])
-
-
-def world_at(data: ReturnData, estimate: Estimate, pose: bool, rows: np.ndarray | None = None) -> np.ndarray:
-    """World points minus the local origin [m] of the given rows (all if None) at an estimate."""
-    rows = np.arange(len(data.time_s)) if rows is None else rows
-    R_E, t_E = estimate.extrinsic.rotation().matrix(), estimate.extrinsic.translation()
-    p, _ = world_points(data.returns(rows), estimate.offsets[data.fibre[rows]], R_E, t_E,
-                        corrections_at(estimate, data.control[rows], pose), jacobians=False)
-    return p
-
-
-def rays_at(data: ReturnData, estimate: Estimate, rows: np.ndarray | None = None) -> np.ndarray:
-    """Unit line-of-sight direction (N,3) of the given rows (all if None) in world axes at an estimate
-    (eq. 4.2's d xyz / d rho turned by the extrinsic and the INS attitude; a trajectory rotation
-    correction, a fraction of a degree, is left out: the association and the noise model only
-    compare these lines with surfaces)."""
-    rows = np.arange(len(data.time_s)) if rows is None else rows
-    fibre = data.fibre[rows]
-    _, direction_lidar = beam_rays(data.azimuth_rad[rows], data.sensor.factory_terms(fibre), estimate.offsets[fibre])
-    return np.einsum("nij,nj->ni", data.R_nav[rows], direction_lidar @ estimate.extrinsic.rotation().matrix().T)
-
-
-def sight_at(data: ReturnData, estimate: Estimate, points_m: np.ndarray) -> Sight | None:
-    """The lines of sight and stand-ins (association.Sight) of the returns at an estimate, points_m
-    their world points minus the origin [m] there (rows of a fibre are in firing order: time order);
-    None when the head's range noise is known to be below range_noise.NOISY_ABOVE_M: the measured
-    points are then their own best stand-ins (docs/math.md "Which m")."""
-    if not noisy(data.range_noise_m):
-        return None
-    return Sight.of(points_m, rays_at(data, estimate), data.fibre)
+def schur_complement(information: np.ndarray, keep: int) -> np.ndarray:
+    """The information on the first `keep` coordinates once the others are marginalised out."""
+    if keep == len(information):
+        return information
+    a, b, c = information[:keep, :keep], information[:keep, keep:], information[keep:, keep:]
+    return a - b @ np.linalg.solve(c, b.T)

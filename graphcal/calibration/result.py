@@ -22,7 +22,7 @@ from graphcal.calibration.observability import (
     INTRINSIC_NAMES,
     Uncertainty,
 )
-from graphcal.calibration.problem import Estimate, pose_of
+from graphcal.calibration.returns import Estimate, pose_of
 from graphcal.common.errors import RecordingError, finite_number
 from graphcal.recording.extrinsic import Extrinsic
 from graphcal.recording.intrinsics import offsets_from_file_units, offsets_to_file_units
@@ -111,7 +111,7 @@ class Calibration:
 
 
 SIGMA_MARGINALS = "gtsam.Marginals at the final pairs, sigma0 the noise of one pair"
-SIGMA_SHARED = "range noise of each return counted once over the pairs that share it (sandwich, docs/math.md)"
+SIGMA_SHARED = "range noise of each return counted once over the pairs that share it (sandwich, docs/reference/math.md)"
 
 
 @dataclass(frozen=True)

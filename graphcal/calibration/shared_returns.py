@@ -11,7 +11,7 @@ whitening, eta_k the pair's own independent part (the INCIDENCE_FLOOR and plane-
     g_r = sigma sum_{pairs k using return r} s_k (+-n_k.u_r) a_k,   v_k = max(w_k - s_k^2 sigma^2 ((n.u_p)^2 + (n.u_m)^2), 0)
 
 with P the priors' information (the nominal values are off by their priors' sigmas: the estimate
-inherits that error where the data see little), a sandwich (docs/math.md "Observability"). With no return
+inherits that error where the data see little), a sandwich (docs/reference/math.md "Observability"). With no return
 shared and unit weights it is H^-1.
 """
 
@@ -24,7 +24,7 @@ import scipy.sparse as sparse
 from factors.point_to_plane import Block, residuals
 from graphcal.calibration.association import Correspondences
 from graphcal.calibration.observability import DenseMarginals
-from graphcal.calibration.problem import Estimate, ReturnData, rays_at
+from graphcal.calibration.returns import Estimate, ReturnData, rays_at
 
 RETURNS_PER_CHUNK = 200_000  # rows of g computed at once (memory: about 38 nonzeros each)
 

@@ -30,9 +30,10 @@ def run_demo(out: Path, size: float = SIZE, max_points: int = MAX_POINTS, max_ou
     recording = simulate(load_scenario_builder("sim6_turn")(size=size, seed=0), quiet=quiet)
     recording.save(out / "recording")
     simulated = time.perf_counter()
-    limits = {} if max_outer_iterations is None else {"max_outer_iterations": max_outer_iterations,
-                                                      "refuse_unconverged": False}
-    config = CalibrationConfig(mode="trajectory", max_points=max_points, **limits)
+    config = CalibrationConfig(mode="trajectory", max_points=max_points)
+    if max_outer_iterations is not None:  # a quick look: stopped on its cap, returned unchecked
+        config = config.with_settings(stopping={"max_outer_iterations": max_outer_iterations,
+                                                "refuse_unconverged": False})
     run = calibration_run(out / "recording", config, out, spawn=spawn, viewer_points=VIEWER_POINTS,
                           evaluation_points=EVALUATION_POINTS, command="demo", quiet=quiet)
     finished = time.perf_counter()

@@ -91,7 +91,8 @@ def calibration_config(mode: str, config: Path | None, overrides: dict | None = 
     except pydantic.ValidationError as error:
         first = error.errors()[0]
         message = first["msg"].removeprefix("Value error, ")  # pydantic's prefix for a validator's ValueError
-        raise ConfigError(f"{config or '--mode'}: {'.'.join(map(str, first['loc']))}: {message}") from None
+        where = ".".join(map(str, first["loc"]))
+        raise ConfigError(f"{config or '--mode'}: {where + ': ' if where else ''}{message}") from None
 
 
 @app.command()
@@ -124,10 +125,11 @@ def _print_calibration(run) -> None:
     result, evaluation = run.result, run.evaluation
     before, after = result.energy_cm2
     typer.echo(f"J {before:.3g} -> {after:.3g} cm^2 in {result.seconds:.1f} s ({len(result.history)} outer iterations)")
-    noise_m = result.config.range_noise_m
+    noise_m = result.config.weighting.range_noise_m
     if noise_m is not None:
-        typer.echo(f"range noise {noise_m * 1000:.2g} mm: pairs {result.config.pair_noise}, features from "
-                   + (f"{result.config.feature_voxel_m} m voxels" if result.config.feature_voxel_m else "every return"))
+        voxel_m = result.config.features.voxel_m
+        typer.echo(f"range noise {noise_m * 1000:.2g} mm: pairs {result.config.weighting.pair_noise}, features from "
+                   + (f"{voxel_m} m voxels" if voxel_m else "every return"))
     if result.unobservable:
         shown = ", ".join(result.unobservable[:12]) + (f" and {len(result.unobservable) - 12} more"
                                                        if len(result.unobservable) > 12 else "")
@@ -156,7 +158,7 @@ def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory
              out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-diagnose-<UTC time>)")] = None,
              spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, quiet: Quiet = False) -> None:
     """Find where the model and the recording disagree, name the physics left out, model it, show the
-    fit improve (docs/diagnose.md).
+    fit improve (docs/howto/diagnose.md).
 
     The run folder gets diagnosis.json, the re-solved calibration in calibration/ (its effects
     listed), run.rrd (the residual field) and run.yaml (seconds per stage).
@@ -289,7 +291,7 @@ def demo(out: Annotated[Path, typer.Option(help="folder of the demo: its recordi
     run_demo(out, size=size, max_points=max_points, spawn=spawn, quiet=quiet)
 
 
-import_app = typer.Typer(help="Import real data into the recording format (docs/importers.md).", no_args_is_help=True)
+import_app = typer.Typer(help="Import real data into the recording format (docs/howto/import.md).", no_args_is_help=True)
 app.add_typer(import_app, name="import")
 
 

@@ -1,4 +1,4 @@
-"""A run folder: everything one command wrote, in one place (docs/cli.md).
+"""A run folder: everything one command wrote, in one place (docs/reference/command-line.md).
 
     runs/<recording>-<command>-<UTC stamp>/    (or the folder given with --out)
         run.yaml       what ran (command line, recording, graphcal version, when) and the

@@ -21,8 +21,8 @@ from factors.effects import CANDIDATES, Channels, channel_jacobians
 from factors.world_point import Corrections, Turn, world_normals, world_points
 from graphcal.calibration.association import Features
 from graphcal.calibration.config import CalibrationConfig
-from graphcal.calibration.problem import Estimate, initial_estimate, prepare, world_at
-from graphcal.calibration.solve import features_at
+from graphcal.calibration.returns import Estimate, initial_estimate, prepare, world_at
+from graphcal.calibration.pairing import features_at
 from graphcal.diagnosis.context import EffectModel, ReturnContext, world_with_effects
 from graphcal.diagnosis.diagnose import (
     DEFAULT_SEPARATING_DATA,
@@ -65,7 +65,7 @@ def compare(recording: Recording, simulation: Recording, max_points: int | None 
     sim_points = world_at(sim, with_controls(estimate, sim), pose=False) + sim.origin_m - data.origin_m
     # a moving simulation's features from every return, as for a noise-free head: with 0.1 m voxels (those of a
     # noisy head) the heading-bias recording of bench_diagnose named fibre_horizontal_offset before heading_bias
-    features = features_at(sim_points, CalibrationConfig().for_sensor(sim.static, 0.0))
+    features = features_at(sim_points, CalibrationConfig().for_sensor(sim.static, 0.0).features)
     sim_tree = cKDTree(sim_points)
     rows, nearest, normal = _paired(points, sim_tree, features)
     context = ReturnContext.of(data, recording.world.poses, points, Features(normal, *(np.zeros(len(points)),) * 4),

@@ -3,7 +3,7 @@ within the revolution, time since the first pose, incidence angle, and the INS m
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import gtsam
 import numpy as np
@@ -12,7 +12,7 @@ from factors.effects import CANDIDATES, Channels, Context, Motion, perturbed
 from factors.point_to_plane import EffectTerms
 from factors.world_point import world_points
 from graphcal.calibration.association import Features
-from graphcal.calibration.problem import Estimate, ReturnData, corrections_at, world_at
+from graphcal.calibration.returns import Estimate, ReturnData, corrections_at, world_at
 from graphcal.recording.poses import PoseTrack
 
 K = gtsam.symbol_shorthand.K  # candidate effect parameters, Vector
@@ -62,9 +62,9 @@ class ReturnContext:
 
 @dataclass(frozen=True)
 class EffectModel:
-    """Candidate effects in a graph (graphcal.calibration.solve.build_graph's `effects`): their names
-    (key K(i) for the i-th), current values, and prior sigmas (None: no prior, e.g. for a score test
-    that only linearises)."""
+    """Candidate effects in a calibration problem's graph (graphcal.calibration.problem.Problem's `effects`):
+    their names (key K(i) for the i-th), current values, and prior sigmas (None: no prior, e.g. for a score
+    test that only linearises)."""
 
     names: tuple[str, ...]
     values: dict
@@ -95,10 +95,18 @@ class EffectModel:
         """The effects' values held in solved values."""
         return {name: np.array(values.atVector(key)) for key, name in zip(self.keys, self.names)}
 
+    def with_values(self, values: dict) -> EffectModel:
+        """The model with some effects' values replaced (an estimate's)."""
+        return replace(self, values={**self.values, **values}) if values else self
+
+    def world(self, data: ReturnData, estimate: Estimate, pose: bool) -> np.ndarray:
+        """World points [m] of the returns at the estimate, the effects at the estimate's values (else the model's)."""
+        return world_with_effects(data, estimate, pose, self.with_values(estimate.effects))
+
 
 def world_with_effects(data: ReturnData, estimate: Estimate, pose: bool, model: EffectModel | None,
                        rows: np.ndarray | None = None) -> np.ndarray:
-    """world_at (graphcal.calibration.problem) with the model's effects at their current values."""
+    """world_at (graphcal.calibration.returns) with the model's effects at their current values."""
     if model is None or not model.names:
         return world_at(data, estimate, pose, rows)
     rows = np.arange(len(data.time_s)) if rows is None else rows

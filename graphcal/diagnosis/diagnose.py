@@ -207,8 +207,8 @@ def candidate_names(fit: Fit, candidates: list[str] | None) -> list[str]:
 def score_all(fit: Fit, names: list[str]) -> tuple[dict, object]:
     """Every candidate's score test at a fit (the modelled effects in the base), and the linearisation."""
     cluster, half = fit.clusters()
-    lin = linearise(fit.data, fit.estimate, fit.pairs, fit.config, fit.estimated, fit.nominal, fit.priors,
-                    fit.with_candidates(names), cluster, half)
+    lin = linearise(replace(fit.problem, effects=fit.with_candidates(names), lock=None), fit.estimate, fit.pairs,
+                    cluster, half)
     return {n: score_candidate(lin, n, names) for n in names}, lin
 
 
@@ -220,8 +220,8 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
     refit_iterations outer iterations."""
     started = time.perf_counter()
     config = config or CalibrationConfig(mode="joint")
-    if config.pair_noise is None:  # the tests read the whitened costs back in cm2 with sigma0 (score.Linearisation)
-        config = config.model_copy(update={"pair_noise": "uniform"})
+    if config.weighting.pair_noise is None:  # the tests read the whitened costs back in cm2 with sigma0 (score.Linearisation)
+        config = config.with_settings(weighting={"pair_noise": "uniform"})
     fit, result = baseline(recording, config, quiet=quiet)
     energy, located = {"before": fit.energy_cm2}, locate(fit)
     findings, not_separable, first_round, concealed, added, at_known_size = [], [], None, [], None, []

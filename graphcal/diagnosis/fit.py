@@ -5,26 +5,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-import gtsam
 import numpy as np
 
 from graphcal.calibration.association import Correspondences, Features
 from graphcal.calibration.calibrate import calibrate
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.observability import TRAJECTORY_GAUGE
-from graphcal.calibration.problem import Estimate, ReturnData, pose_of, prepare, sight_at
+from graphcal.calibration.problem import History, Problem, energy_cm2
 from graphcal.calibration.result import CalibrationResult
-from graphcal.calibration.solve import (
-    Association,
-    Priors,
-    build_graph,
-    energy_cm2,
-    features_at,
-    holding,
-    levenberg_marquardt,
-    read_back,
-)
-from graphcal.diagnosis.context import EffectModel, ReturnContext, world_with_effects
+from graphcal.calibration.returns import Estimate, ReturnData
+from graphcal.diagnosis.context import EffectModel, ReturnContext
 from graphcal.recording.directory import Recording
 
 BLOCK_S = 0.5  # time blocks of the drive: clusters of correlated residuals, and the held-out split
@@ -33,20 +23,28 @@ VOXEL_M = 4.0
 
 @dataclass(frozen=True)
 class Fit:
-    """A fit and what its tests need: the data, the estimate, the modelled effects (their values in
-    model.values), the strict association at the estimate and the per-return context."""
+    """A fit and what its tests need: the calibration problem, the estimate, the modelled effects (their
+    values in model.values), the strict association at the estimate and the per-return context."""
 
     recording: Recording
-    data: ReturnData
-    config: CalibrationConfig
-    estimated: tuple[bool, bool, bool]
-    nominal: gtsam.Pose3
-    priors: Priors
+    problem: Problem
     estimate: Estimate
     model: EffectModel
     points_m: np.ndarray
     features: Features
     pairs: Correspondences
+
+    @property
+    def data(self) -> ReturnData:
+        return self.problem.full
+
+    @property
+    def config(self) -> CalibrationConfig:
+        return self.problem.settings
+
+    @property
+    def estimated(self) -> tuple[bool, bool, bool]:
+        return self.problem.estimated
 
     @property
     def energy_cm2(self) -> float:
@@ -69,45 +67,30 @@ class Fit:
 def baseline(recording: Recording, config: CalibrationConfig, quiet: bool = True) -> tuple[Fit, CalibrationResult]:
     """Calibrate with the current model (no effect), then associate strictly at the estimate."""
     result = calibrate(recording, config, quiet=quiet)
-    config = result.config  # with the settings calibrate resolved for the recording
-    data = prepare(recording, config.control_interval_s, config.max_points, np.random.default_rng(config.seed),
-                   range_noise_m=config.range_noise_m)
-    priors = holding(Priors.of(config, data.sensor.n_fibres, len(data.control_times_s)),
-                     [name for name in result.unobservable if name not in TRAJECTORY_GAUGE])
-    fit = _associated(recording, data, config, result.estimated, pose_of(recording.extrinsic), priors,
-                      result.calibration.estimate, None)
-    return fit, result
+    # the settings calibrate resolved for the recording, what it named held at nominal
+    problem = Problem.of(recording, result.config).holding(
+        [name for name in result.unobservable if name not in TRAJECTORY_GAUGE])
+    return _associated(recording, problem, result.calibration.estimate, None), result
 
 
-def _associated(recording, data, config, estimated, nominal, priors, estimate, model) -> Fit:
-    points = world_with_effects(data, estimate, config.pose_corrections, model)
-    fine = config.fine()
-    sight = sight_at(data, estimate, points)
-    features = features_at(points, config)
-    pairs = Association.of(data, fine).pairs(points, data.fibre, features, fine.fine_gate_m, fine, sight)
+def _associated(recording: Recording, problem: Problem, estimate: Estimate, model: EffectModel | None) -> Fit:
+    problem = replace(problem, effects=model)
+    points = problem.points(estimate)
+    features = problem.cache.at(points)[0]
+    pairs = problem.associate(estimate, points, features)
     if model is None:
-        context = ReturnContext.of(data, recording.world.poses, points, features, estimate.extrinsic.translation())
+        context = ReturnContext.of(problem.full, recording.world.poses, points, features,
+                                   estimate.extrinsic.translation())
         model = EffectModel((), {}, context)
-    return Fit(recording, data, config, estimated, nominal, priors, estimate, model, points, features, pairs)
+    return Fit(recording, replace(problem, effects=None), estimate, model, points, features, pairs)
 
 
 def refit(fit: Fit, names: tuple[str, ...], prior_sigma: dict, iterations: int = 4) -> Fit:
     """Re-solve with the effects `names` modelled (keys in every block, starting from the fit's values
-    or zero): outer iterations of the fine phase (association at the current points, graph, LM)."""
+    or zero): at most `iterations` outer iterations of the fine phase (Problem.fit)."""
     values = {n: fit.model.values.get(n, np.zeros(fit.model.dim(n))) for n in names}
     model = EffectModel(tuple(names), values, fit.model.context, prior_sigma)
-    estimate, config = fit.estimate, fit.config
-    fine = config.fine()
-    association = Association.of(fit.data, fine)
-    for _ in range(iterations):
-        points = world_with_effects(fit.data, estimate, config.pose_corrections, model)
-        sight = sight_at(fit.data, estimate, points)
-        features = features_at(points, config)
-        pairs = association.pairs(points, fit.data.fibre, features, fine.fine_gate_m, fine, sight)
-        graph, initial = build_graph(fit.data, estimate, pairs, config, fit.estimated, fit.nominal, fit.priors,
-                                     effects=model)
-        solved = levenberg_marquardt(graph, initial, config.lm_iterations)
-        estimate = read_back(solved, estimate, fit.estimated, fit.data, config.pose_corrections)
-        model = replace(model, values=model.read(solved))
-    return _associated(fit.recording, fit.data, config, fit.estimated, fit.nominal, fit.priors, estimate,
-                       replace(model, prior_sigma=None))
+    problem = replace(fit.problem, effects=model, lock=None)
+    estimate = problem.fit(replace(fit.estimate, effects=values), History(), "refit", ("fine",), iterations)
+    model = replace(model, values=estimate.effects, prior_sigma=None)
+    return _associated(fit.recording, fit.problem, replace(estimate, effects={}), model)

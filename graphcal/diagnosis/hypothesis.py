@@ -20,8 +20,6 @@ import numpy as np
 from scipy import stats
 
 from graphcal.calibration.association import associate
-from graphcal.calibration.problem import sight_at
-from graphcal.calibration.solve import Association
 from graphcal.diagnosis.fit import BLOCK_S, Fit, refit
 
 # candidates whose known size is beyond the linear test's reach: tested by a refit at that size
@@ -62,13 +60,13 @@ def truncated_cost(fit: Fit) -> tuple[np.ndarray, np.ndarray, int]:
     """Per time block of BLOCK_S: the truncated cost summed [m^2] and the number of (return, neighbour
     fibre) combinations; and the number of pairs found. Pairs by the fine association at the fit's
     points, without the per-fibre-pair subsample."""
-    fine = fit.config.fine()
-    association = Association.of(fit.data, fine)
+    problem = fit.problem.in_phase("fine")
+    gates, association = problem.gates, problem.association()
     candidates, fibre = association.candidates, fit.data.fibre
-    pairs = associate(fit.points_m, fibre, fit.features, association.neighbours, fine.fine_gate_m,
-                      fine.min_planarity, np.cos(np.radians(fine.max_normal_angle_deg)), fine.max_plane_distance_m,
-                      None, None, candidates, sight_at(fit.data, fit.estimate, fit.points_m))
-    clip_m = fine.max_plane_distance_m
+    pairs = associate(fit.points_m, fibre, fit.features, association.neighbours, gates.gate_start_m,
+                      gates.min_planarity, np.cos(np.radians(gates.max_normal_angle_deg)), gates.max_plane_distance_m,
+                      None, None, candidates, problem.sight(fit.estimate, fit.points_m))
+    clip_m = gates.max_plane_distance_m
     r = np.einsum("ni,ni->n", pairs.normal, fit.points_m[pairs.index_p] - fit.points_m[pairs.index_m])
     block = np.floor((fit.data.time_s - fit.data.time_s[0]) / BLOCK_S).astype(np.int64)
     n_blocks = int(block.max()) + 1

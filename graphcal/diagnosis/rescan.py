@@ -13,7 +13,7 @@ import numpy as np
 import open3d as o3d
 
 from factors.spherical import beam_rays
-from graphcal.calibration.problem import Estimate, ReturnData, prepare, world_at
+from graphcal.calibration.returns import Estimate, ReturnData, prepare, world_at
 from graphcal.recording.points import PointTable
 from graphcal.recording.directory import Recording
 

@@ -39,8 +39,9 @@ from graphcal.calibration.observability import (
     INTRINSIC_NAMES,
     tangent_to_axes,
 )
-from graphcal.calibration.problem import Estimate, ReturnData
-from graphcal.calibration.solve import E, Priors, build_graph, make_blocks
+from graphcal.calibration.returns import Estimate, ReturnData
+from graphcal.calibration.keys import E
+from graphcal.calibration.problem import Problem
 from graphcal.diagnosis.context import EffectModel
 
 ALPHA = 1e-3  # family-wise false-alarm rate over the candidates
@@ -123,13 +124,12 @@ def _key_names(key: int, width: int, model: EffectModel, pose: bool) -> list[str
     return [name] if width == 1 else [f"{name}[{j}]" for j in range(width)]
 
 
-def linearise(data: ReturnData, estimate: Estimate, pairs: Correspondences, config: CalibrationConfig,
-              estimated: tuple[bool, bool, bool], nominal: gtsam.Pose3, priors: Priors, model: EffectModel,
-              cluster: np.ndarray, half: np.ndarray) -> Linearisation:
-    """Linearise the undamped graph with the model's effects (candidates at zero, no prior on them) at
+def linearise(problem: Problem, estimate: Estimate, pairs: Correspondences, cluster: np.ndarray,
+              half: np.ndarray) -> Linearisation:
+    """Linearise the undamped graph with the problem's effects (candidates at zero, no prior on them) at
     the estimate; cluster (K,) and half (K,) label each pair."""
-    graph, values = build_graph(data, estimate, pairs, config, estimated, nominal, priors, damped=False,
-                                effects=model)
+    graph, values = problem.graph(estimate, pairs, damped=False)
+    model, config, data = problem.effects, problem.config, problem.data
     keys = list(values.keys())
     zero = values.zeroVectors()
     widths = [len(zero.at(k)) for k in keys]
@@ -142,12 +142,12 @@ def linearise(data: ReturnData, estimate: Estimate, pairs: Correspondences, conf
     if E(0) in column:
         s = column[E(0)]
         to_named[s:s + 6, s:s + 6] = tangent_to_axes(estimate.extrinsic.rotation().matrix())
-    names = [name for k, w in zip(keys, widths) for name in _key_names(k, w, model, config.pose_corrections)]
+    names = [name for k, w in zip(keys, widths) for name in _key_names(k, w, model, config.trajectory.pose_corrections)]
     n_clusters = int(cluster.max()) + 1 if len(cluster) else 0
     blocks = []
     half_information, half_vector = np.zeros((2, n, n)), np.zeros((2, n))
     half_cost, half_weight = np.zeros(2), np.zeros(2)
-    for rows, block in make_blocks(data, estimate, pairs, config, estimated, model):
+    for rows, block in problem.blocks(estimate, pairs):
         r, A = residuals(block, values)
         cols = np.concatenate([np.arange(column[k], column[k] + J.shape[1])
                                for k, J in jacobian_by_key(block, A).items()])
@@ -162,7 +162,7 @@ def linearise(data: ReturnData, estimate: Estimate, pairs: Correspondences, conf
             half_weight[h] += float(pairs.weight[rows][of].sum())
     effect_columns = {name: np.arange(column[k], column[k] + model.dim(name)) for k, name in zip(model.keys, model.names)}
     return Linearisation(to_named @ information @ to_named.T, to_named @ vector, names, effect_columns, blocks,
-                         n_clusters, half_information, half_vector, half_cost, half_weight, config.sigma0_m)
+                         n_clusters, half_information, half_vector, half_cost, half_weight, config.weighting.sigma0_m)
 
 
 def _solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:

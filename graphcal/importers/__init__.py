@@ -2,5 +2,5 @@
 
 One module per format: velodyne_pcap (pcap captures), velodyne_calibration (db.xml / ROS YAML
 -> SensorModel), kitti (KITTI raw drives), sbet (Applanix SBET -> Trajectory), trajectory_csv
-(user CSV -> Trajectory). docs/importers.md describes each.
+(user CSV -> Trajectory). docs/howto/import.md describes each.
 """

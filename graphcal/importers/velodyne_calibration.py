@@ -2,7 +2,7 @@
 
 Two formats: Velodyne's db.xml (boost serialization: angles in degrees, lengths in cm) and the
 ROS velodyne_pointcloud YAML (`lasers:` list: angles in radians, lengths in m). Per laser, the
-geometric terms map onto the factory terms of docs/frames.md:
+geometric terms map onto the factory terms of docs/concepts.md "Frames and names":
 
     elevation_deg = vertCorrection            azimuth_offset_deg = -rotCorrection
     range_offset_m = distCorrection           vertical_offset_m = vertOffsetCorrection

@@ -5,7 +5,7 @@ velodyne_packets.py): range = raw distance x 2 mm, encoder azimuth from the pack
 time = packet timestamp + the firing-time table. `import_pcap` adds the nominal sensor model,
 the time base (GPS seconds of week, made absolute with the $GPRMC fixes of the position
 packets, or with the capture host clock when there are none), and a trajectory: the one given,
-or a static one at the GPRMC position covering the returns. docs/importers.md has the details.
+or a static one at the GPRMC position covering the returns. docs/howto/import.md has the details.
 """
 
 from __future__ import annotations

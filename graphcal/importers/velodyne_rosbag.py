@@ -3,7 +3,7 @@
 The bag is read with rosbags (optional: `pip install "graphcal[rosbag]"`); the 1206-byte
 packets go through the same decoder as pcap captures (velodyne_pcap.decode_packets), and the
 packets' ROS stamps stand for the capture host clock (the hour of the sensor timestamps). A bag
-carries no $GPRMC: give a position or a trajectory. docs/importers.md has the details.
+carries no $GPRMC: give a position or a trajectory. docs/howto/import.md has the details.
 """
 
 from __future__ import annotations

@@ -215,7 +215,7 @@ class HeadingDrift(Effect):
 class ProjectionScale(Effect):
     """Recorded INS positions = first position + (1 + scale) x (true displacement): the grid of a
     map projection is larger than the ground by its scale factor k = 1 + scale, and the lidar's
-    metric vectors are placed in it unscaled (graphcal ignores k, docs/frames.md)."""
+    metric vectors are placed in it unscaled (graphcal ignores k, docs/concepts.md "Frames and names")."""
 
     name: ClassVar[str] = "projection_scale"
     physics: ClassVar[str] = ("the trajectory is in a map grid whose scale factor differs from 1, while the lidar "

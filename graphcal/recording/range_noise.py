@@ -9,7 +9,7 @@ import numpy as np
 FOURTH_DIFFERENCE = np.array([1.0, -4.0, 6.0, -4.0, 1.0]) / np.sqrt(70.0)
 SAMPLE_ROWS = 1_000_000  # the first rows of a recording say as much as all of them
 MIN_DIFFERENCES = 100
-# range noise [m] from which a head is treated as noisy (docs/math.md "Which m"): m chosen by stand-ins, pairs
+# range noise [m] from which a head is treated as noisy (docs/reference/math.md "Which m"): m chosen by stand-ins, pairs
 # whitened by the noise along their lines of sight, features from voxels. Without noise the nearest return
 # pairs better (sim2_street noise-free, full size: d_elevation 5.3e-4 / 8.0e-4 deg, Hz 0.0113 cm against
 # 7.9e-4 / 1.0e-3 deg, 0.0153 / 0.0145 cm with stand-ins, seeds 0 / 1), and the nearest's own bias grows with

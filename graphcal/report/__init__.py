@@ -1,2 +1,2 @@
-"""The HTML report of a run folder (docs/cli.md): figures (PNG, matplotlib Agg) and tables,
+"""The HTML report of a run folder (docs/reference/command-line.md): figures (PNG, matplotlib Agg) and tables,
 all inside one self-contained report.html."""

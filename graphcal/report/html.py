@@ -223,7 +223,7 @@ def _halves(folder: Path) -> str:
                     "held were fitted on the pairs of each azimuth half of the scene; those one half alone does not "
                     "determine and those the halves disagreed on were held, and each half's fit of the rest was tried "
                     f"on the other half's pairs ({len(check['held'])} held by this check in all). Verdict: {verdict}. "
-                    "The estimates in the table are each half's fit, not the calibration (docs/math.md "
+                    "The estimates in the table are each half's fit, not the calibration (docs/reference/math.md "
                     "\"A static sensor\").")
 
 

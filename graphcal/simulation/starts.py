@@ -24,5 +24,6 @@ STARTS = {"table_4_1": (PITCHED_HEAD, TABLE_4_1_ERRORS), "section_4_5_2": (SECTI
 # the priors that go with these starts: their nominal model is no factory calibration (3 deg and 10 cm off
 # for Table 4.1, an extrinsic 80 cm and 3 deg off for section 4.5.2), so the nominal's stated uncertainty
 # is wide; calibrate's defaults state a factory calibration's (2 cm, 0.2 deg; 10 cm, 1 deg)
-FAR_START_PRIORS = {"intrinsic_sigma_range_m": 0.3, "intrinsic_sigma_angle_deg": 10.0,
-                    "extrinsic_sigma_lever_arm_m": 1.0, "extrinsic_sigma_boresight_deg": 10.0}
+# (CalibrationConfig's `priors` section)
+FAR_START_PRIORS = {"intrinsic_range_m": 0.3, "intrinsic_angle_deg": 10.0, "extrinsic_lever_arm_m": 1.0,
+                    "extrinsic_boresight_deg": 10.0}

@@ -2,7 +2,7 @@
 the trajectory before and after with the control corrections as arrows, J and the weight sum per
 outer iteration, the parameters with their 1-sigma, and a blueprint that shows it all at once.
 
-Entity paths (docs/viewer.md):
+Entity paths (docs/howto/read-the-report-and-viewer.md):
     /summary                                   Markdown: what ran, figures, where things are
     /world                                     RIGHT_HAND_Z_UP, fibre annotation context
     /world/cloud/{before,after}/by_{fibre,time,residual}

@@ -1,7 +1,7 @@
 """Deskew in the viewer: each revolution raw and deskewed in its end-of-scan lidar frame (timeline
 "scan"), and every revolution placed in the world with its end-of-scan pose, raw and deskewed.
 
-Entity paths (docs/viewer.md):
+Entity paths (docs/howto/read-the-report-and-viewer.md):
     /summary                          Markdown: what ran, where files are, colours
     /deskew/{raw,deskewed}            one revolution at a time, L_end frame [m], timeline "scan"
     /world/deskew/{raw,deskewed}      all revolutions at their INS end-of-scan pose, local origin

@@ -1,7 +1,7 @@
 """A diagnosis in the viewer: the final fit's residual field, coloured by the residual and by each
 regressor the mismatch finder bins it against, the binned effects, and the findings.
 
-Entity paths (docs/viewer.md):
+Entity paths (docs/howto/read-the-report-and-viewer.md):
     /summary                              Markdown: findings, J before -> after, how to read the views
     /world                                RIGHT_HAND_Z_UP
     /world/residual/by_residual           the paired returns p, oriented residual, blue -3 cm .. red +3 cm

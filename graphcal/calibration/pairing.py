@@ -1,0 +1,90 @@
+"""Which returns pair, and the local features they are judged by: features of the cloud (computed again
+only when it has moved) and the association of one phase (its gates, its candidate p's). Plain arrays
+in and out (calibration/association.py does the search)."""
+
+from __future__ import annotations
+
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from graphcal.calibration.association import Correspondences, Features, Sight, associate, local_features, neighbour_fibres
+from graphcal.calibration.config import FeatureSettings, PhaseGates
+from graphcal.calibration.returns import ReturnData
+
+CANDIDATES_PER_PAIR = 5  # candidate p's of a fibre per pair drawn for each of its fibre pairs
+
+
+def features_at(points_m: np.ndarray, settings: FeatureSettings) -> Features:
+    """local_features of the points [m] with the settings' radius, neighbours and voxel size."""
+    return local_features(points_m, settings.radius_m, settings.neighbours, settings.voxel_m)
+
+
+class FeatureCache:
+    """The features of a calibration's cloud, computed again only once they may have changed by more
+    than settings.refresh_above_m [m] (moved_m) since they were: the outer loop, the weak-direction
+    analyses and the final fit share them (each computation is a neighbourhood search and an
+    eigen-decomposition at every return)."""
+
+    def __init__(self, settings: FeatureSettings):
+        self.settings, self.points_m, self.features = settings, None, None
+
+    def at(self, points_m: np.ndarray) -> tuple[Features, bool]:
+        """(features for the points [m], whether they were computed now)."""
+        if moved_m(points_m, self.points_m, self.settings.radius_m) <= self.settings.refresh_above_m:
+            return self.features, False
+        self.points_m, self.features = points_m, features_at(points_m, self.settings)
+        return self.features, True
+
+
+def moved_m(points_m: np.ndarray, before_m: np.ndarray | None, radius_m: float) -> float:
+    """How much the features of a cloud [m] may have changed since it was at before_m: the largest
+    displacement of a point once the best rigid motion is removed (the shape's change), or the angle
+    of that motion times radius_m (it turns the normals, seen over a neighbourhood of radius_m),
+    whichever is larger. A common translation changes nothing; inf when there is no before, or
+    another cloud."""
+    if before_m is None or before_m.shape != points_m.shape:
+        return np.inf
+    now, then = points_m - points_m.mean(axis=0), before_m - before_m.mean(axis=0)
+    rotation, _ = Rotation.align_vectors(now, then)  # now ~ R then (Kabsch)
+    moved = now - rotation.apply(then)
+    shape_m = float(np.sqrt(np.einsum("ni,ni->n", moved, moved).max(initial=0.0)))
+    return max(shape_m, rotation.magnitude() * radius_m)
+
+
+@dataclass(frozen=True)
+class Association:
+    """The association of one phase: its gates, each fibre's neighbouring fibres, the candidate p's
+    (fixed across outer iterations) and the seed of its draws."""
+
+    gates: PhaseGates
+    neighbours: dict
+    candidates: np.ndarray
+    seed: int
+
+    @classmethod
+    def of(cls, data: ReturnData, gates: PhaseGates, neighbours: int, seed: int) -> Association:
+        candidates = _candidates(data, CANDIDATES_PER_PAIR * gates.pairs_per_fibre_pair, np.random.default_rng(seed))
+        return cls(gates, neighbour_fibres(data.sensor.elevation_deg, neighbours), candidates, seed)
+
+    def pairs(self, points_m: np.ndarray, fibre: np.ndarray, features: Features, gate_m: float,
+              sight: Sight | None) -> Correspondences:
+        """The same subsample of pairs for the same cloud (a fresh seeded draw each time); sight: the
+        returns' lines of sight and stand-ins (returns.sight_at), or None for plain nearest returns."""
+        gates = self.gates
+        return associate(points_m, fibre, features, self.neighbours, gate_m, gates.min_planarity,
+                         np.cos(np.radians(gates.max_normal_angle_deg)), gates.max_plane_distance_m,
+                         gates.pairs_per_fibre_pair, np.random.default_rng(self.seed), self.candidates, sight)
+
+
+def _candidates(data: ReturnData, per_fibre: int, rng: np.random.Generator) -> np.ndarray:
+    """Up to per_fibre random returns of each fibre: the p's of eq. 4.4."""
+    rows = []
+    for fibre in np.unique(data.fibre):
+        of_fibre = np.flatnonzero(data.fibre == fibre)
+        if len(of_fibre) > per_fibre:
+            of_fibre = np.sort(rng.choice(of_fibre, per_fibre, replace=False))
+        rows.append(of_fibre)
+    return np.sort(np.concatenate(rows))

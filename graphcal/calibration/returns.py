@@ -1,0 +1,186 @@
+"""The returns a calibration uses (per-return arrays) and its estimate: world points at an estimate.
+
+World frame minus a local origin [m] (float precision); control times ~control_interval_s
+apart span the returns (seed 001: about 1 s); each return sits between controls c and c+1
+with weight alpha (eq. 5.4).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import gtsam
+import numpy as np
+from scipy.spatial import cKDTree
+
+from factors.spherical import beam_rays
+from factors.world_point import Corrections, Returns, world_points
+from graphcal.calibration.association import Sight
+from graphcal.recording.extrinsic import Extrinsic
+from graphcal.recording.poses import PoseTrack
+from graphcal.recording.range_noise import measured_range_noise_m, noisy
+from graphcal.recording.directory import Recording
+from graphcal.recording.sensor import SensorModel
+from graphcal.recording.trajectory_noise import PoseNoise, measured_pose_noise
+
+STATIC_BELOW_M = 1.0  # a sensor whose positions span less than this is static
+REVISIT_WITHIN_M = 5.0  # a drive revisits a place when it passes within this of where it was ...
+REVISIT_AFTER_S = 20.0  # ... at least this much earlier
+
+
+@dataclass(frozen=True)
+class ReturnData:
+    """Per-return arrays (N) of the returns used (rows: their row in points.parquet), the control
+    times [s], the head's range noise [m] (1-sigma; NaN: unknown) and the recorded trajectory's white
+    noise (trajectory_noise.PoseNoise)."""
+
+    sensor: SensorModel
+    rows: np.ndarray
+    fibre: np.ndarray
+    range_m: np.ndarray
+    azimuth_rad: np.ndarray
+    time_s: np.ndarray
+    R_nav: np.ndarray
+    X_nav: np.ndarray
+    control: np.ndarray
+    alpha: np.ndarray
+    control_times_s: np.ndarray
+    origin_m: np.ndarray
+    range_noise_m: float
+    pose_noise: PoseNoise = PoseNoise.none()
+
+    @property
+    def static(self) -> bool:
+        """The sensor's positions span less than STATIC_BELOW_M (a tripod, a parked car)."""
+        return bool(np.ptp(self.X_nav, axis=0).max() < STATIC_BELOW_M)
+
+    def sample(self, n: int, rng: np.random.Generator) -> ReturnData:
+        """A random subset of n of the returns (all of them when there are no more), same control times."""
+        if len(self.rows) <= n:
+            return self
+        keep = np.sort(rng.choice(len(self.rows), n, replace=False))
+        per_return = ("rows", "fibre", "range_m", "azimuth_rad", "time_s", "R_nav", "X_nav", "control", "alpha")
+        return replace(self, **{name: getattr(self, name)[keep] for name in per_return})
+
+    def returns(self, rows: np.ndarray) -> Returns:
+        """The factor-side view of some rows."""
+        return Returns(self.range_m[rows], self.azimuth_rad[rows], self.sensor.factory_terms(self.fibre[rows]),
+                       self.R_nav[rows], self.X_nav[rows], self.alpha[rows])
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """Current calibration: offsets (n_fibres, 4) in (m, rad, rad, m), T_body_lidar, the trajectory
+    corrections at each control time (Pose3; identity rotation when translation-only), and the values of
+    the candidate effects modelled (graphcal.diagnosis; {name: vector}, empty when none)."""
+
+    offsets: np.ndarray
+    extrinsic: gtsam.Pose3
+    corrections: tuple
+    effects: dict = field(default_factory=dict)
+
+
+def prepare(recording: Recording, control_interval_s: float, max_points: int | None = None,
+            rng: np.random.Generator | None = None, control_times_s: np.ndarray | None = None,
+            range_noise_m: float | None = None) -> ReturnData:
+    """Read the returns (a random subset of max_points if given) and the INS pose at each one's
+    time; control times control_interval_s apart from the trajectory's first pose span them,
+    unless given; the head's range noise [m] measured from all the returns (range_noise.measured_range_noise_m)
+    unless given; the trajectory's white noise measured from its poses (trajectory_noise.py)."""
+    columns = recording.points.read(["time", "fibre", "range", "azimuth"])
+    rows = np.arange(len(columns["time"]))
+    if range_noise_m is None:
+        range_noise_m = measured_range_noise_m(columns["fibre"], columns["range"])
+    if max_points is not None and len(rows) > max_points:
+        rows = np.sort((rng or np.random.default_rng(0)).choice(len(rows), max_points, replace=False))
+    time = columns["time"][rows]
+    position, rotation = recording.world.poses.interpolate(time)
+    origin = np.round(position.mean(axis=0))
+    if control_times_s is None:
+        control_times = control_grid(recording.world.poses.span[0], time[0], time[-1], control_interval_s)
+    else:
+        control_times = np.asarray(control_times_s, dtype=np.float64)
+    control = np.clip(np.searchsorted(control_times, time, side="right") - 1, 0, len(control_times) - 2)
+    alpha = np.clip((time - control_times[control]) / (control_times[control + 1] - control_times[control]), 0, 1)
+    return ReturnData(recording.sensor, rows, columns["fibre"][rows].astype(np.int64),
+                      columns["range"][rows].astype(np.float64), columns["azimuth"][rows].astype(np.float64),
+                      time, rotation.as_matrix(), position - origin, control, alpha, control_times, origin, range_noise_m,
+                      measured_pose_noise(recording.world.poses))
+
+
+def revisits(poses: PoseTrack) -> bool:
+    """Whether the drive comes back to where it was (within REVISIT_WITHIN_M of a position it held at least
+    REVISIT_AFTER_S earlier): only then do pairs between two passes show the trajectory's errors."""
+    times = np.arange(poses.span[0], poses.span[1], 1.0)
+    if len(times) < 2:
+        return False
+    position, _ = poses.interpolate(times)
+    tree = cKDTree(position)
+    for a, b in tree.query_pairs(REVISIT_WITHIN_M):
+        if abs(times[a] - times[b]) >= REVISIT_AFTER_S:
+            return True
+    return False
+
+
+def control_grid(anchor_s: float, first_s: float, last_s: float, interval_s: float) -> np.ndarray:
+    """Control times [s] anchor_s + k interval_s (k integer) covering [first_s, last_s]: anchored
+    at the trajectory's first pose, so they do not shift with the subset of returns used. An
+    infinite interval gives the two controls [first_s, last_s] (one second apart when the returns
+    share one time, e.g. a batch of one: interpolating between equal times would give NaN)."""
+    if not np.isfinite(interval_s):
+        return np.array([first_s, last_s if last_s > first_s else first_s + 1.0])
+    k_first = np.floor((first_s - anchor_s) / interval_s + 1e-9)
+    k_last = max(np.ceil((last_s - anchor_s) / interval_s - 1e-9), k_first + 1)
+    return anchor_s + interval_s * np.arange(k_first, k_last + 1)
+
+
+def pose_of(extrinsic: Extrinsic) -> gtsam.Pose3:
+    """T_body_lidar of an extrinsic.yaml / calibration.yaml extrinsic as a GTSAM Pose3."""
+    return gtsam.Pose3(gtsam.Rot3(extrinsic.R_body_lidar), np.asarray(extrinsic.lever_arm_m, dtype=np.float64))
+
+
+def initial_estimate(recording: Recording, data: ReturnData) -> Estimate:
+    """Zero offsets, the nominal extrinsic of extrinsic.yaml, no trajectory correction."""
+    return Estimate(np.zeros((recording.sensor.n_fibres, 4)), pose_of(recording.extrinsic),
+                    tuple(gtsam.Pose3() for _ in data.control_times_s))
+
+
+def corrections_at(estimate: Estimate, control: np.ndarray, pose: bool) -> Corrections:
+    """Per-return corrections at the controls before/after each return."""
+    translation = np.array([c.translation() for c in estimate.corrections])
+    if not pose:
+        return Corrections(translation[control], translation[control + 1])
+    rotation = np.array([c.rotation().matrix() for c in estimate.corrections])
+    rotvec = np.array([gtsam.Rot3.Logmap(c.rotation()) for c in estimate.corrections])
+    return Corrections(translation[control], translation[control + 1], rotation[control], rotation[control + 1],
+                       rotvec[control], rotvec[control + 1])
+
+
+def world_at(data: ReturnData, estimate: Estimate, pose: bool, rows: np.ndarray | None = None) -> np.ndarray:
+    """World points minus the local origin [m] of the given rows (all if None) at an estimate."""
+    rows = np.arange(len(data.time_s)) if rows is None else rows
+    R_E, t_E = estimate.extrinsic.rotation().matrix(), estimate.extrinsic.translation()
+    p, _ = world_points(data.returns(rows), estimate.offsets[data.fibre[rows]], R_E, t_E,
+                        corrections_at(estimate, data.control[rows], pose), jacobians=False)
+    return p
+
+
+def rays_at(data: ReturnData, estimate: Estimate, rows: np.ndarray | None = None) -> np.ndarray:
+    """Unit line-of-sight direction (N,3) of the given rows (all if None) in world axes at an estimate
+    (eq. 4.2's d xyz / d rho turned by the extrinsic and the INS attitude; a trajectory rotation
+    correction, a fraction of a degree, is left out: the association and the noise model only
+    compare these lines with surfaces)."""
+    rows = np.arange(len(data.time_s)) if rows is None else rows
+    fibre = data.fibre[rows]
+    _, direction_lidar = beam_rays(data.azimuth_rad[rows], data.sensor.factory_terms(fibre), estimate.offsets[fibre])
+    return np.einsum("nij,nj->ni", data.R_nav[rows], direction_lidar @ estimate.extrinsic.rotation().matrix().T)
+
+
+def sight_at(data: ReturnData, estimate: Estimate, points_m: np.ndarray) -> Sight | None:
+    """The lines of sight and stand-ins (association.Sight) of the returns at an estimate, points_m
+    their world points minus the origin [m] there (rows of a fibre are in firing order: time order);
+    None when the head's range noise is known to be below range_noise.NOISY_ABOVE_M: the measured
+    points are then their own best stand-ins (docs/reference/math.md "Which m")."""
+    if not noisy(data.range_noise_m):
+        return None
+    return Sight.of(points_m, rays_at(data, estimate), data.fibre)
