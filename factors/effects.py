@@ -1,252 +1,439 @@
-"""Candidate left-out effects: each a small linear perturbation of a return's raw values or of
-its pose, with the analytic Jacobian of the world point. Pure NumPy, no I/O.
+"""The physical effects beyond the nominal model of eq. 4.2 + extrinsic + trajectory: one definition each.
 
-A candidate k with parameters theta_k (d_k,) moves seven *channels* of each return, each linearly,
-channel = B_k theta_k with a per-return basis B_k (its residual signature):
+An effect is a pydantic model whose fields are its simulation parameters, with
 
-    range       d_rho   [m]    added to the raw range                      (eq. 4.2's rho)
-    azimuth     d_theta [rad]  added to the encoder azimuth                (eq. 4.2's theta)
-    horizontal  d_H     [m]    added to the fibre's horizontal offset H_i (factory terms)
-    time        d_t     [s]    added to the return's time: the INS pose is taken at t + d_t
-    heading     d_psi   [rad]  turns the INS attitude about world z
-    body        d_b     [m]    added to the lever arm (body frame)
-    position    d_X     [m]    added to the INS position (world frame)
+- its name (effects.yaml, diagnosis.json, calibration.yaml), the unit of its headline magnitude and one
+  sentence of physics (the diagnosis's statements quote it);
+- its simulation hooks, called by the simulator (identity by default), in this order, once for the head and
+  then for every return:
+    spin_hz(rotation_hz)               true spin rate of the head for the nominal one [Hz]
+    factory_terms(factory, fibre)      true per-fibre factory terms for the nominal ones
+    pose_time(t_pose, t_fire, t_rev)   time at which the sensor pose is taken [s]
+    beam_azimuth(encoder_rad)          true beam azimuth for an encoder reading [rad]
+    measured_range(range_m, cos_inc)   raw range reported for an ideal raw range [m]
+    recorded_time(t_rec, t_fire, t_rev) time stamped on the return [s]
+    max_stamp_shift_s()                the most it moves a stamp off the firing time [s]
+  and once for the recorded INS trajectory:
+    ins_rpy(elapsed_s, rpy_deg)        attitude written to trajectory.csv [deg]
+    ins_position(elapsed_s, xyz_m)     position written to trajectory.csv [m, local frame]
+- its candidate basis for the mismatch finder: dim(n_fibres) parameters theta that move the channels of
+  factors.channels linearly (basis(context)), its residual signature in a sentence, and the headline
+  magnitude of a theta in `unit` (magnitude_of). The basis is the linearisation of the simulation hooks
+  about zero, with theta in the candidate's own parameters (`parameters` says which).
 
-so that, with v and omega the INS velocity and angular rate at the return's time (world axes),
-
-    R_nav' = Exp(omega d_t) Exp(z d_psi) R_nav,   X_nav' = X_nav + v d_t + d_X,   t_E' = t_E + d_b
-
-and the world point of factors.world_point is evaluated with those. The pose part is exact for a
-pose moving at constant velocity and angular rate over d_t (milliseconds here).
-
-Jacobians d p_w / d channel, at the perturbed values (M = R_w R_nav' R_E, R_w the trajectory
-rotation correction, q the vehicle-to-point vector R_w R_nav' p_b):
-    range, azimuth: the intrinsic Jacobian's d_rho, d_theta columns (they enter eq. 4.2 the same way)
-    horizontal:     M (sin a, cos a, 0),  a = theta + d_theta + alpha_i
-    time:           v + (R_w omega) x q           heading: (R_w Exp(omega d_t) z) x q
-    body:           R_w R_nav'                    position: I
-The normal at p turns with the pose channels: dn/d(time) = (R_w omega) x n, dn/d(heading) = (R_w
-Exp(omega d_t) z) x n.
+`lever_arm` is a candidate only: the simulator's lever-arm error is the scenario's extrinsic error
+(ExtrinsicSpec.error_lever_arm_m), and the candidate stands for it when a model holds the extrinsic fixed.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
+from typing import ClassVar, Literal
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
-from factors import so3
-from factors.world_point import Corrections, Returns, Turn, WorldJacobians
+from factors.channels import Basis, Context
+from factors.spherical import FactoryTerms
 
-SCALAR_CHANNELS = ("range", "azimuth", "horizontal", "time", "heading")
-VECTOR_CHANNELS = ("body", "position")
-Z_AXIS = np.array([0.0, 0.0, 1.0])
-
-
-@dataclass(frozen=True)
-class Context:
-    """Per-return data (N returns) the candidates' bases are built from: raw range [m] and encoder
-    azimuth [rad], fibre id, number of fibres, time within the revolution [s] (azimuth / (2 pi
-    nominal rate)), time since the recording's first pose [s], |cos| of the incidence angle, INS
-    position X_nav (N,3) [m, world minus the local origin]."""
-
-    range_m: np.ndarray
-    azimuth_rad: np.ndarray
-    fibre: np.ndarray
-    n_fibres: int
-    sweep_s: np.ndarray
-    elapsed_s: np.ndarray
-    cos_incidence: np.ndarray
-    X_nav: np.ndarray
+REGISTRY: dict[str, type[Effect]] = {}
 
 
-@dataclass(frozen=True)
-class Basis:
-    """One candidate's linear map from its parameters (dim,) to the channels of N returns: scalar
-    channels (N, dim), vector channels (N, 3, dim); None where the candidate leaves a channel alone."""
-
-    dim: int
-    range: np.ndarray | None = None
-    azimuth: np.ndarray | None = None
-    horizontal: np.ndarray | None = None
-    time: np.ndarray | None = None
-    heading: np.ndarray | None = None
-    body: np.ndarray | None = None
-    position: np.ndarray | None = None
-
-
-@dataclass(frozen=True)
-class Candidate:
-    """A left-out effect: its name (diagnosis.json), the unit of its headline magnitude, its physics
-    and residual signature in a sentence each, the parameters' dimension for a sensor of n fibres,
-    the basis over some returns, and the headline magnitude of a parameter vector (in `unit`)."""
-
-    name: str
-    unit: str
-    physics: str
-    signature: str
-    dim: callable
-    basis: callable
-    magnitude: callable
-    parameters: str
+def register(cls: type[Effect]) -> type[Effect]:
+    REGISTRY[cls.name] = cls
+    return cls
 
 
 def _column(values: np.ndarray) -> np.ndarray:
     return np.asarray(values, dtype=np.float64)[:, None]
 
 
-def _one_hot(context: Context) -> np.ndarray:
-    out = np.zeros((len(context.fibre), context.n_fibres))
-    out[np.arange(len(context.fibre)), context.fibre] = 1.0
-    return out
+def _ones(context: Context) -> np.ndarray:
+    return np.ones((len(context.fibre), 1))
 
 
-def _eye(context: Context) -> np.ndarray:
-    return np.broadcast_to(np.eye(3), (len(context.fibre), 3, 3))
+class Effect(BaseModel):
+    """Base class: name, unit, physics, signature and the candidate's parameters in ClassVars; the
+    simulation hooks (identity here) and the candidate basis (one scalar parameter by default)."""
 
+    model_config = ConfigDict(frozen=True, extra="forbid")
+    name: ClassVar[str]
+    unit: ClassVar[str]
+    physics: ClassVar[str]
+    signature: ClassVar[str]
+    parameters: ClassVar[str]
+    simulated: ClassVar[bool] = True
 
-CANDIDATES: dict[str, Candidate] = {c.name: c for c in (
-    Candidate("intra_sweep_motion", "revolution",
-              "returns are stamped with their revolution's start time, not their own firing time",
-              "time error growing linearly over the revolution (from 0 to one period), a step at the cut; "
-              "displacement proportional to speed and, in turns, to yaw rate x range",
-              lambda n: 1, lambda c: Basis(1, time=_column(c.sweep_s)), lambda t: float(t[0]),
-              "fraction of the time within the revolution missing from each stamp (1 = revolution stamps)"),
-    Candidate("time_offset", "s", "the lidar clock is offset from the INS clock by a constant latency",
-              "displacement v dt along the track (sign flips with the driving direction) and omega x r dt in turns",
-              lambda n: 1, lambda c: Basis(1, time=-np.ones((len(c.fibre), 1))), lambda t: float(t[0]),
-              "stamped minus true time [s]"),
-    Candidate("spin_rate", "1", "the head spins at a rate other than nominal, and times derived from the azimuth "
-              "at the nominal rate drift within each revolution",
-              "time error growing linearly with the azimuth from the cut, scaled by speed",
-              lambda n: 1, lambda c: Basis(1, time=-_column(c.sweep_s)), lambda t: float(t[0]),
-              "relative spin-rate error (true / nominal - 1)"),
-    Candidate("range_scale", "1", "the time-of-flight clock runs fast or slow, scaling every range",
-              "range error proportional to range, the same for every fibre",
-              lambda n: 1, lambda c: Basis(1, range=-_column(c.range_m)), lambda t: float(t[0]),
-              "measured / true range - 1"),
-    Candidate("incidence_range_bias", "m", "the footprint spreads on oblique surfaces and the detector fires late",
-              "range error growing with the incidence angle, largest on grazing road returns",
-              lambda n: 1, lambda c: Basis(1, range=-_column(1.0 - c.cos_incidence)), lambda t: float(t[0]),
-              "range bias at grazing (90 deg) incidence [m]"),
-    Candidate("azimuth_eccentricity", "deg", "the encoder disc is off the spin axis",
-              "azimuth error a sin(theta) + b cos(theta): a tangential displacement proportional to range, "
-              "sinusoidal over the azimuth",
-              lambda n: 2, lambda c: Basis(2, azimuth=np.column_stack([np.sin(c.azimuth_rad), np.cos(c.azimuth_rad)])),
-              lambda t: float(np.degrees(np.hypot(t[0], t[1]))),
-              "(A cos phase, A sin phase) [rad] of true azimuth = encoder + A sin(encoder + phase)"),
-    Candidate("heading_bias", "deg", "the INS heading is off by a constant angle",
-              "a rotation of every scan about the vehicle's vertical axis: tangential error proportional to range",
-              lambda n: 1, lambda c: Basis(1, heading=-np.ones((len(c.fibre), 1))),
-              lambda t: float(np.degrees(t[0])), "recorded minus true heading [rad]"),
-    Candidate("heading_drift", "deg/s", "the INS heading error grows linearly with time",
-              "a rotation about the vehicle's vertical axis growing with time: scans of one place seen at "
-              "different times disagree by range x rate x time",
-              lambda n: 1, lambda c: Basis(1, heading=-_column(c.elapsed_s)),
-              lambda t: float(np.degrees(t[0])), "rate of recorded minus true heading [rad/s]"),
-    Candidate("lever_arm", "m", "the lidar's position on the vehicle differs from the nominal lever arm",
-              "a constant offset in the body frame: opposite-direction passes disagree by twice the offset",
-              lambda n: 3, lambda c: Basis(3, body=_eye(c)), lambda t: float(np.linalg.norm(t)),
-              "lever-arm error (x, y, z) [m, body frame]"),
-    Candidate("projection_scale", "1", "the trajectory is in a map grid whose scale factor k differs from 1 while "
-              "the lidar measures true metres",
-              "position error proportional to the distance driven (like a range scale, but in the trajectory)",
-              lambda n: 1, lambda c: Basis(1, position=-np.asarray(c.X_nav, dtype=np.float64)[:, :, None]),
-              lambda t: float(t[0]), "k - 1 of the trajectory's grid against the lidar's metres"),
-    Candidate("fibre_horizontal_offset", "m", "each laser is offset sideways from the spin axis (HDL-64E model)",
-              "a constant sideways shift per fibre, independent of range (an azimuth offset's grows with range)",
-              lambda n: n, lambda c: Basis(c.n_fibres, horizontal=_one_hot(c)),
-              lambda t: float(np.sqrt(np.mean(np.square(t)))), "per-fibre horizontal offset error [m]"),
-)}
+    def magnitude(self) -> float:
+        """Headline magnitude of these simulation parameters, in `unit` (as diagnosis.json reports it)."""
+        raise NotImplementedError
 
+    def spin_hz(self, rotation_hz: float) -> float:
+        return rotation_hz
 
-@dataclass(frozen=True)
-class Motion:
-    """INS velocity (N,3) [m/s] and angular rate (N,3) [rad/s], world axes, at each return's time."""
+    def factory_terms(self, factory: FactoryTerms, fibre: np.ndarray) -> FactoryTerms:
+        return factory
 
-    velocity: np.ndarray
-    omega: np.ndarray
+    def pose_time(self, t_pose, t_fire, t_rev):
+        return t_pose
 
+    def beam_azimuth(self, encoder_rad):
+        return encoder_rad
 
-@dataclass(frozen=True)
-class Channels:
-    """The channel values of N returns for given candidate parameters (see the module docstring)."""
+    def measured_range(self, range_m, cos_incidence):
+        return range_m
 
-    range: np.ndarray
-    azimuth: np.ndarray
-    horizontal: np.ndarray
-    time: np.ndarray
-    heading: np.ndarray
-    body: np.ndarray
-    position: np.ndarray
+    def recorded_time(self, t_rec, t_fire, t_rev):
+        return t_rec
+
+    def max_stamp_shift_s(self) -> float:
+        """Largest |recorded - firing| time this effect adds [s] (the recording keeps clear of
+        the trajectory's ends by this much)."""
+        return 0.0
+
+    def ins_rpy(self, elapsed_s, rpy_deg):
+        return rpy_deg
+
+    def ins_position(self, elapsed_s, xyz_m):
+        return xyz_m
 
     @classmethod
-    def of(cls, bases: tuple[Basis, ...], thetas: list[np.ndarray], n: int) -> Channels:
-        values = {name: np.zeros(n) for name in SCALAR_CHANNELS} | {name: np.zeros((n, 3)) for name in VECTOR_CHANNELS}
-        for basis, theta in zip(bases, thetas):
-            for name in SCALAR_CHANNELS + VECTOR_CHANNELS:
-                B = getattr(basis, name)
-                if B is not None:
-                    values[name] = values[name] + B @ np.asarray(theta, dtype=np.float64)
-        return cls(**values)
+    def dim(cls, n_fibres: int) -> int:
+        """Number of candidate parameters for a head of n_fibres."""
+        return 1
+
+    @classmethod
+    def basis(cls, context: Context) -> Basis:
+        """The candidate's linear map from its parameters to the channels of the context's returns."""
+        raise NotImplementedError
+
+    @classmethod
+    def magnitude_of(cls, theta: np.ndarray) -> float:
+        """Headline magnitude, in `unit`, of candidate parameters theta."""
+        return float(theta[0])
 
 
-def perturbed(returns: Returns, motion: Motion, channels: Channels) -> Returns:
-    """The returns with their channels applied: raw range and azimuth, horizontal offsets, INS pose."""
-    factory = replace(returns.factory, horizontal_offset_m=returns.factory.horizontal_offset_m + channels.horizontal)
-    turn = so3.exp(motion.omega * channels.time[:, None]) @ so3.exp(Z_AXIS * channels.heading[:, None])
-    return replace(returns, range_m=returns.range_m + channels.range, azimuth_rad=returns.azimuth_rad + channels.azimuth,
-                   factory=factory, R_nav=turn @ returns.R_nav,
-                   X_nav=returns.X_nav + motion.velocity * channels.time[:, None] + channels.position)
+@register
+class IntraSweepMotion(Effect):
+    """On by default in the simulator: each return is cast from the pose at its own firing time (without
+    it every revolution is cast from the pose at its start, a frozen sweep). stamp='revolution' stamps
+    each return with its revolution's start time instead of its firing time."""
+
+    name: ClassVar[str] = "intra_sweep_motion"
+    unit: ClassVar[str] = "revolution"
+    physics: ClassVar[str] = ("the vehicle moves while the head spins, and returns stamped with their revolution's "
+                              "start time instead of their own firing time miss that motion")
+    signature: ClassVar[str] = ("time error growing linearly over the revolution (from 0 to one period), a step at "
+                                "the cut; displacement proportional to speed and, in turns, to yaw rate x range")
+    parameters: ClassVar[str] = "fraction of the time within the revolution missing from each stamp (1 = revolution stamps)"
+    stamp: Literal["firing", "revolution"] = "firing"
+
+    def magnitude(self) -> float:
+        """How far (in revolutions, at most) a stamp precedes its firing: 0 or 1."""
+        return 0.0 if self.stamp == "firing" else 1.0
+
+    def pose_time(self, t_pose, t_fire, t_rev):
+        return t_fire
+
+    def recorded_time(self, t_rec, t_fire, t_rev):
+        return t_rev if self.stamp == "revolution" else t_rec
+
+    @classmethod
+    def basis(cls, context: Context) -> Basis:
+        return Basis(1, time=_column(context.sweep_s))
 
 
-@dataclass(frozen=True)
-class ChannelJacobians:
-    """d p_w / d channel (N,3) for scalar channels, (N,3,3) for vector ones, and d n_w / d channel for
-    the two that turn the normal (time, heading; (N,3))."""
+@register
+class TimeOffset(Effect):
+    """Lidar clock ahead of the INS clock: stamped time = true time + offset_s."""
 
-    point: dict
-    normal_time: np.ndarray
-    normal_heading: np.ndarray
+    name: ClassVar[str] = "time_offset"
+    unit: ClassVar[str] = "s"
+    physics: ClassVar[str] = "the lidar clock is offset from the INS clock by a constant latency"
+    signature: ClassVar[str] = ("displacement v dt along the track (sign flips with the driving direction) and "
+                                "omega x r dt in turns")
+    parameters: ClassVar[str] = "stamped minus true time [s]"
+    offset_s: float
 
-    def of_candidate(self, basis: Basis) -> np.ndarray:
-        """d p_w / d theta (N, 3, dim) of one candidate."""
-        total = 0.0
-        for name in SCALAR_CHANNELS:
-            B = getattr(basis, name)
-            if B is not None:
-                total = total + self.point[name][:, :, None] * B[:, None, :]
-        for name in VECTOR_CHANNELS:
-            B = getattr(basis, name)
-            if B is not None:
-                total = total + self.point[name] @ B
-        return total
+    def magnitude(self) -> float:
+        return self.offset_s
 
-    def normal_of_candidate(self, basis: Basis) -> np.ndarray | None:
-        """d n_w / d theta (N, 3, dim), or None when the candidate does not turn the normal."""
-        parts = [J[:, :, None] * B[:, None, :] for J, B in ((self.normal_time, basis.time),
-                                                           (self.normal_heading, basis.heading)) if B is not None]
-        return sum(parts) if parts else None
+    def recorded_time(self, t_rec, t_fire, t_rev):
+        return t_rec + self.offset_s
+
+    def max_stamp_shift_s(self) -> float:
+        return abs(self.offset_s)
+
+    @classmethod
+    def basis(cls, context: Context) -> Basis:
+        return Basis(1, time=-_ones(context))
 
 
-def channel_jacobians(returns: Returns, offsets: np.ndarray, motion: Motion, channels: Channels,
-                      corrections: Corrections, turn: Turn, R_E: np.ndarray, p_w: np.ndarray, J: WorldJacobians,
-                      n_w: np.ndarray | None = None) -> ChannelJacobians:
-    """Channel Jacobians at the perturbed returns (returns = perturbed(...)); p_w and J from
-    world_points of those returns with offsets (N,4), the normal n_w (N,3) from world_normals
-    (None: no normal Jacobians)."""
-    M = J.extrinsic[:, :, 3:6]  # d p_w / d t_E in lidar axes = R_w R_nav' R_E
-    a = returns.azimuth_rad + offsets[:, 1] + returns.factory.azimuth_offset_rad
-    sideways = np.stack([np.sin(a), np.cos(a), np.zeros_like(a)], axis=-1)
-    alpha = returns.alpha[:, None]
-    q = p_w - returns.X_nav - (1 - alpha) * corrections.translation_lo - alpha * corrections.translation_hi
-    omega = turn.apply(motion.omega)
-    z = turn.apply(np.einsum("nij,j->ni", so3.exp(motion.omega * channels.time[:, None]), Z_AXIS))
-    body = M @ R_E.T
-    point = {"range": J.intrinsic[:, :, 0], "azimuth": J.intrinsic[:, :, 1],
-             "horizontal": np.einsum("nij,nj->ni", M, sideways), "time": motion.velocity + np.cross(omega, q),
-             "heading": np.cross(z, q), "body": body,
-             "position": np.broadcast_to(np.eye(3), (len(p_w), 3, 3))}
-    if n_w is None:
-        return ChannelJacobians(point, None, None)
-    return ChannelJacobians(point, np.cross(omega, n_w), np.cross(z, n_w))
+@register
+class RangeScale(Effect):
+    """Measured range = (1 + scale) x true range (scale = measured/true - 1)."""
+
+    name: ClassVar[str] = "range_scale"
+    unit: ClassVar[str] = "1"
+    physics: ClassVar[str] = "the time-of-flight clock runs fast or slow, scaling every range"
+    signature: ClassVar[str] = "range error proportional to range, the same for every fibre"
+    parameters: ClassVar[str] = "measured / true range - 1"
+    scale: float
+
+    def magnitude(self) -> float:
+        return self.scale
+
+    def measured_range(self, range_m, cos_incidence):
+        return range_m * (1.0 + self.scale)
+
+    @classmethod
+    def basis(cls, context: Context) -> Basis:
+        return Basis(1, range=-_column(context.range_m))
+
+
+@register
+class IncidenceRangeBias(Effect):
+    """Range bias growing with incidence: + bias_m (1 - cos alpha), bias_m at grazing (90 deg)."""
+
+    name: ClassVar[str] = "incidence_range_bias"
+    unit: ClassVar[str] = "m"
+    physics: ClassVar[str] = "the footprint spreads on oblique surfaces and the pulse detector fires late"
+    signature: ClassVar[str] = "range error growing with the incidence angle, largest on grazing road returns"
+    parameters: ClassVar[str] = "range bias at grazing (90 deg) incidence [m]"
+    bias_m: float
+
+    def magnitude(self) -> float:
+        return self.bias_m
+
+    def measured_range(self, range_m, cos_incidence):
+        return range_m + self.bias_m * (1.0 - cos_incidence)
+
+    @classmethod
+    def basis(cls, context: Context) -> Basis:
+        return Basis(1, range=-_column(1.0 - context.cos_incidence))
+
+
+@register
+class AzimuthEccentricity(Effect):
+    """Encoder disc off-centre: true azimuth = encoder + amplitude sin(encoder + phase)."""
+
+    name: ClassVar[str] = "azimuth_eccentricity"
+    unit: ClassVar[str] = "deg"
+    physics: ClassVar[str] = ("the encoder disc is off the spin axis, so the azimuth error is a sinusoid of "
+                              "azimuth")
+    signature: ClassVar[str] = ("azimuth error a sin(theta) + b cos(theta): a tangential displacement proportional "
+                                "to range, sinusoidal over the azimuth")
+    parameters: ClassVar[str] = "(A cos phase, A sin phase) [rad] of true azimuth = encoder + A sin(encoder + phase)"
+    amplitude_deg: float
+    phase_deg: float = 0.0
+
+    def magnitude(self) -> float:
+        return self.amplitude_deg
+
+    def beam_azimuth(self, encoder_rad):
+        return encoder_rad + np.radians(self.amplitude_deg) * np.sin(encoder_rad + np.radians(self.phase_deg))
+
+    @classmethod
+    def dim(cls, n_fibres: int) -> int:
+        return 2
+
+    @classmethod
+    def basis(cls, context: Context) -> Basis:
+        return Basis(2, azimuth=np.column_stack([np.sin(context.azimuth_rad), np.cos(context.azimuth_rad)]))
+
+    @classmethod
+    def magnitude_of(cls, theta: np.ndarray) -> float:
+        return float(np.degrees(np.hypot(theta[0], theta[1])))
+
+
+class _HeadingError(Effect):
+    """An INS yaw error: the candidate turns each pose about world z by minus its value [rad]."""
+
+    unit: ClassVar[str] = "deg"
+
+    def yaw_deg(self, elapsed_s):
+        raise NotImplementedError
+
+    def ins_rpy(self, elapsed_s, rpy_deg):
+        out = np.array(rpy_deg, dtype=np.float64, copy=True)
+        out[:, 2] += self.yaw_deg(elapsed_s)
+        return out
+
+    @classmethod
+    def magnitude_of(cls, theta: np.ndarray) -> float:
+        return float(np.degrees(theta[0]))
+
+
+@register
+class HeadingBias(_HeadingError):
+    """INS yaw written = true yaw + bias_deg."""
+
+    name: ClassVar[str] = "heading_bias"
+    physics: ClassVar[str] = "the INS heading is off by a constant angle"
+    signature: ClassVar[str] = ("a rotation of every scan about the vehicle's vertical axis: tangential error "
+                                "proportional to range")
+    parameters: ClassVar[str] = "recorded minus true heading [rad]"
+    bias_deg: float
+
+    def magnitude(self) -> float:
+        return self.bias_deg
+
+    def yaw_deg(self, elapsed_s):
+        return self.bias_deg
+
+    @classmethod
+    def basis(cls, context: Context) -> Basis:
+        return Basis(1, heading=-_ones(context))
+
+
+@register
+class HeadingDrift(_HeadingError):
+    """INS yaw written = true yaw + rate_deg_s x (time since the first pose)."""
+
+    name: ClassVar[str] = "heading_drift"
+    unit: ClassVar[str] = "deg/s"
+    physics: ClassVar[str] = "the INS heading error grows linearly with time"
+    signature: ClassVar[str] = ("a rotation about the vehicle's vertical axis growing with time: scans of one place "
+                                "seen at different times disagree by range x rate x time")
+    parameters: ClassVar[str] = "rate of recorded minus true heading [rad/s]"
+    rate_deg_s: float
+
+    def magnitude(self) -> float:
+        return self.rate_deg_s
+
+    def yaw_deg(self, elapsed_s):
+        return self.rate_deg_s * np.asarray(elapsed_s)
+
+    @classmethod
+    def basis(cls, context: Context) -> Basis:
+        return Basis(1, heading=-_column(context.elapsed_s))
+
+
+@register
+class LeverArm(Effect):
+    """The lidar's position on the vehicle differs from the nominal lever arm. A candidate only: the
+    simulator takes this error as the scenario's extrinsic error."""
+
+    name: ClassVar[str] = "lever_arm"
+    unit: ClassVar[str] = "m"
+    physics: ClassVar[str] = "the lidar's position on the vehicle differs from the nominal lever arm"
+    signature: ClassVar[str] = ("a constant offset in the body frame: opposite-direction passes disagree by twice "
+                                "the offset")
+    parameters: ClassVar[str] = "lever-arm error (x, y, z) [m, body frame]"
+    simulated: ClassVar[bool] = False
+
+    @classmethod
+    def dim(cls, n_fibres: int) -> int:
+        return 3
+
+    @classmethod
+    def basis(cls, context: Context) -> Basis:
+        return Basis(3, body=np.broadcast_to(np.eye(3), (len(context.fibre), 3, 3)))
+
+    @classmethod
+    def magnitude_of(cls, theta: np.ndarray) -> float:
+        return float(np.linalg.norm(theta))
+
+
+@register
+class ProjectionScale(Effect):
+    """Recorded INS positions = first position + (1 + scale) x (true displacement): the grid of a
+    map projection is larger than the ground by its scale factor k = 1 + scale, and the lidar's
+    metric vectors are placed in it unscaled (graphcal ignores k)."""
+
+    name: ClassVar[str] = "projection_scale"
+    unit: ClassVar[str] = "1"
+    physics: ClassVar[str] = ("the trajectory is in a map grid whose scale factor k differs from 1 while the lidar "
+                              "measures true metres")
+    signature: ClassVar[str] = ("position error proportional to the distance driven (like a range scale, but in "
+                                "the trajectory)")
+    parameters: ClassVar[str] = "k - 1 of the trajectory's grid against the lidar's metres"
+    scale: float
+
+    def magnitude(self) -> float:
+        return self.scale
+
+    def ins_position(self, elapsed_s, xyz_m):
+        xyz_m = np.asarray(xyz_m, dtype=np.float64)
+        return xyz_m[0] + (1.0 + self.scale) * (xyz_m - xyz_m[0])
+
+    @classmethod
+    def basis(cls, context: Context) -> Basis:
+        return Basis(1, position=-np.asarray(context.X_nav, dtype=np.float64)[:, :, None])
+
+
+@register
+class SpinRate(Effect):
+    """The head spins at rotation_hz x (1 + error) while the time of each return inside its
+    revolution is derived from its azimuth at the nominal rate (as importers without per-firing
+    times do): stamp = revolution start + azimuth / (2 pi nominal rate)."""
+
+    name: ClassVar[str] = "spin_rate"
+    unit: ClassVar[str] = "1"
+    physics: ClassVar[str] = ("the head spins faster or slower than its nominal rate, and times derived from the "
+                              "azimuth at the nominal rate drift within each revolution")
+    signature: ClassVar[str] = "time error growing linearly with the azimuth from the cut, scaled by speed"
+    parameters: ClassVar[str] = "relative spin-rate error (true / nominal - 1)"
+    error: float = Field(gt=-0.5, lt=0.5)
+
+    def magnitude(self) -> float:
+        return self.error
+
+    def spin_hz(self, rotation_hz: float) -> float:
+        return rotation_hz * (1.0 + self.error)
+
+    def recorded_time(self, t_rec, t_fire, t_rev):
+        # t_rev + azimuth / (2 pi f_nominal) = t_rev + (t_fire - t_rev) f_true / f_nominal
+        return t_rec + self.error * (t_fire - t_rev)
+
+    def max_stamp_shift_s(self) -> float:
+        return abs(self.error)  # x one revolution, which lasts less than 1 s
+
+    @classmethod
+    def basis(cls, context: Context) -> Basis:
+        return Basis(1, time=-_column(context.sweep_s))
+
+
+@register
+class FibreHorizontalOffset(Effect):
+    """Each laser sits beside the spin axis (HDL-64E model, H_i of eq. 4.2's factory terms): true
+    horizontal offset = nominal + offset_m for even fibres, - offset_m for odd ones (the two sides of
+    the head); sensor.yaml keeps the nominal values. As a candidate, one offset per fibre."""
+
+    name: ClassVar[str] = "fibre_horizontal_offset"
+    unit: ClassVar[str] = "m"
+    physics: ClassVar[str] = ("each laser is offset sideways from the spin axis, shifting its returns across the "
+                              "beam by a constant length")
+    signature: ClassVar[str] = ("a constant sideways shift per fibre, independent of range (an azimuth offset's "
+                                "grows with range)")
+    parameters: ClassVar[str] = "per-fibre horizontal offset error [m]"
+    offset_m: float
+
+    def magnitude(self) -> float:
+        return abs(self.offset_m)
+
+    def factory_terms(self, factory: FactoryTerms, fibre: np.ndarray) -> FactoryTerms:
+        side = np.where(np.asarray(fibre) % 2 == 0, 1.0, -1.0)
+        return replace(factory, horizontal_offset_m=factory.horizontal_offset_m + self.offset_m * side)
+
+    @classmethod
+    def dim(cls, n_fibres: int) -> int:
+        return n_fibres
+
+    @classmethod
+    def basis(cls, context: Context) -> Basis:
+        one_hot = np.zeros((len(context.fibre), context.n_fibres))
+        one_hot[np.arange(len(context.fibre)), context.fibre] = 1.0
+        return Basis(context.n_fibres, horizontal=one_hot)
+
+    @classmethod
+    def magnitude_of(cls, theta: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(np.square(theta))))
+
+
+# every effect is a candidate of the mismatch finder, tried in this order (the clock's first, then the range's,
+# the azimuth's, the INS's and the geometry's)
+CANDIDATES: dict[str, type[Effect]] = {name: REGISTRY[name] for name in (
+    "intra_sweep_motion", "time_offset", "spin_rate", "range_scale", "incidence_range_bias", "azimuth_eccentricity",
+    "heading_bias", "heading_drift", "lever_arm", "projection_scale", "fibre_horizontal_offset")}
+SIMULATED: dict[str, type[Effect]] = {name: cls for name, cls in REGISTRY.items() if cls.simulated}

@@ -40,7 +40,7 @@ from functools import cached_property, partial
 import gtsam
 import numpy as np
 
-from factors.effects import Basis, Channels, Motion, channel_jacobians, perturbed
+from factors.channels import Basis, Channels, Motion, channel_jacobians, perturbed
 from factors.world_point import Corrections, Returns, Turn, world_normals, world_points
 
 ROW_SLOTS = ("intrinsic_p", "intrinsic_m", "p_lo", "p_hi", "m_lo", "m_hi")

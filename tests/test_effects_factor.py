@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from factors import so3
-from factors.effects import CANDIDATES, Channels, Context, Motion, perturbed
+from factors.channels import Channels, Context, Motion, perturbed
+from factors.effects import CANDIDATES
 from factors.point_to_plane import (
     Block,
     BlockKeys,

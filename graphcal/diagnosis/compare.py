@@ -17,7 +17,8 @@ import time
 import numpy as np
 from scipy.spatial import cKDTree
 
-from factors.effects import CANDIDATES, Channels, channel_jacobians
+from factors.channels import Channels, channel_jacobians
+from factors.effects import CANDIDATES
 from factors.world_point import Corrections, Turn, world_normals, world_points
 from graphcal.calibration.association import Features
 from graphcal.calibration.config import CalibrationConfig
@@ -97,7 +98,7 @@ def compare(recording: Recording, simulation: Recording, max_points: int | None 
         named.append((test, _energy_cm2(r, J, np.concatenate([lin.effect_columns[n] for n in active] + [translation]))))
     sizes = _refined(data, estimate, context, [t for t, _ in named], sim_tree, sim_points, features)
     for (test, after), theta in zip(named, sizes):
-        magnitude = CANDIDATES[test.name].magnitude(theta)
+        magnitude = CANDIDATES[test.name].magnitude_of(theta)
         findings.append({"effect": test.name, "magnitude": magnitude, "sigma": test.sigma,
                          "unit": CANDIDATES[test.name].unit, "parameters": theta.tolist(),
                          "statement": f"the recording differs from the simulation by {CANDIDATES[test.name].physics} "

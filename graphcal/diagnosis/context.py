@@ -8,7 +8,8 @@ from dataclasses import dataclass, replace
 import gtsam
 import numpy as np
 
-from factors.effects import CANDIDATES, Channels, Context, Motion, perturbed
+from factors.channels import Channels, Context, Motion, perturbed
+from factors.effects import CANDIDATES
 from factors.point_to_plane import EffectTerms
 from factors.world_point import world_points
 from graphcal.calibration.association import Features

@@ -310,7 +310,7 @@ def _finding(test: CandidateTest, fit: Fit, energy_before: float, sigma: float,
     score test at the fit before, test) and the evidence: the score test's, with its held-out J, or
     for a candidate tested at its known size that test's (truncated cost, no held-out J)."""
     value = fit.model.values[test.name]
-    magnitude = CANDIDATES[test.name].magnitude(value)
+    magnitude = CANDIDATES[test.name].magnitude_of(value)
     absorbed = test.absorbed_by[0]
     if hypothesis is None:
         held_before, held_after = test.held_out_cm2
@@ -341,7 +341,7 @@ def _finding(test: CandidateTest, fit: Fit, energy_before: float, sigma: float,
 
 def _withdrawn(test: CandidateTest, fit: Fit, sigma: float, statistic: float, p_value: float) -> dict:
     """An effect significant by its score test but not at its refit (fit): its size there, both tests."""
-    magnitude = CANDIDATES[test.name].magnitude(fit.model.values[test.name])
+    magnitude = CANDIDATES[test.name].magnitude_of(fit.model.values[test.name])
     statement = (f"{test.name} was significant in the linear test ({display(test.name, test.magnitude)}, chi2 "
                  f"{test.statistic:.3g}) but not once re-solved with it ({display(test.name, magnitude)} ± "
                  f"{display(test.name, sigma)}, chi2 {statistic:.3g}, p {p_value:.2g}): withdrawn")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from pyproj import CRS
 
-from graphcal.recording.effects import Effect
+from factors.effects import Effect
 from graphcal.recording.geodesy import enu_to_grid_rotation, grid_to_geodetic, map_factors
 from graphcal.recording.poses import PoseTrack
 from graphcal.recording.rotations import rpy_deg_from_rotation, unwrap_deg

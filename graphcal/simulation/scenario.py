@@ -7,7 +7,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from pyproj import CRS
 from pyproj.exceptions import CRSError
 
-from graphcal.recording.effects import build_effects
+from graphcal.simulation.effects import build_effects
 from graphcal.recording.sensor import CATALOG
 from graphcal.simulation.drive import Drive
 from graphcal.simulation.scene import SceneObject

@@ -13,7 +13,8 @@ import numpy as np
 from pyproj import CRS
 
 from factors.spherical import FactoryTerms, beam_rays, from_xyz
-from graphcal.recording.effects import Effect, build_effects, describe
+from factors.effects import Effect
+from graphcal.simulation.effects import build_effects, describe
 from graphcal.recording.extrinsic import Extrinsic
 from graphcal.recording.points import PointTable
 from graphcal.recording.poses import PoseTrack
