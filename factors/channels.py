@@ -1,11 +1,12 @@
 """The channels through which an effect moves a return, and the analytic Jacobian of the world
 point along each. Pure NumPy, no I/O.
 
-An effect k (factors.effects) with parameters theta_k (d_k,) moves seven *channels* of each return, each linearly,
-channel = B_k theta_k with a per-return basis B_k (its residual signature):
+An effect k (factors.effects, factors.discrepancy) with parameters theta_k (d_k,) moves eight *channels* of each
+return, each linearly, channel = B_k theta_k with a per-return basis B_k (its residual signature):
 
     range       d_rho   [m]    added to the raw range                      (eq. 4.2's rho)
     azimuth     d_theta [rad]  added to the encoder azimuth                (eq. 4.2's theta)
+    elevation   d_phi   [rad]  added to the fibre's elevation              (eq. 4.2's phi_i)
     horizontal  d_H     [m]    added to the fibre's horizontal offset H_i (factory terms)
     time        d_t     [s]    added to the return's time: the INS pose is taken at t + d_t
     heading     d_psi   [rad]  turns the INS attitude about world z
@@ -21,7 +22,8 @@ pose moving at constant velocity and angular rate over d_t (milliseconds here).
 
 Jacobians d p_w / d channel, at the perturbed values (M = R_w R_nav' R_E, R_w the trajectory
 rotation correction, q the vehicle-to-point vector R_w R_nav' p_b):
-    range, azimuth: the intrinsic Jacobian's d_rho, d_theta columns (they enter eq. 4.2 the same way)
+    range, azimuth, elevation: the intrinsic Jacobian's d_rho, d_theta, d_phi columns (they enter eq. 4.2
+                    the same way)
     horizontal:     M (sin a, cos a, 0),  a = theta + d_theta + alpha_i
     time:           v + (R_w omega) x q           heading: (R_w Exp(omega d_t) z) x q
     body:           R_w R_nav'                    position: I
@@ -31,14 +33,14 @@ Exp(omega d_t) z) x n.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from factors import so3
-from factors.world_point import Corrections, Returns, Turn, WorldJacobians
+from factors.world_point import Placed, Returns
 
-SCALAR_CHANNELS = ("range", "azimuth", "horizontal", "time", "heading")
+SCALAR_CHANNELS = ("range", "azimuth", "elevation", "horizontal", "time", "heading")
 VECTOR_CHANNELS = ("body", "position")
 Z_AXIS = np.array([0.0, 0.0, 1.0])
 
@@ -48,7 +50,9 @@ class Context:
     """Per-return data (N returns) the candidates' bases are built from: raw range [m] and encoder
     azimuth [rad], fibre id, number of fibres, time within the revolution [s] (azimuth / (2 pi
     nominal rate)), time since the recording's first pose [s], |cos| of the incidence angle, INS
-    position X_nav (N,3) [m, world minus the local origin]."""
+    position X_nav (N,3) [m, world minus the local origin]; and where known, the return's intensity
+    (points.parquet's units), the INS speed [m/s] and yaw rate [rad/s, about world z], and any other
+    numeric column of points.parquet by its name (columns)."""
 
     range_m: np.ndarray
     azimuth_rad: np.ndarray
@@ -58,6 +62,10 @@ class Context:
     elapsed_s: np.ndarray
     cos_incidence: np.ndarray
     X_nav: np.ndarray
+    intensity: np.ndarray | None = None
+    speed_m_s: np.ndarray | None = None
+    yaw_rate_rad_s: np.ndarray | None = None
+    columns: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -68,6 +76,7 @@ class Basis:
     dim: int
     range: np.ndarray | None = None
     azimuth: np.ndarray | None = None
+    elevation: np.ndarray | None = None
     horizontal: np.ndarray | None = None
     time: np.ndarray | None = None
     heading: np.ndarray | None = None
@@ -89,6 +98,7 @@ class Channels:
 
     range: np.ndarray
     azimuth: np.ndarray
+    elevation: np.ndarray
     horizontal: np.ndarray
     time: np.ndarray
     heading: np.ndarray
@@ -107,8 +117,9 @@ class Channels:
 
 
 def perturbed(returns: Returns, motion: Motion, channels: Channels) -> Returns:
-    """The returns with their channels applied: raw range and azimuth, horizontal offsets, INS pose."""
-    factory = replace(returns.factory, horizontal_offset_m=returns.factory.horizontal_offset_m + channels.horizontal)
+    """The returns with their channels applied: raw range and azimuth, elevations, horizontal offsets, INS pose."""
+    factory = replace(returns.factory, elevation_rad=returns.factory.elevation_rad + channels.elevation,
+                      horizontal_offset_m=returns.factory.horizontal_offset_m + channels.horizontal)
     turn = so3.exp(motion.omega * channels.time[:, None]) @ so3.exp(Z_AXIS * channels.heading[:, None])
     return replace(returns, range_m=returns.range_m + channels.range, azimuth_rad=returns.azimuth_rad + channels.azimuth,
                    factory=factory, R_nav=turn @ returns.R_nav,
@@ -144,12 +155,12 @@ class ChannelJacobians:
         return sum(parts) if parts else None
 
 
-def channel_jacobians(returns: Returns, offsets: np.ndarray, motion: Motion, channels: Channels,
-                      corrections: Corrections, turn: Turn, R_E: np.ndarray, p_w: np.ndarray, J: WorldJacobians,
+def channel_jacobians(placed: Placed, motion: Motion, channels: Channels,
                       n_w: np.ndarray | None = None) -> ChannelJacobians:
-    """Channel Jacobians at the perturbed returns (returns = perturbed(...)); p_w and J from
-    world_points of those returns with offsets (N,4), the normal n_w (N,3) from world_normals
-    (None: no normal Jacobians)."""
+    """Channel Jacobians at the perturbed returns (placed.returns = perturbed(...)), placed in the world by
+    world_points; the normal n_w (N,3) from world_normals (None: no normal Jacobians)."""
+    returns, offsets, corrections, turn = placed.returns, placed.offsets, placed.corrections, placed.turn
+    p_w, J, R_E = placed.points_w, placed.J, placed.R_E
     M = J.extrinsic[:, :, 3:6]  # d p_w / d t_E in lidar axes = R_w R_nav' R_E
     a = returns.azimuth_rad + offsets[:, 1] + returns.factory.azimuth_offset_rad
     sideways = np.stack([np.sin(a), np.cos(a), np.zeros_like(a)], axis=-1)
@@ -158,7 +169,7 @@ def channel_jacobians(returns: Returns, offsets: np.ndarray, motion: Motion, cha
     omega = turn.apply(motion.omega)
     z = turn.apply(np.einsum("nij,j->ni", so3.exp(motion.omega * channels.time[:, None]), Z_AXIS))
     body = M @ R_E.T
-    point = {"range": J.intrinsic[:, :, 0], "azimuth": J.intrinsic[:, :, 1],
+    point = {"range": J.intrinsic[:, :, 0], "azimuth": J.intrinsic[:, :, 1], "elevation": J.intrinsic[:, :, 2],
              "horizontal": np.einsum("nij,nj->ni", M, sideways), "time": motion.velocity + np.cross(omega, q),
              "heading": np.cross(z, q), "body": body,
              "position": np.broadcast_to(np.eye(3), (len(p_w), 3, 3))}

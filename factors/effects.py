@@ -10,8 +10,9 @@ An effect is a pydantic model whose fields are its simulation parameters, with
     factory_terms(factory, fibre)      true per-fibre factory terms for the nominal ones
     pose_time(t_pose, t_fire, t_rev)   time at which the sensor pose is taken [s]
     beam_azimuth(encoder_rad)          true beam azimuth for an encoder reading [rad]
-    measured_range(range_m, cos_inc)   raw range reported for an ideal raw range [m]
-    recorded_time(t_rec, t_fire, t_rev) time stamped on the return [s]
+    beam_elevation(encoder_rad)        change of the beam's elevation at an encoder reading [rad]
+    measured_range(range_m, cos_inc, intensity, elapsed_s)  raw range reported for an ideal raw range [m]
+    recorded_time(t_rec, t_fire, t_rev, fibre)  time stamped on the return [s]
     max_stamp_shift_s()                the most it moves a stamp off the firing time [s]
   and once for the recorded INS trajectory:
     ins_rpy(elapsed_s, rpy_deg)        attitude written to trajectory.csv [deg]
@@ -34,6 +35,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from factors.channels import Basis, Context
+from factors.discrepancy import Discrepancy, is_discrepancy
 from factors.spherical import FactoryTerms
 
 REGISTRY: dict[str, type[Effect]] = {}
@@ -80,10 +82,13 @@ class Effect(BaseModel):
     def beam_azimuth(self, encoder_rad):
         return encoder_rad
 
-    def measured_range(self, range_m, cos_incidence):
+    def beam_elevation(self, encoder_rad):
+        return np.zeros_like(encoder_rad)
+
+    def measured_range(self, range_m, cos_incidence, intensity, elapsed_s):
         return range_m
 
-    def recorded_time(self, t_rec, t_fire, t_rev):
+    def recorded_time(self, t_rec, t_fire, t_rev, fibre):
         return t_rec
 
     def max_stamp_shift_s(self) -> float:
@@ -135,7 +140,7 @@ class IntraSweepMotion(Effect):
     def pose_time(self, t_pose, t_fire, t_rev):
         return t_fire
 
-    def recorded_time(self, t_rec, t_fire, t_rev):
+    def recorded_time(self, t_rec, t_fire, t_rev, fibre):
         return t_rev if self.stamp == "revolution" else t_rec
 
     @classmethod
@@ -158,7 +163,7 @@ class TimeOffset(Effect):
     def magnitude(self) -> float:
         return self.offset_s
 
-    def recorded_time(self, t_rec, t_fire, t_rev):
+    def recorded_time(self, t_rec, t_fire, t_rev, fibre):
         return t_rec + self.offset_s
 
     def max_stamp_shift_s(self) -> float:
@@ -183,7 +188,7 @@ class RangeScale(Effect):
     def magnitude(self) -> float:
         return self.scale
 
-    def measured_range(self, range_m, cos_incidence):
+    def measured_range(self, range_m, cos_incidence, intensity, elapsed_s):
         return range_m * (1.0 + self.scale)
 
     @classmethod
@@ -205,7 +210,7 @@ class IncidenceRangeBias(Effect):
     def magnitude(self) -> float:
         return self.bias_m
 
-    def measured_range(self, range_m, cos_incidence):
+    def measured_range(self, range_m, cos_incidence, intensity, elapsed_s):
         return range_m + self.bias_m * (1.0 - cos_incidence)
 
     @classmethod
@@ -382,7 +387,7 @@ class SpinRate(Effect):
     def spin_hz(self, rotation_hz: float) -> float:
         return rotation_hz * (1.0 + self.error)
 
-    def recorded_time(self, t_rec, t_fire, t_rev):
+    def recorded_time(self, t_rec, t_fire, t_rev, fibre):
         # t_rev + azimuth / (2 pi f_nominal) = t_rev + (t_fire - t_rev) f_true / f_nominal
         return t_rec + self.error * (t_fire - t_rev)
 
@@ -431,9 +436,103 @@ class FibreHorizontalOffset(Effect):
         return float(np.sqrt(np.mean(np.square(theta))))
 
 
+class _SimulatedOnly(Effect):
+    """An effect the simulator can inject but the mismatch finder has no candidate for: what a real head
+    carries that nobody listed (the open-world diagnosis must find it with its generic discrepancies)."""
+
+    signature: ClassVar[str] = "none given: the finder has no candidate for it"
+    parameters: ClassVar[str] = "none: simulated only"
+
+    @classmethod
+    def basis(cls, context: Context) -> Basis:
+        raise NotImplementedError(f"{cls.name} is simulated only: the mismatch finder has no candidate for it")
+
+
+@register
+class RangeWalk(_SimulatedOnly):
+    """Weak returns read long: measured range + walk_m exp(-intensity / scale), intensity in 0-255."""
+
+    name: ClassVar[str] = "range_walk"
+    unit: ClassVar[str] = "m"
+    physics: ClassVar[str] = "the detector's threshold fires later on weak returns, so they read long"
+    walk_m: float
+    scale: float = Field(40.0, gt=0)
+
+    def magnitude(self) -> float:
+        return self.walk_m
+
+    def measured_range(self, range_m, cos_incidence, intensity, elapsed_s):
+        return range_m + self.walk_m * np.exp(-np.asarray(intensity) / self.scale)
+
+
+@register
+class ThermalRangeDrift(_SimulatedOnly):
+    """The range offset warms up: measured range + drift_m (1 - exp(-t / tau_s)), t since the recording began."""
+
+    name: ClassVar[str] = "thermal_range_drift"
+    unit: ClassVar[str] = "m"
+    physics: ClassVar[str] = "the head warms after power-on and its range offset drifts"
+    drift_m: float
+    tau_s: float = Field(3.0, gt=0)
+
+    def magnitude(self) -> float:
+        return self.drift_m
+
+    def measured_range(self, range_m, cos_incidence, intensity, elapsed_s):
+        return range_m + self.drift_m * (1.0 - np.exp(-np.asarray(elapsed_s) / self.tau_s))
+
+
+@register
+class HeadWobble(_SimulatedOnly):
+    """The spinning head nods twice a turn (an out-of-round bearing): every beam's elevation changes by
+    amplitude_deg sin(2 encoder + phase). Once a turn would be a tilted spin axis, which the boresight is."""
+
+    name: ClassVar[str] = "head_wobble"
+    unit: ClassVar[str] = "deg"
+    physics: ClassVar[str] = "the spinning head nods as it turns, moving every beam's elevation with the azimuth"
+    amplitude_deg: float
+    phase_deg: float = 0.0
+
+    def magnitude(self) -> float:
+        return self.amplitude_deg
+
+    def beam_elevation(self, encoder_rad):
+        return np.radians(self.amplitude_deg) * np.sin(2.0 * np.asarray(encoder_rad) + np.radians(self.phase_deg))
+
+
+@register
+class FiringDelay(_SimulatedOnly):
+    """Each laser fires step_s after the one before it (by fibre id) while the driver stamps them all at once:
+    stamp = firing time - step_s x fibre."""
+
+    name: ClassVar[str] = "firing_delay"
+    unit: ClassVar[str] = "s"
+    physics: ClassVar[str] = "the lasers fire one after another while the driver stamps them as one firing"
+    step_s: float = Field(ge=0, le=1e-3)
+
+    def magnitude(self) -> float:
+        return self.step_s
+
+    def recorded_time(self, t_rec, t_fire, t_rev, fibre):
+        return t_rec - self.step_s * np.asarray(fibre)
+
+    def max_stamp_shift_s(self) -> float:
+        return 128 * self.step_s  # the most fibres a head has
+
+
 # every effect is a candidate of the mismatch finder, tried in this order (the clock's first, then the range's,
 # the azimuth's, the INS's and the geometry's)
 CANDIDATES: dict[str, type[Effect]] = {name: REGISTRY[name] for name in (
     "intra_sweep_motion", "time_offset", "spin_rate", "range_scale", "incidence_range_bias", "azimuth_eccentricity",
     "heading_bias", "heading_drift", "lever_arm", "projection_scale", "fibre_horizontal_offset")}
 SIMULATED: dict[str, type[Effect]] = {name: cls for name, cls in REGISTRY.items() if cls.simulated}
+
+
+def candidate(name: str) -> type[Effect] | Discrepancy:
+    """What the mismatch finder tests under a name: a registered effect, or the generic discrepancy its spec
+    names (factors.discrepancy)."""
+    if name in CANDIDATES:
+        return CANDIDATES[name]
+    if is_discrepancy(name):
+        return Discrepancy.parse(name)
+    raise KeyError(f"no effect and no discrepancy is named {name!r}")

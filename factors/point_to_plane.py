@@ -41,7 +41,7 @@ import gtsam
 import numpy as np
 
 from factors.channels import Basis, Channels, Motion, channel_jacobians, perturbed
-from factors.world_point import Corrections, Returns, Turn, world_normals, world_points
+from factors.world_point import Corrections, Placed, Returns, Turn, world_normals, world_points
 
 ROW_SLOTS = ("intrinsic_p", "intrinsic_m", "p_lo", "p_hi", "m_lo", "m_hi")
 NO_KEY = -1
@@ -239,6 +239,8 @@ def residuals(block: Block, values: gtsam.Values, jacobians: bool = True):
     turn_m = Turn.of(at_m, m.alpha, jacobians)
     p_w, J_p = world_points(p, offsets_p, R_E, t_E + effects.body("p"), at_p, jacobians, turn_p, block.p_held_l)
     m_w, J_m = world_points(m, offsets_m, R_E, t_E + effects.body("m"), at_m, jacobians, turn_m, block.m_held_l)
+    placed_p = Placed(p, offsets_p, R_E, at_p, turn_p, p_w, J_p)
+    placed_m = Placed(m, offsets_m, R_E, at_m, turn_m, m_w, J_m)
     n_w, J_n = world_normals(p, R_E, at_p, block.normal, jacobians, turn_p)
     scale = np.sqrt(block.weight) / block.sigma0_m
     r = scale * np.einsum("ni,ni->n", n_w, p_w - m_w)
@@ -257,8 +259,7 @@ def residuals(block: Block, values: gtsam.Values, jacobians: bool = True):
     A = np.zeros((n, sum(block.widths.values())))
     if keys.extrinsic is not None:
         A[:, block.offsets[keys.extrinsic]:block.offsets[keys.extrinsic] + 6] = extrinsic
-    for key, J in effects.jacobians(p, m, offsets_p, offsets_m, at_p, at_m, turn_p, turn_m, R_E, p_w, m_w, J_p, J_m,
-                                    n_w, sn, sd):
+    for key, J in effects.jacobians(placed_p, placed_m, n_w, sn, sd):
         A[:, block.offsets[key]:block.offsets[key] + J.shape[1]] = J
     rows = np.arange(n)
     for slot, J in terms:
@@ -296,15 +297,14 @@ class _Effects:
     def body(self, side: str):
         return self.channels[side].body if side in self.channels else 0.0
 
-    def jacobians(self, p, m, offsets_p, offsets_m, at_p, at_m, turn_p, turn_m, R_E, p_w, m_w, J_p, J_m, n_w, sn, sd):
-        """(key, d r / d theta (N, dim)) of each candidate: s n . (dp - dm) + s (p - m) . dn."""
+    def jacobians(self, p: Placed, m: Placed, n_w: np.ndarray, sn: np.ndarray, sd: np.ndarray):
+        """(key, d r / d theta (N, dim)) of each candidate: s n . (dp - dm) + s (p - m) . dn, with p's and m's
+        returns placed in the world, the normal n_w at p, sn = s n and sd = s (p - m)."""
         if self.terms is None:
             return []
-        at = {"p": channel_jacobians(p, offsets_p, self._motion("p"), self.channels["p"], at_p, turn_p, R_E, p_w, J_p,
-                                     n_w)}
+        at = {"p": channel_jacobians(p, self._motion("p"), self.channels["p"], n_w)}
         if "m" in self.channels:
-            at["m"] = channel_jacobians(m, offsets_m, self._motion("m"), self.channels["m"], at_m, turn_m, R_E, m_w,
-                                        J_m)
+            at["m"] = channel_jacobians(m, self._motion("m"), self.channels["m"])
         out = []
         for index, key in enumerate(self.terms.keys):
             basis_p = self.terms.p_bases[index]

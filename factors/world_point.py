@@ -109,6 +109,21 @@ class Turn:
         return turned @ self.G_lo, turned @ self.G_hi
 
 
+@dataclass(frozen=True)
+class Placed:
+    """Returns placed in the world by world_points: the returns with their offsets (N,4), the extrinsic's
+    rotation R_E (3,3), the corrections with their turn, and the world points [m] (N,3) with their
+    Jacobians (what the channel Jacobians of factors.channels start from)."""
+
+    returns: Returns
+    offsets: np.ndarray
+    R_E: np.ndarray
+    corrections: Corrections
+    turn: Turn
+    points_w: np.ndarray
+    J: WorldJacobians
+
+
 def on_stand_ins(measured: Returns, offsets: np.ndarray, shift_m: np.ndarray) -> tuple[Returns, np.ndarray]:
     """The returns with their ranges' stand-ins (range + shift_m [m], graphcal.calibration.association.Sight), and the
     offset (N,3) [m] in each one's sensor frame from eq. 4.2's point at the stand-in range to the

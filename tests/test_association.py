@@ -3,7 +3,15 @@
 import numpy as np
 import pytest
 
-from graphcal.calibration.association import Features, Sight, associate, local_features, neighbour_fibres
+from graphcal.calibration.association import (
+    Features,
+    PairCloud,
+    PairGates,
+    Sight,
+    associate,
+    local_features,
+    neighbour_fibres,
+)
 from graphcal.recording.sensor import sensor_from_catalog
 
 
@@ -70,14 +78,14 @@ def test_associate_pairs_points_of_neighbouring_fibres_on_a_plane():
     points = np.vstack([a, b, far])
     fibre = np.r_[np.zeros(n, int), np.ones(n, int), np.full(200, 2)]
     features = local_features(points, radius_m=0.5)
-    pairs = associate(points, fibre, features, {0: [1, 2], 1: [0], 2: [1]}, gate_m=0.3)
+    pairs = associate(PairCloud(points, fibre, features), {0: [1, 2], 1: [0], 2: [1]}, PairGates(0.3))
     assert len(pairs) > 3000
     assert set(fibre[pairs.index_p]) <= {0, 1} and np.all(fibre[pairs.index_p] != fibre[pairs.index_m])
     distance = np.linalg.norm(points[pairs.index_p] - points[pairs.index_m], axis=1)
     assert distance.max() < 0.3
     np.testing.assert_allclose(np.abs(pairs.normal[:, 2]), 1.0, atol=1e-3)
     assert pairs.weight.min() >= 0.3
-    capped = associate(points, fibre, features, {0: [1]}, gate_m=0.3, max_pairs_per_fibre_pair=100,
+    capped = associate(PairCloud(points, fibre, features), {0: [1]}, PairGates(0.3, most=100),
                        rng=np.random.default_rng(0))
     assert len(capped) == 100
 
@@ -93,13 +101,13 @@ def test_a_capped_association_is_a_uniform_subset_of_the_uncapped_one():
     points, fibre = np.vstack([a, tilted]), np.r_[np.zeros(n, int), np.ones(n, int)]
     features = local_features(points, radius_m=0.5)
     settings = dict(gate_m=0.3, min_planarity=0.3, min_normal_cos=np.cos(np.radians(10.0)), max_plane_distance_m=0.05)
-    everything = associate(points, fibre, features, {0: [1]}, **settings)
+    cloud = PairCloud(points, fibre, features)
+    everything = associate(cloud, {0: [1]}, PairGates(**settings))
     kept = set(zip(everything.index_p.tolist(), everything.index_m.tolist()))
     assert 500 < len(kept) < 0.9 * n  # the bent half is refused
     drawn = np.zeros(n)
     for seed in range(200):
-        capped = associate(points, fibre, features, {0: [1]}, max_pairs_per_fibre_pair=100,
-                           rng=np.random.default_rng(seed), **settings)
+        capped = associate(cloud, {0: [1]}, PairGates(**settings, most=100), rng=np.random.default_rng(seed))
         assert len(capped) == 100 and set(zip(capped.index_p.tolist(), capped.index_m.tolist())) <= kept
         assert np.all(np.diff(capped.index_p) > 0)
         drawn[capped.index_p] += 1
@@ -119,8 +127,8 @@ def test_pairs_across_an_edge_are_refused():
     points = np.vstack([ground, wall])
     fibre = rng.integers(0, 2, 2 * n)
     features = local_features(points, radius_m=0.5)
-    pairs = {(planarity, angle): associate(points, fibre, features, {0: [1], 1: [0]}, gate_m=0.5,
-                                           min_planarity=planarity, min_normal_cos=np.cos(np.radians(angle)))
+    pairs = {(planarity, angle): associate(PairCloud(points, fibre, features), {0: [1], 1: [0]},
+                                           PairGates(0.5, planarity, np.cos(np.radians(angle))))
              for planarity, angle in ((0.0, 90.0), (0.0, 20.0), (0.5, 20.0))}
     crossing = {key: np.sum((p.index_p < n) != (p.index_m < n)) for key, p in pairs.items()}
     assert crossing[0.0, 90.0] > 20 and crossing[0.0, 20.0] < crossing[0.0, 90.0] / 2 and crossing[0.5, 20.0] == 0
@@ -138,17 +146,17 @@ def test_pairs_between_parallel_faces_are_refused():
     points = np.vstack([body, cabin])
     fibre = np.r_[np.zeros(n, int), np.ones(n, int)]  # the lower fibre sees the body, the upper the cabin
     features = local_features(points + np.c_[np.zeros((2 * n, 2)), (points[:, 2] > 1.0) * 5.0], radius_m=0.5)
-    loose = associate(points, fibre, features, {0: [1], 1: [0]}, gate_m=0.5, min_planarity=0.0)
-    strict = associate(points, fibre, features, {0: [1], 1: [0]}, gate_m=0.5, min_planarity=0.0,
-                       max_plane_distance_m=0.05)
+    cloud = PairCloud(points, fibre, features)
+    loose = associate(cloud, {0: [1], 1: [0]}, PairGates(0.5, min_planarity=0.0))
+    strict = associate(cloud, {0: [1], 1: [0]}, PairGates(0.5, min_planarity=0.0, max_plane_distance_m=0.05))
     assert len(loose) > 100 and len(strict) == 0
 
 
 def test_gate_zero_finds_nothing():
     points = np.random.default_rng(2).uniform(0, 1, (100, 3))
     features = local_features(points, radius_m=0.5)
-    pairs = associate(points, np.r_[np.zeros(50, int), np.ones(50, int)], features, {0: [1]}, gate_m=1e-9,
-                      min_planarity=0.0)
+    pairs = associate(PairCloud(points, np.r_[np.zeros(50, int), np.ones(50, int)], features), {0: [1]},
+                      PairGates(1e-9, min_planarity=0.0))
     assert len(pairs) == 0 and pairs.normal.shape == (0, 3)
 
 
@@ -188,8 +196,8 @@ def test_line_of_sight_choice_is_not_biased_by_range_noise():
         r = points[pairs.index_p, 2] - points[pairs.index_m, 2]
         return r.mean(), r.std() / np.sqrt(len(r))
 
-    nearest = associate(points, fibre, features, {0: [1]}, gate_m=2.0)
-    line_of_sight = associate(points, fibre, features, {0: [1]}, gate_m=2.0, sight=Sight.of(points, rays, fibre))
+    nearest = associate(PairCloud(points, fibre, features), {0: [1]}, PairGates(2.0))
+    line_of_sight = associate(PairCloud(points, fibre, features, Sight.of(points, rays, fibre)), {0: [1]}, PairGates(2.0))
     assert len(line_of_sight) > 0.9 * len(nearest) > 0.9 * per_ring * sweeps * 0.9
     biased, error = mean_and_error(nearest)
     assert biased < -10 * error  # m lifted

@@ -7,7 +7,8 @@ import pytest
 
 from factors import so3
 from factors.channels import Channels, Context, Motion, perturbed
-from factors.effects import CANDIDATES
+from factors.discrepancy import Discrepancy
+from factors.effects import CANDIDATES, candidate
 from factors.point_to_plane import (
     Block,
     BlockKeys,
@@ -31,7 +32,8 @@ def _returns(rng, sensor):
                       factory=sensor.factory_terms(fibre), R_nav=so3.exp(rng.normal(0, 0.3, (N, 3))),
                       X_nav=rng.normal(0, 20, (N, 3)), alpha=rng.uniform(0, 1, N))
     context = Context(returns.range_m, returns.azimuth_rad, fibre, sensor.n_fibres, rng.uniform(0, 0.1, N),
-                      rng.uniform(0, 6, N), rng.uniform(0.05, 1, N), returns.X_nav)
+                      rng.uniform(0, 6, N), rng.uniform(0.05, 1, N), returns.X_nav, intensity=rng.uniform(0, 255, N),
+                      speed_m_s=rng.uniform(0, 15, N), yaw_rate_rad_s=rng.normal(0, 0.3, N))
     motion = Motion(rng.normal(0, 8, (N, 3)), rng.normal(0, 0.5, (N, 3)))
     return returns, context, motion
 
@@ -41,7 +43,8 @@ def test_time_channel_moves_the_pose_along_a_constant_rate_motion():
     returns, _, motion = _returns(rng, sensor_from_catalog("HDL-32E"))
     dt = rng.normal(0, 0.01, N)
     zero = np.zeros(N)
-    channels = Channels(zero, zero, zero, dt, zero, np.zeros((N, 3)), np.zeros((N, 3)))
+    channels = Channels(range=zero, azimuth=zero, elevation=zero, horizontal=zero, time=dt, heading=zero,
+                        body=np.zeros((N, 3)), position=np.zeros((N, 3)))
     moved = perturbed(returns, motion, channels)
     # the pose at t + dt of a motion with constant velocity and world-axes angular rate
     np.testing.assert_allclose(moved.R_nav, so3.exp(motion.omega * dt[:, None]) @ returns.R_nav, atol=1e-12)
@@ -54,11 +57,11 @@ def _block(name, pose, m_moves, seed=3):
     p, context_p, motion_p = _returns(rng, sensor)
     m, context_m, motion_m = _returns(rng, sensor)
     normal = rng.normal(0, 1, (N, 3))
-    candidate = CANDIDATES[name]
+    model = candidate(name)
     keys = BlockKeys.of(N, intrinsic_p=I(3), intrinsic_m=I(5), extrinsic=E(0), p_lo=X(0), p_hi=X(1), m_lo=X(1),
                         m_hi=X(2))
-    terms = EffectTerms((K(0),), (candidate.basis(context_p),), motion_p,
-                        (candidate.basis(context_m),) if m_moves else None, motion_m if m_moves else None)
+    terms = EffectTerms((K(0),), (model.basis(context_p),), motion_p,
+                        (model.basis(context_m),) if m_moves else None, motion_m if m_moves else None)
     block = Block(p=p, m=m, normal=normal / np.linalg.norm(normal, axis=1, keepdims=True),
                   weight=rng.uniform(0.2, 1.0, N), keys=keys, pose_corrections=pose, effects=terms)
     values = gtsam.Values()
@@ -68,12 +71,18 @@ def _block(name, pose, m_moves, seed=3):
     for c in range(3):
         values.insert(X(c), gtsam.Pose3(gtsam.Rot3(so3.exp(rng.normal(0, 0.01, (1, 3)))[0]), rng.normal(0, 0.1, 3))
                       if pose else rng.normal(0, 0.1, 3))
-    dim = candidate.dim(sensor.n_fibres)
+    dim = model.dim(sensor.n_fibres)
     values.insert(K(0), rng.normal(0, 1e-3, dim))  # Jacobians checked away from zero too
     return block, values
 
 
-@pytest.mark.parametrize("name", sorted(CANDIDATES))
+# generic discrepancies: every channel, a B-spline, a Fourier and a per-fibre basis, regressors of every source
+DISCREPANCIES = [Discrepancy("range", "intensity", 6, 10.0, 240.0).name, Discrepancy("azimuth", "azimuth", 4, 0, 360).name,
+                 Discrepancy("elevation", "range", 5, 4.0, 38.0).name, Discrepancy("time", "fibre", 63, 0, 63).name,
+                 Discrepancy("time", "yaw_rate", 4, -20.0, 20.0).name, Discrepancy("range", "speed", 4, 1.0, 14.0).name]
+
+
+@pytest.mark.parametrize("name", sorted(CANDIDATES) + DISCREPANCIES)
 @pytest.mark.parametrize("pose", [False, True], ids=["translation", "pose"])
 def test_effect_key_jacobians_match_finite_differences(name, pose):
     block, values = _block(name, pose, m_moves=True)

@@ -15,6 +15,8 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
+from graphcal.calibration.config import PhaseGates
+
 
 @dataclass(frozen=True)
 class Features:
@@ -135,10 +137,38 @@ PROXY_FIRINGS = 2  # firings on each side of a return whose mean stands in for i
 PROXY_REACH_M = 0.2  # a return further than this from its neighbours' mean (an edge) stands for itself
 
 
-def associate(points_m: np.ndarray, fibre: np.ndarray, features: Features, neighbours: dict[int, list[int]],
-              gate_m: float, min_planarity: float = 0.3, min_normal_cos: float = 0.0,
-              max_plane_distance_m: float = np.inf, max_pairs_per_fibre_pair: int | None = None, rng: np.random.Generator | None = None,
-              candidates: np.ndarray | None = None, sight: Sight | None = None) -> Correspondences:
+@dataclass(frozen=True)
+class PairCloud:
+    """What an association pairs: the points [m, world frame] (N,3), each one's fibre (N,), their features,
+    and the lines of sight with stand-ins (returns.sight_at; None: plain nearest returns)."""
+
+    points_m: np.ndarray
+    fibre: np.ndarray
+    features: Features
+    sight: Sight | None = None
+
+
+@dataclass(frozen=True)
+class PairGates:
+    """What a pair must pass (see associate): within gate_m [m], p and m at least min_planarity planar,
+    |n_p . n_m| >= min_normal_cos, m within max_plane_distance_m [m] of the plane at p; and the cap of pairs
+    per fibre pair (most; None: no cap)."""
+
+    gate_m: float
+    min_planarity: float = 0.3
+    min_normal_cos: float = 0.0
+    max_plane_distance_m: float = np.inf
+    most: int | None = None
+
+    @classmethod
+    def of(cls, phase: PhaseGates, gate_m: float, capped: bool = True) -> PairGates:
+        """A phase's gates at a gate of gate_m, capped at the phase's pairs per fibre pair (or not)."""
+        return cls(gate_m, phase.min_planarity, float(np.cos(np.radians(phase.max_normal_angle_deg))),
+                   phase.max_plane_distance_m, phase.pairs_per_fibre_pair if capped else None)
+
+
+def associate(cloud: PairCloud, neighbours: dict[int, list[int]], gates: PairGates,
+              rng: np.random.Generator | None = None, candidates: np.ndarray | None = None) -> Correspondences:
     """A return m of fibre j for every candidate return p of fibre i (j a neighbour of i).
 
     m is the return of fibre j nearest to p; with sight (Sight.of the points), every return is
@@ -151,29 +181,28 @@ def associate(points_m: np.ndarray, fibre: np.ndarray, features: Features, neigh
     offsets 3x their Cramér-Rao bound, worse with denser clouds); and which m a noisy p finds ties
     m's range, which weighs its fibre's offsets in the pair's Jacobian, to p's noise.
 
-    A pair is kept when |p - m| < gate_m, both p and m are planar enough (planarity >=
-    min_planarity) and lie on the same surface (|n_p . n_m| >= min_normal_cos, and m within
-    max_plane_distance_m of the plane at p): pairs across an edge, or between two parallel faces
+    A pair is kept when |p - m| < gates.gate_m, both p and m are planar enough (planarity >=
+    gates.min_planarity) and lie on the same surface (|n_p . n_m| >= gates.min_normal_cos, and m within
+    gates.max_plane_distance_m of the plane at p): pairs across an edge, or between two parallel faces
     (a car's cabin side above its body side), would pull the offsets even at the true calibration. Weight = planarity at p (eq. 4.4
-    w_ijk). features describe every point; candidates are the rows that may be p (all if None).
-    max_pairs_per_fibre_pair subsamples each (i, j) pair's correspondences at random (rng)."""
+    w_ijk). The features describe every point; candidates are the rows that may be p (all if None).
+    gates.most subsamples each (i, j) pair's correspondences at random (rng)."""
+    points_m, fibre, features, sight = cloud.points_m, cloud.fibre, cloud.features, cloud.sight
     candidates = np.arange(len(points_m)) if candidates is None else np.asarray(candidates)
     rng = rng or np.random.default_rng(0)
     by_fibre = rows_by_fibre(fibre)
     stand_ins = points_m if sight is None else sight.stand_ins
     trees = {f: cKDTree(stand_ins[rows], balanced_tree=False, compact_nodes=False) for f, rows in by_fibre.items()}
-    planar = features.planarity >= min_planarity
+    planar = features.planarity >= gates.min_planarity
     planar_candidates = candidates[planar[candidates]]
     candidate_fibre = fibre[planar_candidates]
     p_of = {i: planar_candidates[candidate_fibre == i] for i in by_fibre}
     jobs = [(i, j) for i in by_fibre for j in neighbours.get(i, []) if j in trees and len(p_of[i])]
     streams = rng.spawn(len(jobs))  # one random stream per fibre pair: the same draws in any thread order
-    cloud = _Cloud(points_m, features, planar, sight)
-    gates = _Gates(gate_m, min_normal_cos, max_plane_distance_m, max_pairs_per_fibre_pair)
 
     def pairs_of(job: tuple[int, int], stream: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         i, j = job
-        return _pairs_with(p_of[i], by_fibre[j], trees[j], cloud, gates, stream)
+        return _pairs_with((p_of[i], by_fibre[j]), trees[j], cloud, planar, gates, stream)
 
     # the KD-tree queries and NumPy release the GIL: fibre pairs side by side on the cores
     with ThreadPoolExecutor(os.cpu_count() or 1) as pool:
@@ -188,27 +217,7 @@ def associate(points_m: np.ndarray, fibre: np.ndarray, features: Features, neigh
                            features.out_of_plane_m[index_p])
 
 
-@dataclass(frozen=True)
-class _Cloud:
-    """The per-point arrays an association reads: points [m], features, planar mask, sight (or None)."""
-
-    points_m: np.ndarray
-    features: Features
-    planar: np.ndarray
-    sight: Sight | None
-
-
-@dataclass(frozen=True)
-class _Gates:
-    """What a pair must pass (see associate) and the cap of pairs per fibre pair (None: no cap)."""
-
-    gate_m: float
-    min_normal_cos: float
-    max_plane_distance_m: float
-    most: int | None
-
-
-def _nearest(p: np.ndarray, j_rows: np.ndarray, tree: cKDTree, cloud: _Cloud, gate_m: float) -> tuple[np.ndarray, np.ndarray]:
+def _nearest(p: np.ndarray, j_rows: np.ndarray, tree: cKDTree, cloud: PairCloud, gate_m: float) -> tuple[np.ndarray, np.ndarray]:
     """(found mask over p, m rows of the found): each p's nearest return of fibre j within gate_m (tree),
     or with a sight, of the LINE_CANDIDATES stand-ins nearest p's stand-in, the one whose line of sight
     passes nearest p's stand-in: neither p's nor m's own range noise moves the choice."""
@@ -229,11 +238,12 @@ def _nearest(p: np.ndarray, j_rows: np.ndarray, tree: cKDTree, cloud: _Cloud, ga
     return found, m[np.arange(len(m)), np.argmin(off_line, axis=1)]
 
 
-def _pairs_with(p_rows: np.ndarray, j_rows: np.ndarray, tree: cKDTree, cloud: _Cloud, gates: _Gates,
-                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """(p, m) rows: the candidates p_rows paired with a return of fibre j (rows j_rows, in tree), as
-    associate keeps them; at most gates.most, a uniform random subset of those kept: the candidates
+def _pairs_with(rows: tuple[np.ndarray, np.ndarray], tree: cKDTree, cloud: PairCloud, planar: np.ndarray,
+                gates: PairGates, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(p, m) rows: the candidates p_rows paired with a return of fibre j (rows j_rows, in tree; rows =
+    (p_rows, j_rows)), with planar the mask of returns planar enough, as associate keeps them; at most gates.most, a uniform random subset of those kept: the candidates
     are taken in a random order and only as many are searched as it takes to keep that many."""
+    p_rows, j_rows = rows
     most = gates.most
     if most is not None:
         p_rows = p_rows[rng.permutation(len(p_rows))]
@@ -245,7 +255,7 @@ def _pairs_with(p_rows: np.ndarray, j_rows: np.ndarray, tree: cKDTree, cloud: _C
         p = p[found]
         normal = cloud.features.normal[p]
         points = cloud.points_m
-        same_surface = (cloud.planar[m]
+        same_surface = (planar[m]
                         & (np.abs(np.einsum("ni,ni->n", normal, cloud.features.normal[m])) >= gates.min_normal_cos)
                         & (np.abs(np.einsum("ni,ni->n", normal, points[p] - points[m])) <= gates.max_plane_distance_m))
         kept_p.append(p[same_surface])

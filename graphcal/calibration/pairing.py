@@ -10,7 +10,16 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from graphcal.calibration.association import Correspondences, Features, Sight, associate, local_features, neighbour_fibres
+from graphcal.calibration.association import (
+    Correspondences,
+    Features,
+    PairCloud,
+    PairGates,
+    Sight,
+    associate,
+    local_features,
+    neighbour_fibres,
+)
 from graphcal.calibration.config import FeatureSettings, PhaseGates
 from graphcal.calibration.returns import ReturnData
 
@@ -73,10 +82,8 @@ class Association:
               sight: Sight | None) -> Correspondences:
         """The same subsample of pairs for the same cloud (a fresh seeded draw each time); sight: the
         returns' lines of sight and stand-ins (returns.sight_at), or None for plain nearest returns."""
-        gates = self.gates
-        return associate(points_m, fibre, features, self.neighbours, gate_m, gates.min_planarity,
-                         np.cos(np.radians(gates.max_normal_angle_deg)), gates.max_plane_distance_m,
-                         gates.pairs_per_fibre_pair, np.random.default_rng(self.seed), self.candidates, sight)
+        return associate(PairCloud(points_m, fibre, features, sight), self.neighbours,
+                         PairGates.of(self.gates, gate_m), np.random.default_rng(self.seed), self.candidates)
 
 
 def _candidates(data: ReturnData, per_fibre: int, rng: np.random.Generator) -> np.ndarray:

@@ -18,8 +18,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from factors.channels import Channels, channel_jacobians
-from factors.effects import CANDIDATES
-from factors.world_point import Corrections, Turn, world_normals, world_points
+from factors.effects import CANDIDATES, candidate
+from factors.world_point import Corrections, Placed, Turn, world_normals, world_points
 from graphcal.calibration.association import Features
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.returns import Estimate, initial_estimate, prepare, world_at
@@ -98,10 +98,10 @@ def compare(recording: Recording, simulation: Recording, max_points: int | None 
         named.append((test, _energy_cm2(r, J, np.concatenate([lin.effect_columns[n] for n in active] + [translation]))))
     sizes = _refined(data, estimate, context, [t for t, _ in named], sim_tree, sim_points, features)
     for (test, after), theta in zip(named, sizes):
-        magnitude = CANDIDATES[test.name].magnitude_of(theta)
+        magnitude = candidate(test.name).magnitude_of(theta)
         findings.append({"effect": test.name, "magnitude": magnitude, "sigma": test.sigma,
-                         "unit": CANDIDATES[test.name].unit, "parameters": theta.tolist(),
-                         "statement": f"the recording differs from the simulation by {CANDIDATES[test.name].physics} "
+                         "unit": candidate(test.name).unit, "parameters": theta.tolist(),
+                         "statement": f"the recording differs from the simulation by {candidate(test.name).physics} "
                                       f"({test.name}: {display(test.name, magnitude)} ± "
                                       f"{display(test.name, test.sigma)}); modelling it lowers J against the "
                                       f"simulation from {before:.3g} to {after:.3g} cm²",
@@ -168,12 +168,12 @@ def _linear_system(data, estimate, context: ReturnContext, names, rows, normal_w
     R_E, t_E = estimate.extrinsic.rotation().matrix(), estimate.extrinsic.translation()
     offsets = estimate.offsets[data.fibre[rows]]
     p_w, J_world = world_points(returns, offsets, R_E, t_E, corrections)
-    bases = [CANDIDATES[n].basis(context.context(rows)) for n in names]
+    bases = [candidate(n).basis(context.context(rows)) for n in names]
     motion = context.motion(rows)
     channels = Channels.of(tuple(bases), [np.zeros(b.dim) for b in bases], len(rows))
     n_lidar = np.einsum("nji,nj->ni", returns.R_nav, normal_w) @ R_E
     n_w, _ = world_normals(returns, R_E, corrections, n_lidar, jacobians=False)
-    at = channel_jacobians(returns, offsets, motion, channels, corrections, Turn(None), R_E, p_w, J_world)
+    at = channel_jacobians(Placed(returns, offsets, R_E, corrections, Turn(None), p_w, J_world), motion, channels)
     r = np.einsum("ni,ni->n", n_w, (p_w if p_at is None else p_at) - m_w) / SIGMA0_M
     parts = [np.einsum("ni,nij->nj", n_w, at.of_candidate(b)) / SIGMA0_M for b in bases]
     starts = np.cumsum([0] + [p.shape[1] for p in parts])

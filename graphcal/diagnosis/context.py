@@ -9,7 +9,7 @@ import gtsam
 import numpy as np
 
 from factors.channels import Channels, Context, Motion, perturbed
-from factors.effects import CANDIDATES
+from factors.effects import candidate
 from factors.point_to_plane import EffectTerms
 from factors.world_point import world_points
 from graphcal.calibration.association import Features
@@ -39,23 +39,27 @@ class ReturnContext:
     cos_incidence: np.ndarray
     velocity: np.ndarray
     omega: np.ndarray
+    intensity: np.ndarray | None = None
 
     @classmethod
     def of(cls, data: ReturnData, poses: PoseTrack, points_m: np.ndarray, features: Features,
-           t_E: np.ndarray) -> ReturnContext:
+           t_E: np.ndarray, intensity: np.ndarray | None = None) -> ReturnContext:
         """points_m: world points (N,3) minus data.origin_m at the current estimate, features their local
-        normals; t_E the lever arm [m] (the beam starts at X_nav + R_nav t_E)."""
+        normals; t_E the lever arm [m] (the beam starts at X_nav + R_nav t_E); intensity: each return's
+        (points.parquet's units; None: not recorded)."""
         velocity, omega = ins_motion(poses, data.time_s)
         beam = points_m - data.X_nav - np.einsum("nij,j->ni", data.R_nav, t_E)
         beam /= np.maximum(np.linalg.norm(beam, axis=1, keepdims=True), 1e-9)
         cos_incidence = np.clip(np.abs(np.einsum("ni,ni->n", beam, features.normal)), 0.0, 1.0)
         return cls(data, data.azimuth_rad / (2 * np.pi * data.sensor.rotation_hz), data.time_s - poses.span[0],
-                   cos_incidence, velocity, omega)
+                   cos_incidence, velocity, omega, intensity)
 
     def context(self, rows: np.ndarray) -> Context:
         d = self.data
         return Context(d.range_m[rows], d.azimuth_rad[rows], d.fibre[rows], d.sensor.n_fibres, self.sweep_s[rows],
-                       self.elapsed_s[rows], self.cos_incidence[rows], d.X_nav[rows])
+                       self.elapsed_s[rows], self.cos_incidence[rows], d.X_nav[rows],
+                       None if self.intensity is None else self.intensity[rows],
+                       np.linalg.norm(self.velocity[rows], axis=1), self.omega[rows, 2])
 
     def motion(self, rows: np.ndarray) -> Motion:
         return Motion(self.velocity[rows], self.omega[rows])
@@ -77,12 +81,12 @@ class EffectModel:
         return tuple(K(i) for i in range(len(self.names)))
 
     def dim(self, name: str) -> int:
-        return CANDIDATES[name].dim(self.context.data.sensor.n_fibres)
+        return candidate(name).dim(self.context.data.sensor.n_fibres)
 
     def terms(self, p_rows: np.ndarray, m_rows: np.ndarray) -> EffectTerms:
         cp, cm = self.context.context(p_rows), self.context.context(m_rows)
-        return EffectTerms(self.keys, tuple(CANDIDATES[n].basis(cp) for n in self.names), self.context.motion(p_rows),
-                           tuple(CANDIDATES[n].basis(cm) for n in self.names), self.context.motion(m_rows))
+        return EffectTerms(self.keys, tuple(candidate(n).basis(cp) for n in self.names), self.context.motion(p_rows),
+                           tuple(candidate(n).basis(cm) for n in self.names), self.context.motion(m_rows))
 
     def add_to(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
         for key, name in zip(self.keys, self.names):
@@ -111,7 +115,7 @@ def world_with_effects(data: ReturnData, estimate: Estimate, pose: bool, model: 
     if model is None or not model.names:
         return world_at(data, estimate, pose, rows)
     rows = np.arange(len(data.time_s)) if rows is None else rows
-    bases = [CANDIDATES[name].basis(model.context.context(rows)) for name in model.names]
+    bases = [candidate(name).basis(model.context.context(rows)) for name in model.names]
     channels = Channels.of(tuple(bases), [model.values[name] for name in model.names], len(rows))
     returns = perturbed(data.returns(rows), model.context.motion(rows), channels)
     R_E, t_E = estimate.extrinsic.rotation().matrix(), estimate.extrinsic.translation()

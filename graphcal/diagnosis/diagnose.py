@@ -20,11 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
-from factors.effects import CANDIDATES
+from factors.discrepancy import CHANNELS, REGRESSORS, Discrepancy, is_discrepancy, regressor_values
+from factors.effects import CANDIDATES, candidate
 from graphcal.common.atomic import atomic_path
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.diagnosis.fit import Fit, baseline, refit
+from graphcal.diagnosis.hypotheses import hypotheses
 from graphcal.diagnosis.hypothesis import (
     TESTED_AT_KNOWN_SIZE,
     HypothesisTest,
@@ -62,6 +64,10 @@ SEPARATING_DATA = {
 PHYSICAL_BOUND = {"time_offset": 0.5, "spin_rate": 0.3, "range_scale": 0.01, "incidence_range_bias": 0.5,
                   "azimuth_eccentricity": 2.0, "heading_bias": 5.0, "heading_drift": 1.0, "lever_arm": 2.0,
                   "fibre_horizontal_offset": 0.2}
+# a discrepancy's largest physical size per channel (m, deg, deg, s): beyond, a degenerate fit
+CHANNEL_BOUND = {"range": 0.5, "azimuth": 2.0, "elevation": 2.0, "time": 0.5}
+# channel x regressor pairs not tried: a per-fibre constant of range or angle is an intrinsic offset
+ORDINARY = {("range", "fibre"), ("azimuth", "fibre"), ("elevation", "fibre")}
 UNEXPLAINED_CM = 0.5
 UNEXPLAINED_Q = 1e-6
 DEFAULT_SEPARATING_DATA = "a turn, a speed change, or a second pass in the opposite direction"
@@ -86,7 +92,12 @@ def plausible(test: CandidateTest, recording: Recording) -> bool:
     expected = expected_magnitude(test.name, recording)
     if expected is not None:
         return abs(test.magnitude - expected) < 3 * test.sigma + 0.2 * abs(expected)
-    return abs(test.magnitude) < PHYSICAL_BOUND[test.name]
+    return abs(test.magnitude) < physical_bound(test.name)
+
+
+def physical_bound(name: str) -> float:
+    """The largest size an effect (or a discrepancy, by its channel) can physically have, in its unit."""
+    return CHANNEL_BOUND[Discrepancy.parse(name).channel] if is_discrepancy(name) else PHYSICAL_BOUND.get(name, 1.0)
 
 
 def name_preference(test: CandidateTest, leader: CandidateTest, recording: Recording) -> tuple[bool, float]:
@@ -102,7 +113,7 @@ def name_preference(test: CandidateTest, leader: CandidateTest, recording: Recor
 
 
 def display(name: str, value: float) -> str:
-    scale, unit = (100.0, "%") if name == "spin_rate" else UNIT_DISPLAY[CANDIDATES[name].unit]
+    scale, unit = (100.0, "%") if name == "spin_rate" else UNIT_DISPLAY[candidate(name).unit]
     return f"{value * scale:.3g} {unit}"
 
 
@@ -160,8 +171,7 @@ class Diagnosis:
 
 def _blind(row: dict) -> bool:
     """A candidate whose minimal detectable size is beyond any physical size: the data cannot see it."""
-    bound = PHYSICAL_BOUND.get(row["effect"], 1.0)
-    return row["mdb"] > bound
+    return row["mdb"] > physical_bound(row["effect"])
 
 
 def _finite(value):
@@ -185,7 +195,7 @@ def _plain(value):
 
 def _row(test: CandidateTest, recording: Recording, n: int) -> dict:
     return {"effect": test.name, "magnitude": test.magnitude, "sigma": test.sigma, "mdb": test.mdb,
-            "unit": CANDIDATES[test.name].unit, "statistic": test.statistic, "dof": test.dof, "p_value": test.p_value,
+            "unit": candidate(test.name).unit, "statistic": test.statistic, "dof": test.dof, "p_value": test.p_value,
             "bic_gain": test.bic_gain,
             "concealment_r2": test.concealment_r2, "absorbed_by": [a for a, _ in test.absorbed_by],
             "held_out_cm2": list(test.held_out_cm2), "explained_rms_m": test.explained_rms_m,
@@ -193,15 +203,36 @@ def _row(test: CandidateTest, recording: Recording, n: int) -> dict:
             "plausible": plausible(test, recording) if test.identifiable else False}
 
 
-def candidate_names(fit: Fit, candidates: list[str] | None) -> list[str]:
+def candidate_names(fit: Fit, candidates: list[str] | None, open_world: bool = True) -> list[str]:
     """The candidates to test: all by default, less those the model already estimates (the lever arm
-    when the extrinsic is estimated) or has added."""
+    when the extrinsic is estimated) or has added; and with open_world, a generic discrepancy of every
+    channel against every regressor the returns have (discrepancies)."""
     names = list(candidates or CANDIDATES)
     unknown = sorted(set(names) - set(CANDIDATES))
     if unknown:
         from graphcal.common.errors import ConfigError
         raise ConfigError(f"unknown candidate effect(s) {unknown}; known: {', '.join(CANDIDATES)}")
+    names += discrepancies(fit) if open_world else []
     return [n for n in names if n not in fit.model.names and not (n == "lever_arm" and fit.estimated[1])]
+
+
+@functools.lru_cache(maxsize=8)
+def _discrepancies(context) -> tuple[str, ...]:
+    everything = context.context(np.arange(len(context.data.time_s)))
+    names = []
+    for regressor in REGRESSORS:
+        x = regressor_values(everything, regressor)
+        if x is None or not np.all(np.isfinite(x)) or np.ptp(x) <= 0:
+            continue
+        names += [Discrepancy.over(channel, regressor, x, context.data.sensor.n_fibres).name for channel in CHANNELS
+                  if (channel, regressor) not in ORDINARY]
+    return tuple(names)
+
+
+def discrepancies(fit: Fit) -> list[str]:
+    """A generic discrepancy (factors.discrepancy) of every channel against every regressor that varies over the
+    fit's returns, each over the regressor's range."""
+    return list(_discrepancies(fit.model.context))
 
 
 def score_all(fit: Fit, names: list[str]) -> tuple[dict, object]:
@@ -213,11 +244,13 @@ def score_all(fit: Fit, names: list[str]) -> tuple[dict, object]:
 
 
 def diagnose(recording: Recording, config: CalibrationConfig | None = None, candidates: list[str] | None = None,
-             max_effects: int = 3, refit_iterations: int = 4, quiet: bool = False) -> Diagnosis:
+             max_effects: int = 3, refit_iterations: int = 4, quiet: bool = False,
+             open_world: bool = False) -> Diagnosis:
     """Diagnose a recording against graphcal's model calibrated with config (default: joint
     intrinsics + extrinsic). candidates: effect names to test (default: every one of
-    factors.effects.CANDIDATES). At most max_effects are added, each re-solved with
-    refit_iterations outer iterations."""
+    factors.effects.CANDIDATES); open_world: also a generic discrepancy of every channel against every
+    regressor, reported as `discovered` when it explains the residuals better than every named effect. At most
+    max_effects are added, each re-solved with refit_iterations outer iterations."""
     started = time.perf_counter()
     config = config or CalibrationConfig(mode="joint")
     if config.weighting.pair_noise is None:  # the tests read the whitened costs back in cm2 with sigma0 (score.Linearisation)
@@ -227,10 +260,10 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
     findings, not_separable, first_round, concealed, added, at_known_size = [], [], None, [], None, []
     withdrawn, previous = [], None
     # a round adds a finding, withdraws one (at most every candidate once) or ends the diagnosis
-    rounds = max_effects + 1 + len(CANDIDATES)
+    rounds = max_effects + 1 + len(candidate_names(fit, candidates, open_world))
     # rounds is a bound the diagnosis seldom reaches: an open-ended bar, not a percentage of it
     for _ in progress(iter(range(rounds)), f"diagnosing (rounds, at most {rounds})", quiet=quiet):
-        names = candidate_names(fit, candidates)
+        names = candidate_names(fit, candidates, open_world)
         tests, lin = score_all(fit, names)
         if added is not None:  # the effect added last, with its sigma at the refit
             winner, before, hypothesis = added
@@ -242,7 +275,7 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
                 fit, names, tests, lin = previous
                 not_separable = [n for n in not_separable if n["named"] != winner.name]
             else:
-                findings.append(_finding(winner, fit, before, at_refit.sigma, hypothesis))
+                findings.append(_finding(winner, fit, before, at_refit, hypothesis))
             added = None
         if first_round is None:
             first_round = [_row(t, recording, len(names)) for t in sorted(tests.values(), key=lambda t: t.log10_p)]
@@ -304,13 +337,15 @@ def unexplained(locations: list[dict]) -> list[dict]:
              "evidence": {"statistic": None, "p_value": row["p_value"], "q_value": row["q_value"]}}]
 
 
-def _finding(test: CandidateTest, fit: Fit, energy_before: float, sigma: float,
+def _finding(test: CandidateTest, fit: Fit, energy_before: float, at_refit: CandidateTest,
              hypothesis: HypothesisTest | None = None) -> dict:
-    """The finding of an effect added: its size at the refit (fit) with sigma, what absorbed it (its
-    score test at the fit before, test) and the evidence: the score test's, with its held-out J, or
-    for a candidate tested at its known size that test's (truncated cost, no held-out J)."""
+    """The finding of an effect added: its size at the refit (fit) with its sigma there (at_refit), what
+    absorbed it (its score test at the fit before, test) and the evidence: the score test's, with its
+    held-out J, or for a candidate tested at its known size that test's (truncated cost, no held-out J).
+    A discrepancy's is `discovered` (RECORDING.md "Discovered effects")."""
+    sigma = at_refit.sigma
     value = fit.model.values[test.name]
-    magnitude = CANDIDATES[test.name].magnitude_of(value)
+    magnitude = candidate(test.name).magnitude_of(value)
     absorbed = test.absorbed_by[0]
     if hypothesis is None:
         held_before, held_after = test.held_out_cm2
@@ -327,11 +362,13 @@ def _finding(test: CandidateTest, fit: Fit, energy_before: float, sigma: float,
                 "the pairs that agree in its distorted cloud)")
         evidence = {"statistic": hypothesis.statistic, "dof": hypothesis.blocks - 1, "p_value": hypothesis.p_value,
                     "test": "refit at the known size, truncated cost per time block (graphcal.diagnosis.hypothesis)"}
-    statement = (f"the recording shows {CANDIDATES[test.name].physics} ({test.name}: {display(test.name, magnitude)} "
+    if is_discrepancy(test.name):
+        return _discovered(test, fit, energy_before, at_refit, gain) | {"evidence": evidence}
+    statement = (f"the recording shows {candidate(test.name).physics} ({test.name}: {display(test.name, magnitude)} "
                  f"± {display(test.name, sigma)}), which the model left out; it was absorbed by {absorbed[0]} "
                  f"(correlation {absorbed[1]:+.2f}, concealment R² {test.concealment_r2:.2f}); adding it lowers "
                  f"{gain}")
-    return {"effect": test.name, "magnitude": magnitude, "sigma": sigma, "unit": CANDIDATES[test.name].unit,
+    return {"effect": test.name, "magnitude": magnitude, "sigma": sigma, "unit": candidate(test.name).unit,
             "parameters": np.asarray(value).tolist(), "statement": statement,
             "absorbed_by": [a for a, _ in test.absorbed_by], "mdb": test.mdb, "concealment_r2": test.concealment_r2,
             "evidence": evidence,
@@ -339,13 +376,36 @@ def _finding(test: CandidateTest, fit: Fit, energy_before: float, sigma: float,
                            "held_out_after": held_after}}
 
 
+def _discovered(test: CandidateTest, fit: Fit, energy_before: float, at_refit: CandidateTest, gain: str) -> dict:
+    """A discrepancy's finding: its channel, regressor, curve with 1-sigma band (covariance at the refit),
+    peak-to-peak magnitude, what absorbed it at the fit before, and the physics that could produce it."""
+    model = Discrepancy.parse(test.name)
+    value = fit.model.values[test.name]
+    curve = model.curve(value, at_refit.covariance)
+    magnitude = model.magnitude_of(value)
+    sigma = float(np.mean(curve["sigma"]))
+    absorbed = test.absorbed_by[0]
+    physics = hypotheses(model.channel, model.regressor)
+    held_before, held_after = test.held_out_cm2
+    statement = (f"no named effect explains it: the {model.channel} is off as a smooth function of the "
+                 f"{model.regressor} ({display(test.name, magnitude)} peak to peak, ± {display(test.name, sigma)}, "
+                 f"constant removed); it was absorbed by {absorbed[0]} (correlation {absorbed[1]:+.2f}, concealment "
+                 f"R² {test.concealment_r2:.2f}); adding it lowers {gain}. Most likely: {physics[0]}")
+    return {"effect": "discovered", "channel": model.channel, "regressor": model.regressor, "model": test.name,
+            "curve": curve, "magnitude": magnitude, "sigma": sigma, "unit": model.unit, "hypotheses": physics,
+            "parameters": np.asarray(value).tolist(), "statement": statement,
+            "absorbed_by": [a for a, _ in test.absorbed_by], "mdb": test.mdb, "concealment_r2": test.concealment_r2,
+            "energy_cm2": {"before": energy_before, "after": fit.energy_cm2, "held_out_before": held_before,
+                           "held_out_after": held_after}}
+
+
 def _withdrawn(test: CandidateTest, fit: Fit, sigma: float, statistic: float, p_value: float) -> dict:
     """An effect significant by its score test but not at its refit (fit): its size there, both tests."""
-    magnitude = CANDIDATES[test.name].magnitude_of(fit.model.values[test.name])
+    magnitude = candidate(test.name).magnitude_of(fit.model.values[test.name])
     statement = (f"{test.name} was significant in the linear test ({display(test.name, test.magnitude)}, chi2 "
                  f"{test.statistic:.3g}) but not once re-solved with it ({display(test.name, magnitude)} ± "
                  f"{display(test.name, sigma)}, chi2 {statistic:.3g}, p {p_value:.2g}): withdrawn")
-    return {"effect": test.name, "magnitude": magnitude, "sigma": sigma, "unit": CANDIDATES[test.name].unit,
+    return {"effect": test.name, "magnitude": magnitude, "sigma": sigma, "unit": candidate(test.name).unit,
             "statement": statement, "score_statistic": test.statistic, "refit_statistic": statistic,
             "refit_p_value": p_value}
 

@@ -80,9 +80,15 @@ def _associated(recording: Recording, problem: Problem, estimate: Estimate, mode
     pairs = problem.associate(estimate, points, features)
     if model is None:
         context = ReturnContext.of(problem.full, recording.world.poses, points, features,
-                                   estimate.extrinsic.translation())
+                                   estimate.extrinsic.translation(), recorded_intensity(recording, problem.full.rows))
         model = EffectModel((), {}, context)
     return Fit(recording, replace(problem, effects=None), estimate, model, points, features, pairs)
+
+
+def recorded_intensity(recording: Recording, rows: np.ndarray) -> np.ndarray | None:
+    """The intensity of the returns at rows of points.parquet, or None when the recording has none (all zero)."""
+    intensity = recording.points.read(["intensity"])["intensity"]
+    return None if not np.any(intensity) else np.asarray(intensity[rows], dtype=np.float64)
 
 
 def refit(fit: Fit, names: tuple[str, ...], prior_sigma: dict, iterations: int = 4) -> Fit:

@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import stats
 
-from graphcal.calibration.association import associate
+from graphcal.calibration.association import PairCloud, PairGates, associate
 from graphcal.diagnosis.fit import BLOCK_S, Fit, refit
 
 # candidates whose known size is beyond the linear test's reach: tested by a refit at that size
@@ -63,9 +63,9 @@ def truncated_cost(fit: Fit) -> tuple[np.ndarray, np.ndarray, int]:
     problem = fit.problem.in_phase("fine")
     gates, association = problem.gates, problem.association()
     candidates, fibre = association.candidates, fit.data.fibre
-    pairs = associate(fit.points_m, fibre, fit.features, association.neighbours, gates.gate_start_m,
-                      gates.min_planarity, np.cos(np.radians(gates.max_normal_angle_deg)), gates.max_plane_distance_m,
-                      None, None, candidates, problem.sight(fit.estimate, fit.points_m))
+    cloud = PairCloud(fit.points_m, fibre, fit.features, problem.sight(fit.estimate, fit.points_m))
+    pairs = associate(cloud, association.neighbours, PairGates.of(gates, gates.gate_start_m, capped=False),
+                      candidates=candidates)
     clip_m = gates.max_plane_distance_m
     r = np.einsum("ni,ni->n", pairs.normal, fit.points_m[pairs.index_p] - fit.points_m[pairs.index_m])
     block = np.floor((fit.data.time_s - fit.data.time_s[0]) / BLOCK_S).astype(np.int64)

@@ -29,7 +29,7 @@ import gtsam
 import numpy as np
 from scipy import optimize, stats
 
-from factors.effects import CANDIDATES
+from factors.effects import candidate
 from factors.point_to_plane import jacobian_by_key, residuals
 from graphcal.calibration.association import Correspondences
 from graphcal.calibration.config import CalibrationConfig
@@ -228,7 +228,7 @@ class CandidateTest:
 
 def _headline_sigma(name: str, theta: np.ndarray, covariance: np.ndarray) -> tuple[float, float]:
     """(sigma, mdb) of the headline magnitude: delta method along the estimate's direction."""
-    magnitude = CANDIDATES[name].magnitude_of
+    magnitude = candidate(name).magnitude_of
     d = len(theta)
     norm = np.linalg.norm(theta)
     direction = theta / norm if norm > 0 else np.eye(d)[0]
@@ -279,7 +279,7 @@ def score_candidate(lin: Linearisation, name: str, candidates: list[str]) -> Can
     # the fall of J (m^2, whitened cost x sigma0^2 over the weight sum) the projected candidate explains
     explained_rms_m = lin.sigma0_m * float(np.sqrt(max(theta @ S @ theta, 0.0) / max(lin.half_weight.sum(), 1e-300)))
     return CandidateTest(name, len(k), statistic, float(stats.chi2.sf(statistic, len(k))), float(u @ S_inv @ u),
-                         theta, covariance, CANDIDATES[name].magnitude_of(theta), sigma, mdb, r2,
+                         theta, covariance, candidate(name).magnitude_of(theta), sigma, mdb, r2,
                          _absorbing(L, base, k, Xs, S_inv, theta, lin.names), _held_out(lin, base, k),
                          lin.n_clusters, explained_rms_m, lin.sigma0_m)
 

@@ -7,7 +7,7 @@ reports (inverse of eq. 4.2 with the true offsets, encoder azimuth, noise, effec
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from pyproj import CRS
@@ -113,11 +113,12 @@ def _cast_chunk(cycle_start, lidar_start, scenario, rig: _Rig, scene, rng):
     t_rev = lidar_start + revolution / spin_hz
     encoder = 2 * np.pi * (turns - revolution)
 
-    t_pose, beam_azimuth = t_rev, encoder
+    t_pose, beam_azimuth, elevation_change = t_rev, encoder, np.zeros(len(encoder))
     for effect in rig.effects:
         t_pose = effect.pose_time(t_pose, t_fire, t_rev)
         beam_azimuth = effect.beam_azimuth(beam_azimuth)
-    factory = _true_factory_terms(sensor, fibre, rig.effects)
+        elevation_change = elevation_change + effect.beam_elevation(encoder)
+    factory = _true_factory_terms(sensor, fibre, rig.effects, elevation_change)
     origin_lidar, direction_lidar = beam_rays(beam_azimuth, factory, rig.offsets[fibre])
     position, rotation = rig.poses.interpolate(t_pose)
     origin = rotation.apply(rig.extrinsic.lidar_to_body(origin_lidar)) + position
@@ -128,23 +129,26 @@ def _cast_chunk(cycle_start, lidar_start, scenario, rig: _Rig, scene, rng):
     fibre, encoder, t_fire, t_rev = fibre[hit], encoder[hit], t_fire[hit], t_rev[hit]
     # the raw range a perfect sensor reports, by the inverse of eq. 4.2 with the true offsets
     p_lidar = origin_lidar[hit] + distance[hit, None] * direction_lidar[hit]
-    ideal_range, _, _ = from_xyz(p_lidar, _true_factory_terms(sensor, fibre, rig.effects), rig.offsets[fibre])
+    ideal_range, _, _ = from_xyz(p_lidar, _true_factory_terms(sensor, fibre, rig.effects, elevation_change[hit]),
+                                 rig.offsets[fibre])
     cos_incidence = np.abs(np.sum(normal[hit] * direction[hit], axis=1))
+    intensity = np.clip(255.0 * scene.reflectivity[hit_object[hit]] * cos_incidence, 0, 255)
     range_m, t_rec = ideal_range, t_fire
     for effect in rig.effects:
-        range_m = effect.measured_range(range_m, cos_incidence)
-        t_rec = effect.recorded_time(t_rec, t_fire, t_rev)
+        range_m = effect.measured_range(range_m, cos_incidence, intensity, t_fire - scenario.start_time_s)
+        t_rec = effect.recorded_time(t_rec, t_fire, t_rev, fibre)
     range_m = range_m + rng.normal(0.0, rig.noise_m, len(range_m)) if rig.noise_m > 0 else range_m
-    intensity = np.clip(255.0 * scene.reflectivity[hit_object[hit]] * cos_incidence, 0, 255)
     columns = {"time": t_rec, "fibre": fibre, "range": range_m, "azimuth": encoder, "intensity": intensity,
                "scan": revolution[hit].astype(np.int32)}
     world = origin[hit] + distance[hit, None] * direction[hit]
     return columns, world
 
 
-def _true_factory_terms(sensor: SensorModel, fibre: np.ndarray, effects: list[Effect]) -> FactoryTerms:
-    """The factory terms of the returns' fibres as the effects make them (nominal by default)."""
+def _true_factory_terms(sensor: SensorModel, fibre: np.ndarray, effects: list[Effect],
+                        elevation_change_rad: np.ndarray) -> FactoryTerms:
+    """The factory terms of the returns' fibres as the effects make them (nominal by default), each beam's
+    elevation changed by elevation_change_rad (the effects' beam_elevation at its encoder reading)."""
     factory = sensor.factory_terms(fibre)
     for effect in effects:
         factory = effect.factory_terms(factory, fibre)
-    return factory
+    return replace(factory, elevation_rad=factory.elevation_rad + elevation_change_rad)
