@@ -10,7 +10,8 @@ A discrepancy moves one channel (factors.channels) of every return by f(x), x th
 
 (the signs of diagnosis.json's `curve.y`, RECORDING.md "Discovered effects"). f is
 
-- a cubic B-spline on uniform knots over [lo, hi] (x clamped to it) for a continuous regressor;
+- a cubic B-spline on knots at the regressor's quantiles (x clamped to [first, last knot]) for a continuous
+  regressor, so that every basis function has returns under it;
 - a Fourier series sin(k x), cos(k x), k = 1..K for the encoder azimuth (periodic);
 - one value per fibre for the fibre;
 
@@ -19,8 +20,8 @@ fibre, less the mean over the fibres): a constant error of a channel is an ordin
 and angle offsets, the time offset), and the shape is what counts. The parameters are the functions'
 coefficients in the channel's SI unit (m, rad, s).
 
-A discrepancy is named by its spec, `channel~regressor/size/lo/hi`, so that a name alone rebuilds it
-(`Discrepancy.parse`), and it offers the candidate interface of factors.effects (name, unit, physics,
+A discrepancy is named by its spec, `channel~regressor/size/k0:k1:...` (its knots; the range [lo, hi] for the
+azimuth and the fibre), so that a name alone rebuilds it (`Discrepancy.parse`), and it offers the candidate interface of factors.effects (name, unit, physics,
 signature, parameters, dim, basis, magnitude_of).
 """
 
@@ -42,6 +43,7 @@ CHANNEL_SIGN = {"range": -1.0, "azimuth": 1.0, "elevation": 1.0, "time": -1.0}
 CHANNEL_ERROR = {"range": "measured minus true range", "azimuth": "true minus modelled beam azimuth",
                  "elevation": "true minus modelled beam elevation", "time": "stamped minus true time"}
 DEGREE = 3
+MIN_DISTINCT = 20  # a regressor with fewer distinct values is a category or a constant, not a smooth variable
 GRID = 200  # points over [lo, hi] for the centring constants, the magnitude and the curve
 PREFIX_SEPARATOR = "~"
 
@@ -71,41 +73,65 @@ def is_discrepancy(name: str) -> bool:
 
 @dataclass(frozen=True)
 class Discrepancy:
-    """f(x) on one channel (module docstring): size parameters over x in [lo, hi] (curve.x's unit)."""
+    """f(x) on one channel (module docstring): size parameters; knots (curve.x's unit): the B-spline's
+    (increasing, the first and last bound x), or (lo, hi) for the azimuth and the fibre."""
 
     channel: str
     regressor: str
     size: int
-    lo: float
-    hi: float
+    knots: tuple[float, ...]
 
     def __post_init__(self):
         if self.channel not in CHANNELS:
             raise ValueError(f"discrepancy channel {self.channel!r}: one of {', '.join(CHANNELS)}")
-        if not self.hi > self.lo:
-            raise ValueError(f"discrepancy {self.channel}~{self.regressor}: empty range [{self.lo}, {self.hi}]")
+        if len(self.knots) < 2 or np.any(np.diff(self.knots) <= 0):
+            raise ValueError(f"discrepancy {self.channel}~{self.regressor}: knots {self.knots} do not increase")
+        if self.regressor not in ("azimuth", "fibre") and self.size != len(self.knots) + DEGREE - 2:
+            raise ValueError(f"discrepancy {self.channel}~{self.regressor}: {len(self.knots)} knots give "
+                             f"{len(self.knots) + DEGREE - 2} parameters, not {self.size}")
+
+    @property
+    def lo(self) -> float:
+        return self.knots[0]
+
+    @property
+    def hi(self) -> float:
+        return self.knots[-1]
 
     @classmethod
     def parse(cls, name: str) -> Discrepancy:
-        """The discrepancy a name (`channel~regressor/size/lo/hi`) describes."""
-        head, size, lo, hi = name.split("/")
+        """The discrepancy a name (`channel~regressor/size/k0:k1:...`) describes."""
+        head, size, knots = name.split("/")
         channel, regressor = head.split(PREFIX_SEPARATOR)
-        return cls(channel, regressor, int(size), float(lo), float(hi))
+        return cls(channel, regressor, int(size), tuple(float(k) for k in knots.split(":")))
 
     @classmethod
-    def over(cls, channel: str, regressor: str, x: np.ndarray, n_fibres: int, size: int = 6) -> Discrepancy:
-        """A discrepancy over the 1st-99th percentile of the regressor's values x (every fibre for the fibre,
-        the whole turn for the azimuth)."""
+    def over(cls, channel: str, regressor: str, x: np.ndarray, n_fibres: int, size: int = 6) -> Discrepancy | None:
+        """A discrepancy of about size parameters over the regressor's values x: knots at x's quantiles from the
+        1st to the 99th percentile (every fibre for the fibre, the whole turn for the azimuth); None when x has
+        fewer than MIN_DISTINCT distinct values or too few distinct quantiles for a curve."""
         if regressor == "fibre":
-            return cls(channel, regressor, n_fibres - 1, 0.0, float(n_fibres - 1))
+            return cls(channel, regressor, n_fibres - 1, (0.0, float(n_fibres - 1)))
         if regressor == "azimuth":
-            return cls(channel, regressor, size, 0.0, 360.0)
-        lo, hi = np.percentile(x, [1, 99])
-        return cls(channel, regressor, size, float(f"{lo:.6g}"), float(f"{max(hi, lo + 1e-9):.6g}"))
+            return cls(channel, regressor, size, (0.0, 360.0))
+        if len(np.unique(np.round(x, 9))) < MIN_DISTINCT:
+            return None
+        quantiles = np.unique([float(f"{q:.6g}") for q in np.percentile(x, np.linspace(1, 99, size - DEGREE + 2))])
+        if len(quantiles) < size - DEGREE + 2:
+            return None
+        return cls(channel, regressor, size, tuple(quantiles))
+
+    @classmethod
+    def uniform(cls, channel: str, regressor: str, size: int, lo: float, hi: float) -> Discrepancy:
+        """size parameters over [lo, hi]: uniform knots for a B-spline (the range for the azimuth and the fibre)."""
+        if regressor in ("azimuth", "fibre"):
+            return cls(channel, regressor, size, (lo, hi))
+        return cls(channel, regressor, size, tuple(np.linspace(lo, hi, size - DEGREE + 2)))
 
     @property
     def name(self) -> str:
-        return f"{self.channel}{PREFIX_SEPARATOR}{self.regressor}/{self.size}/{self.lo:.6g}/{self.hi:.6g}"
+        knots = ":".join(f"{k:.6g}" for k in self.knots)
+        return f"{self.channel}{PREFIX_SEPARATOR}{self.regressor}/{self.size}/{knots}"
 
     @property
     def unit(self) -> str:
@@ -137,9 +163,7 @@ class Discrepancy:
             n = self.size + 1
             one_hot = (np.rint(x).astype(np.int64)[:, None] == np.arange(n)).astype(np.float64)
             return (one_hot - 1.0 / n)[:, :self.size]
-        n_basis = self.size + 1
-        interior = np.linspace(self.lo, self.hi, n_basis - DEGREE + 1)
-        knots = np.r_[[self.lo] * DEGREE, interior, [self.hi] * DEGREE]
+        knots = np.r_[[self.lo] * DEGREE, self.knots, [self.hi] * DEGREE]
         grid = np.linspace(self.lo, self.hi, GRID)
         centre = BSpline.design_matrix(grid, knots, DEGREE).toarray().mean(axis=0)
         B = BSpline.design_matrix(np.clip(x, self.lo, self.hi), knots, DEGREE).toarray() - centre
@@ -164,6 +188,27 @@ class Discrepancy:
         y = B @ np.asarray(theta, dtype=np.float64)
         sigma = None if covariance is None else np.sqrt(np.clip(np.einsum("ni,ij,nj->n", B, covariance, B), 0, None))
         return {"x": x, "y": y, "sigma": sigma}
+
+    @property
+    def boresight_part(self) -> np.ndarray | None:
+        """Columns whose curve a rotation of the head also makes (the elevation's once-a-turn sinusoid is a
+        tilted spin axis, which the boresight absorbs), or None."""
+        if self.channel == "elevation" and self.regressor == "azimuth":
+            return np.array([0, self.size // 2])
+        return None
+
+    def without_boresight(self, theta: np.ndarray, covariance: np.ndarray | None = None):
+        """theta (and its covariance) with the boresight's part (boresight_part) set to zero."""
+        part = self.boresight_part
+        if part is None:
+            return theta, covariance
+        theta = np.array(theta, dtype=np.float64)
+        theta[part] = 0.0
+        if covariance is not None:
+            covariance = np.array(covariance, dtype=np.float64)
+            covariance[part, :] = 0.0
+            covariance[:, part] = 0.0
+        return theta, covariance
 
     def magnitude_of(self, theta: np.ndarray) -> float:
         """Peak-to-peak of f over the grid, in `unit`."""

@@ -12,8 +12,8 @@ from factors.spherical import to_xyz
 from factors.world_point import Returns
 from graphcal.recording.sensor import sensor_from_catalog
 
-MODELS = [Discrepancy("range", "intensity", 6, 5.0, 250.0), Discrepancy("azimuth", "azimuth", 6, 0.0, 360.0),
-          Discrepancy("elevation", "range", 8, 3.0, 60.0), Discrepancy("time", "fibre", 31, 0.0, 31.0)]
+MODELS = [Discrepancy.uniform("range", "intensity", 6, 5.0, 250.0), Discrepancy.uniform("azimuth", "azimuth", 6, 0.0, 360.0),
+          Discrepancy.uniform("elevation", "range", 8, 3.0, 60.0), Discrepancy.uniform("time", "fibre", 31, 0.0, 31.0)]
 
 
 @pytest.mark.parametrize("model", MODELS, ids=lambda m: m.name)
@@ -33,7 +33,7 @@ def test_no_basis_spans_a_constant(model):
 
 def test_a_smooth_shape_is_spanned_with_its_mean_removed():
     """Range walk: a decaying curve of the intensity, recovered (mean removed) by 8 cubic B-spline columns."""
-    model = Discrepancy("range", "intensity", 8, 0.0, 255.0)
+    model = Discrepancy.uniform("range", "intensity", 8, 0.0, 255.0)
     x = np.linspace(0, 255, 2000)
     truth = 0.03 * np.exp(-x / 40.0)
     B = model.design(x)
@@ -54,11 +54,11 @@ def test_angles_are_reported_in_degrees_and_signs_follow_the_contract():
     n = 50
     context = Context(rng.uniform(3, 40, n), rng.uniform(0, 2 * np.pi, n), rng.integers(0, 4, n), 4,
                       np.zeros(n), np.zeros(n), np.ones(n), np.zeros((n, 3)), intensity=rng.uniform(0, 255, n))
-    azimuth = Discrepancy("azimuth", "azimuth", 2, 0.0, 360.0)
+    azimuth = Discrepancy.uniform("azimuth", "azimuth", 2, 0.0, 360.0)
     theta = np.array([np.radians(0.05), 0.0])  # 0.05 deg sin(azimuth)
     np.testing.assert_allclose(azimuth.basis(context).azimuth @ theta, np.radians(0.05) * np.sin(context.azimuth_rad))
     assert azimuth.magnitude_of(theta) == pytest.approx(0.1, rel=1e-3)  # peak to peak, deg
-    ranged = Discrepancy("range", "intensity", 4, 0.0, 255.0)
+    ranged = Discrepancy.uniform("range", "intensity", 4, 0.0, 255.0)
     theta = rng.normal(0, 0.01, 4)
     x = regressor_values(context, "intensity")
     np.testing.assert_allclose(ranged.basis(context).range @ theta, -(ranged.design(x) @ theta))
@@ -89,4 +89,4 @@ def test_a_regressor_the_returns_lack_is_reported():
                       np.zeros((n, 3)))
     assert regressor_values(context, "intensity") is None
     with pytest.raises(ValueError, match="no intensity"):
-        Discrepancy("range", "intensity", 4, 0.0, 1.0).basis(context)
+        Discrepancy.uniform("range", "intensity", 4, 0.0, 1.0).basis(context)

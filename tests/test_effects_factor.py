@@ -77,9 +77,9 @@ def _block(name, pose, m_moves, seed=3):
 
 
 # generic discrepancies: every channel, a B-spline, a Fourier and a per-fibre basis, regressors of every source
-DISCREPANCIES = [Discrepancy("range", "intensity", 6, 10.0, 240.0).name, Discrepancy("azimuth", "azimuth", 4, 0, 360).name,
-                 Discrepancy("elevation", "range", 5, 4.0, 38.0).name, Discrepancy("time", "fibre", 63, 0, 63).name,
-                 Discrepancy("time", "yaw_rate", 4, -20.0, 20.0).name, Discrepancy("range", "speed", 4, 1.0, 14.0).name]
+DISCREPANCIES = [Discrepancy.uniform(*spec).name for spec in (
+    ("range", "intensity", 6, 10.0, 240.0), ("azimuth", "azimuth", 4, 0, 360), ("elevation", "range", 5, 4.0, 38.0),
+    ("time", "fibre", 63, 0, 63), ("time", "yaw_rate", 4, -20.0, 20.0), ("range", "speed", 4, 1.0, 14.0))]
 
 
 @pytest.mark.parametrize("name", sorted(CANDIDATES) + DISCREPANCIES)

@@ -216,23 +216,20 @@ def candidate_names(fit: Fit, candidates: list[str] | None, open_world: bool = T
     return [n for n in names if n not in fit.model.names and not (n == "lever_arm" and fit.estimated[1])]
 
 
-@functools.lru_cache(maxsize=8)
-def _discrepancies(context) -> tuple[str, ...]:
+def discrepancies(fit: Fit) -> list[str]:
+    """A generic discrepancy (factors.discrepancy) of every channel against every regressor that varies over the
+    fit's returns, each over the regressor's range."""
+    context = fit.model.context
     everything = context.context(np.arange(len(context.data.time_s)))
     names = []
     for regressor in REGRESSORS:
         x = regressor_values(everything, regressor)
         if x is None or not np.all(np.isfinite(x)) or np.ptp(x) <= 0:
             continue
-        names += [Discrepancy.over(channel, regressor, x, context.data.sensor.n_fibres).name for channel in CHANNELS
+        models = [Discrepancy.over(channel, regressor, x, context.data.sensor.n_fibres) for channel in CHANNELS
                   if (channel, regressor) not in ORDINARY]
-    return tuple(names)
-
-
-def discrepancies(fit: Fit) -> list[str]:
-    """A generic discrepancy (factors.discrepancy) of every channel against every regressor that varies over the
-    fit's returns, each over the regressor's range."""
-    return list(_discrepancies(fit.model.context))
+        names += [model.name for model in models if model is not None]
+    return names
 
 
 def score_all(fit: Fit, names: list[str]) -> tuple[dict, object]:
@@ -380,16 +377,18 @@ def _discovered(test: CandidateTest, fit: Fit, energy_before: float, at_refit: C
     """A discrepancy's finding: its channel, regressor, curve with 1-sigma band (covariance at the refit),
     peak-to-peak magnitude, what absorbed it at the fit before, and the physics that could produce it."""
     model = Discrepancy.parse(test.name)
-    value = fit.model.values[test.name]
-    curve = model.curve(value, at_refit.covariance)
+    value, covariance = model.without_boresight(fit.model.values[test.name], at_refit.covariance)
+    curve = model.curve(value, covariance)
     magnitude = model.magnitude_of(value)
     sigma = float(np.mean(curve["sigma"]))
     absorbed = test.absorbed_by[0]
     physics = hypotheses(model.channel, model.regressor)
     held_before, held_after = test.held_out_cm2
+    removed = ("constant" if model.boresight_part is None
+               else "constant and once-a-turn part (a tilt the boresight takes)")
     statement = (f"no named effect explains it: the {model.channel} is off as a smooth function of the "
                  f"{model.regressor} ({display(test.name, magnitude)} peak to peak, ± {display(test.name, sigma)}, "
-                 f"constant removed); it was absorbed by {absorbed[0]} (correlation {absorbed[1]:+.2f}, concealment "
+                 f"{removed} removed); it was absorbed by {absorbed[0]} (correlation {absorbed[1]:+.2f}, concealment "
                  f"R² {test.concealment_r2:.2f}); adding it lowers {gain}. Most likely: {physics[0]}")
     return {"effect": "discovered", "channel": model.channel, "regressor": model.regressor, "model": test.name,
             "curve": curve, "magnitude": magnitude, "sigma": sigma, "unit": model.unit, "hypotheses": physics,

@@ -50,9 +50,9 @@ CATALOGUE: dict[tuple[str, str], tuple[str, ...]] = {
     ("azimuth", "intensity"): (
         "per-laser timing inside a firing: lasers fired one after another at the spin rate look turned",),
     ("elevation", "azimuth"): (
-        "the spin axis tilted against the head's base: every laser's elevation varies once per turn",
-        "wobble of the spinning head (bearing play): the elevation nods as it turns",
-        "runout of the spinning head"),
+        "wobble of the spinning head (bearing play, an out-of-round bearing): the elevation nods as it turns",
+        "runout of the spinning head",
+        "the spin axis tilted against the head's base (once per turn; the boresight takes most of it)"),
     ("elevation", "range"): (
         "the lasers sit above or below their nominal height (a vertical offset): the angle error shrinks "
         "as 1/range",
