@@ -5,7 +5,7 @@ return, makes the pairs on that noisy cloud at the true calibration (the pipelin
 stand-ins, features, gates) and takes one Gauss-Newton step there. The RMS over the draws of that step
 (per parameter type, eq. 4.6 units) is set against the RMS of the shared-returns sigmas
 (graphcal/calibration/shared_returns.py) of each draw's pairs, as calibrate reports them: a ratio above
-1 is variance the sandwich leaves out (docs/reference/math.md "Observability", docs/STATUS.md). No outer loop and
+1 is variance the sandwich leaves out (docs/reference/math.md "Observability"). No outer loop and
 no pair-draw luck of one run: the measurement for changes to the noisy-head association.
 """
 

@@ -126,7 +126,7 @@ def soft_parameters(information: np.ndarray, firm_sigma: np.ndarray) -> list[int
     sees, e.g. the common vertical offset of fibres that never pair with the reference fibre,
     this picks one of them, as choosing a reference fixes a gauge). Components within TIE of the
     largest are a tie, which the first of them wins: a common mode's components are equal up to
-    rounding, and which one argmax found flipped the static halves check (docs/STATUS.md, session 14).
+    rounding, and which one argmax found flipped the static halves check.
 
     information: (P, P) Gauss-Newton information of the data term (units of the parameters^-2);
     firm_sigma: (P,) the largest 1-sigma that counts as determined, in the parameters' units."""
