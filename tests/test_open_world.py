@@ -49,3 +49,21 @@ def test_the_discovered_curve_has_the_true_shape(wobble):
     assert "once-a-turn part" in first["statement"]
     sigma = np.asarray(first["curve"]["sigma"])
     assert np.all(sigma > 0) and np.all(sigma < 0.5 * np.ptp(truth))
+
+
+def test_the_viewer_draws_the_discovered_curve_with_its_band(wobble, tmp_path):
+    from rrd_read import chunks, column
+
+    from graphcal.viewer.diagnosis import log_diagnosis
+    from graphcal.viewer.stream import recording_stream
+
+    with recording_stream(tmp_path / "run.rrd", "wobble") as stream:
+        log_diagnosis(stream, wobble.fit.recording, wobble, max_points=2000)
+    found = chunks(tmp_path / "run.rrd")
+    curve = wobble.findings[0]["curve"]
+    estimate = column(found["/discovered/elevation_by_azimuth/estimate"], "Scalars:scalars")
+    upper = column(found["/discovered/elevation_by_azimuth/plus_1sigma"], "Scalars:scalars")
+    np.testing.assert_allclose(np.ravel(estimate), curve["y"], rtol=1e-6)
+    np.testing.assert_allclose(np.ravel(upper), np.asarray(curve["y"]) + np.asarray(curve["sigma"]), rtol=1e-6)
+    ((summary,),) = column(found["/summary"], "TextDocument:text")
+    assert "discovered/elevation_by_azimuth" in summary and "curve_point" in summary

@@ -7,6 +7,9 @@ Entity paths (docs/howto/read-the-report-and-viewer.md):
     /world/residual/by_residual           the paired returns p, oriented residual, blue -3 cm .. red +3 cm
     /world/residual/by_<regressor>        the same points coloured by a regressor (viridis, 1st-99th percentile)
     /binned/<regressor>                   trimmed-mean residual less the field's [cm] per bin, timeline "bin"
+    /discovered/<channel>_by_<regressor>  a discovered finding's curve (estimate) and its 1-sigma band, in the
+                                          finding's unit, over its grid of the regressor (timeline "curve_point";
+                                          the summary gives the regressor's range)
 A comparison with a simulation has no fit of its own: the file holds the summary only.
 """
 
@@ -35,6 +38,7 @@ from graphcal.viewer.log import (
     log_coloured,
     log_series,
     log_summary,
+    log_with_sigma,
 )
 from graphcal.viewer.stream import send_layout
 
@@ -55,7 +59,8 @@ def log_diagnosis(stream: rr.RecordingStream, recording: Recording, diagnosis: D
     shown = np.sort(np.random.default_rng(seed).choice(len(p), min(len(p), max_points), replace=False))
     xyz = fit.points_m[p[shown]]
     values = regressors(fit)
-    send_layout(stream, diagnosis_blueprint(list(values), eye_over(xyz)))
+    discovered = [f for f in diagnosis.findings if f["effect"] == "discovered"]
+    send_layout(stream, diagnosis_blueprint(list(values), eye_over(xyz), [discovered_path(f) for f in discovered]))
     stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     log_cloud(stream, "world/residual", xyz, residual_m=(oriented_residual_m(fit)[shown], RESIDUAL_SCALE_M))
     residual_cm = centred_residual_cm(fit)
@@ -66,6 +71,10 @@ def log_diagnosis(stream: rr.RecordingStream, recording: Recording, diagnosis: D
         effect_cm = np.array([stats.trim_mean(residual_cm[index == b], 0.1) if np.any(index == b) else np.nan
                               for b in range(len(edges) - 1)])
         log_series(stream, f"binned/{name}", "bin", np.arange(len(effect_cm)), effect_cm, name, BINNED, points=True)
+    for finding in discovered:
+        curve = finding["curve"]
+        log_with_sigma(stream, discovered_path(finding), "curve_point", np.asarray(curve["y"], dtype=np.float64),
+                       np.asarray(curve["sigma"], dtype=np.float64))
     log_summary(stream, diagnosis_summary(recording, diagnosis, folder, len(shown), fit.data.origin_m))
 
 
@@ -86,6 +95,10 @@ def diagnosis_summary(recording: Recording, diagnosis: Diagnosis, folder: Path |
                    "or by each regressor of the located structure"),
                   ("- bottom: per bin of each regressor (quantile bins, one per fibre), the trimmed-mean residual "
                    "less the whole field's [cm]: a flat line is no structure; select the timeline `bin`"),
+                  *[(f"- discovered/{f['channel']}_by_{f['regressor']}: the {f['channel']} error ({f['unit']}) with "
+                     f"its 1-sigma band over {len(f['curve']['x'])} points of the {f['regressor']} from "
+                     f"{f['curve']['x'][0]:.4g} to {f['curve']['x'][-1]:.4g}; select the timeline `curve_point`")
+                    for f in diagnosis.findings if f["effect"] == "discovered"],
                   "", "## Data",
                   (f"- positions relative to the local origin E {origin_m[0]:.0f} m, N {origin_m[1]:.0f} m, "
                    f"up {origin_m[2]:.0f} m in {recording.world.crs.to_string()} (rerun stores float32)")]
@@ -94,9 +107,15 @@ def diagnosis_summary(recording: Recording, diagnosis: Diagnosis, folder: Path |
     return "\n".join(lines)
 
 
-def diagnosis_blueprint(regressor_names: list[str], eye: rrb.EyeControls3D) -> rrb.Blueprint:
+def discovered_path(finding: dict) -> str:
+    """The entity of a discovered finding's curve."""
+    return f"discovered/{finding['channel']}_by_{finding['regressor']}"
+
+
+def diagnosis_blueprint(regressor_names: list[str], eye: rrb.EyeControls3D,
+                        discovered: list[str] = ()) -> rrb.Blueprint:
     """The residual field on top (tabs per colouring, the residual first), summary and the binned
-    effects below; side panels collapsed."""
+    effects and discovered curves below; side panels collapsed."""
     colourings = ["residual"] + regressor_names
     return rrb.Blueprint(
         rrb.Vertical(
@@ -105,7 +124,9 @@ def diagnosis_blueprint(regressor_names: list[str], eye: rrb.EyeControls3D) -> r
                        for colouring in colourings]),
             rrb.Horizontal(
                 rrb.TextDocumentView(origin="/summary", name="summary"),
-                rrb.Tabs(*[rrb.TimeSeriesView(origin=f"/binned/{name}", name=f"residual per {name} bin [cm]")
+                rrb.Tabs(*[rrb.TimeSeriesView(origin=f"/{path}", name=path.replace("/", ": "))
+                           for path in discovered],
+                         *[rrb.TimeSeriesView(origin=f"/binned/{name}", name=f"residual per {name} bin [cm]")
                            for name in regressor_names]),
                 column_shares=[2, 3]),
             row_shares=[3, 2]),
