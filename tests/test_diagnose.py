@@ -23,7 +23,7 @@ from typer.testing import CliRunner
 import graphcal
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.cli.main import app
-from graphcal.cli.runs import diagnosis_run
+from graphcal.cli.runs import DiagnoseOptions, diagnosis_run
 from graphcal.simulation.script import load_scenario_builder
 
 CONCEALED_SCENARIO = load_scenario_builder("concealed")
@@ -54,8 +54,8 @@ def clean(tmp_path_factory):
 def two_effects(tmp_path_factory):
     """The two-effect recording diagnosed as `graphcal diagnose` does, into a run folder."""
     rec = recording(tmp_path_factory, "two", effect="time_offset", effects=("azimuth_eccentricity",))
-    run = diagnosis_run(rec.path, config(), max_effects=2, out=tmp_path_factory.mktemp("runs") / "run",
-                        viewer_points=VIEWER_POINTS, refit_iterations=2, quiet=True)
+    run = diagnosis_run(rec.path, config(), DiagnoseOptions(max_effects=2, refit_iterations=2),
+                        out=tmp_path_factory.mktemp("runs") / "run", viewer_points=VIEWER_POINTS, quiet=True)
     return rec, run
 
 

@@ -155,6 +155,8 @@ def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory
              max_effects: Annotated[int, typer.Option(help="most effects added")] = 3,
              refit_iterations: Annotated[int, typer.Option(help="outer iterations of each re-solve with an effect "
                                                                 "added", min=1)] = 4,
+             open_world: Annotated[bool, typer.Option(help="also test a smooth error of every channel against every "
+                                                          "regressor, reported as discovered")] = False,
              out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-diagnose-<UTC time>)")] = None,
              spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, quiet: Quiet = False) -> None:
     """Find where the model and the recording disagree, name the physics left out, model it, show the
@@ -165,10 +167,10 @@ def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory
 
     Example: graphcal diagnose out/concealed --mode joint
     """
-    from graphcal.cli.runs import diagnosis_run
+    from graphcal.cli.runs import DiagnoseOptions, diagnosis_run
 
-    run = diagnosis_run(recording, calibration_config(mode, config), simulation, rescan, max_effects, out, spawn,
-                        viewer_points, refit_iterations, quiet)
+    how = DiagnoseOptions(simulation, rescan, max_effects, refit_iterations, open_world)
+    run = diagnosis_run(recording, calibration_config(mode, config), how, out, spawn, viewer_points, quiet)
     if not quiet:
         typer.echo(run.diagnosis.summary())
         typer.echo(f"wrote {run.folder}: diagnosis.json, run.rrd in {run.diagnosis.seconds:.1f} s; "

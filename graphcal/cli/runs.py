@@ -101,17 +101,30 @@ class DiagnosisRun:
     diagnosis: Diagnosis
 
 
-def diagnosis_run(recording_path: Path, config: CalibrationConfig, simulation: Path | None = None,
-                  rescan: bool = False, max_effects: int = 3, out: Path | None = None, spawn: bool = False,
-                  viewer_points: int | None = None, refit_iterations: int = 4, quiet: bool = False) -> DiagnosisRun:
-    """Diagnose the recording against graphcal's model calibrated with config (graphcal.diagnose),
-    or against a simulation of the same drive, or (rescan) against its own returns raycast on a
-    mesh of its calibrated cloud; save diagnosis.json (and the re-solved calibration in
-    calibration/) and run.rrd into the run folder. refit_iterations: outer iterations of each
-    re-solve with an effect added."""
+@dataclass(frozen=True)
+class DiagnoseOptions:
+    """How to diagnose: against a simulation of the same drive (its recording directory), or (rescan) against the
+    recording's own returns raycast on a mesh of its calibrated cloud, or else against graphcal's model
+    (graphcal.diagnose) with at most max_effects added, each re-solved with refit_iterations outer iterations,
+    and with open_world the generic discrepancies tested too."""
+
+    simulation: Path | None = None
+    rescan: bool = False
+    max_effects: int = 3
+    refit_iterations: int = 4
+    open_world: bool = False
+
+
+def diagnosis_run(recording_path: Path, config: CalibrationConfig, how: DiagnoseOptions = DiagnoseOptions(),
+                  out: Path | None = None, spawn: bool = False, viewer_points: int | None = None,
+                  quiet: bool = False) -> DiagnosisRun:
+    """Diagnose the recording as `how` says, the nominal model calibrated with config; save diagnosis.json
+    (and the re-solved calibration in calibration/) and run.rrd into the run folder."""
     from graphcal.diagnosis.compare import compare
     from graphcal.viewer.diagnosis import log_diagnosis
     from graphcal.viewer.log import VIEWER_POINTS
+
+    simulation = how.simulation
 
     loaded = []
 
@@ -123,7 +136,7 @@ def diagnosis_run(recording_path: Path, config: CalibrationConfig, simulation: P
     if simulation is not None:
         with run.stage("compare with the simulation"), status("comparing with the simulation", quiet):
             diagnosis = compare(recording, loaded[0], max_points=config.max_points)
-    elif rescan:
+    elif how.rescan:
         from graphcal.calibration.calibrate import calibrate
         from graphcal.diagnosis.rescan import rescan as simulate_on_mesh
 
@@ -138,8 +151,8 @@ def diagnosis_run(recording_path: Path, config: CalibrationConfig, simulation: P
         from graphcal.diagnosis.diagnose import diagnose
 
         with run.stage("diagnose"):
-            diagnosis = diagnose(recording, config, max_effects=max_effects, refit_iterations=refit_iterations,
-                                 quiet=quiet)
+            diagnosis = diagnose(recording, config, max_effects=how.max_effects,
+                                 refit_iterations=how.refit_iterations, quiet=quiet, open_world=how.open_world)
     with run.stage("save results"):
         diagnosis.save(run.path, command=" ".join(["graphcal"] + sys.argv[1:]))
     with (run.stage("viewer file"), status(f"writing {run.path / RRD}", quiet),
