@@ -68,6 +68,12 @@ PHYSICAL_BOUND = {"time_offset": 0.5, "spin_rate": 0.3, "range_scale": 0.01, "in
 CHANNEL_BOUND = {"range": 0.5, "azimuth": 2.0, "elevation": 2.0, "time": 0.5}
 # channel x regressor pairs not tried: a per-fibre constant of range or angle is an intrinsic offset
 ORDINARY = {("range", "fibre"), ("azimuth", "fibre"), ("elevation", "fibre")}
+# the channel and regressor of a named candidate's signature: it is named only when it explains the residuals at
+# least as well as the generic discrepancy of its own channel and regressor (BIC gain, which prices the latter's
+# extra parameters)
+NAMED_SIGNATURE = {"range_scale": ("range", "range"), "incidence_range_bias": ("range", "incidence"),
+                   "azimuth_eccentricity": ("azimuth", "azimuth"), "spin_rate": ("time", "azimuth"),
+                   "intra_sweep_motion": ("time", "azimuth")}
 UNEXPLAINED_CM = 0.5
 UNEXPLAINED_Q = 1e-6
 DEFAULT_SEPARATING_DATA = "a turn, a speed change, or a second pass in the opposite direction"
@@ -232,6 +238,18 @@ def discrepancies(fit: Fit) -> list[str]:
     return names
 
 
+def generic_if_better(winner: CandidateTest, eligible: list[CandidateTest]) -> CandidateTest:
+    """The named winner, or the generic discrepancy of its own channel and regressor (NAMED_SIGNATURE) when that
+    one is eligible too and gains more: the named physics then explains the structure worse than a free curve of
+    the same variable, and the finding is `discovered`."""
+    signature = NAMED_SIGNATURE.get(winner.name)
+    if signature is None:
+        return winner
+    prefix = f"{signature[0]}~{signature[1]}/"
+    generic = [t for t in eligible if t.name.startswith(prefix)]
+    return generic[0] if generic and generic[0].bic_gain > winner.bic_gain else winner
+
+
 def score_all(fit: Fit, names: list[str]) -> tuple[dict, object]:
     """Every candidate's score test at a fit (the modelled effects in the base), and the linearisation."""
     cluster, half = fit.clusters()
@@ -297,7 +315,8 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
         # candidates the data cannot tell apart (an implausible size rules one out: physics tells them apart)
         group = [leader] + [other for other in eligible[1:]
                             if separation(lin, leader.name, other.name, names) > NOT_SEPARABLE_CORRELATION]
-        winner = max(group, key=functools.partial(name_preference, leader=leader, recording=recording))
+        winner = generic_if_better(max(group, key=functools.partial(name_preference, leader=leader,
+                                                                    recording=recording)), eligible)
         for other in group:
             if other.name != winner.name:
                 pair = sorted((winner.name, other.name))
