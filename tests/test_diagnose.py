@@ -70,6 +70,7 @@ def test_clean_recording_gets_no_discovery_with_the_generic_models_on(clean):
     assert channels == {"range", "azimuth", "elevation", "time"}
     assert {"range", "intensity", "azimuth", "time", "incidence", "fibre"} <= regressors
     assert not any(c["significant"] for c in tried)
+    assert f"{len(tried)} generic discrepancies" in diagnosis.summary() and "~" not in diagnosis.summary()
 
 
 def test_clean_recording_gets_no_false_alarm(clean):

@@ -164,14 +164,18 @@ class Diagnosis:
     def summary(self) -> str:
         if self.findings:
             return "\n".join([f["statement"] for f in self.findings] + [w["statement"] for w in self.withdrawn])
-        rejected = [c for c in self.candidates if c["significant"] and not c["plausible"]]
-        tested = [c for c in self.candidates if np.isfinite(c["mdb"]) and not _blind(c) and c not in rejected]
-        blind = [c["effect"] for c in self.candidates if not np.isfinite(c["mdb"]) or _blind(c)]
+        generic = [c for c in self.candidates if is_discrepancy(c["effect"])]
+        named = [c for c in self.candidates if not is_discrepancy(c["effect"])]
+        rejected = [c for c in named if c["significant"] and not c["plausible"]]
+        tested = [c for c in named if np.isfinite(c["mdb"]) and not _blind(c) and c not in rejected]
+        blind = [c["effect"] for c in named if not np.isfinite(c["mdb"]) or _blind(c)]
         return ("no left-out effect is significant: " + ("; ".join(
             f"{c['effect']} < {display(c['effect'], c['mdb'])} (MDB)" for c in tested) or "no candidate could be tested")
             + "".join(f"; {c['effect']} significant but its estimate {display(c['effect'], c['magnitude'])} is beyond "
                       "its physical size (a degenerate fit, not a finding)" for c in rejected)
             + (f"; not observable in this recording: {', '.join(blind)}" if blind else "")
+            + (f"; {len(generic)} generic discrepancies (every channel against every regressor) tested, none "
+               "discovered" if generic else "")
             + "".join(f"; {w['statement']}" for w in self.withdrawn))
 
 
