@@ -212,6 +212,22 @@ def test_points_not_parquet(rec_dir):
     load_error(rec_dir, "points.parquet", "not a Parquet file")
 
 
+def test_damaged_points(rec_dir):
+    """Bytes overwritten in the middle of points.parquet (a flipped sector): the read fails naming the file."""
+    path = rec_dir / "points.parquet"
+    data = bytearray(path.read_bytes())
+    for where in (0.3, 0.5, 0.7):
+        start = int(len(data) * where)
+        data[start:start + 256] = bytes(range(256))
+    path.write_bytes(bytes(data))
+    load_error(rec_dir, "points.parquet", "damaged Parquet data")
+
+
+def test_binary_recording_yaml(rec_dir):
+    (rec_dir / "recording.yaml").write_bytes(bytes(range(128, 256)) * 4)
+    load_error(rec_dir, "recording.yaml", "not a UTF-8 text file")
+
+
 def rewrite_points(rec_dir: Path, change) -> None:
     path = rec_dir / "points.parquet"
     pq.write_table(change(pq.read_table(path)), path)

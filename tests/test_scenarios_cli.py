@@ -93,3 +93,10 @@ def test_cli_calibrate_writes_a_run_folder_and_rejects_a_bad_config(tmp_path):
     settings.write_text("- mode: joint\n")
     result = runner.invoke(app, ["calibrate", str(recording), "--config", str(settings)])
     assert result.exit_code == 2 and "settings.yaml: not a mapping" in result.output
+
+
+@pytest.mark.parametrize("size", ["0", "nan", "-1"])
+def test_simulate_refuses_a_size_out_of_range_in_one_line(size, tmp_path):
+    result = CliRunner().invoke(app, ["simulate", "sim6_turn", "--size", size, "--out", str(tmp_path / "rec"), "-q"])
+    assert result.exit_code == 2 and "size" in result.output and "Traceback" not in result.output
+    assert not (tmp_path / "rec").exists()

@@ -22,6 +22,8 @@ def _clear_errors(command):
     """Turn graphcal's own errors into one line on stderr and exit code 2 (3 for a refused result)."""
     @functools.wraps(command)
     def wrapper(*args, **kwargs):
+        from pydantic import ValidationError
+
         from graphcal.common.errors import CalibrationError, GraphcalError
 
         try:
@@ -29,6 +31,11 @@ def _clear_errors(command):
         except GraphcalError as error:
             typer.echo(f"error: {error}", err=True)
             raise typer.Exit(3 if isinstance(error, CalibrationError) else 2) from None
+        except ValidationError as error:  # a setting out of range (simulate --size 0, a scenario's field)
+            first = error.errors()[0]
+            where = ".".join(str(part) for part in first["loc"]) or error.title
+            typer.echo(f"error: {error.title} {where}: {first['msg']} (got {first.get('input')!r})", err=True)
+            raise typer.Exit(2) from None
     return wrapper
 
 

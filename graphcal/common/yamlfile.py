@@ -15,7 +15,9 @@ def read_yaml(path: Path):
     if not path.is_file():
         raise RecordingError(path, "file not found")
     try:
-        return yaml.safe_load(path.read_text())
+        return yaml.safe_load(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as error:
+        raise RecordingError(path, f"not a UTF-8 text file (byte {error.start}): YAML expected") from None
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -88,7 +89,8 @@ class PointTable:
         columns = list(columns or self.column_names)
         if self._file is None:
             return {name: self._arrays[name] for name in columns}
-        table = self._file.read(columns=columns)
+        with self._readable():
+            table = self._file.read(columns=columns)
         return {name: table.column(name).to_numpy() for name in columns}
 
     def iter_batches(self, columns: Sequence[str], batch_rows: int | None = None) -> Iterator[dict[str, np.ndarray]]:
@@ -99,8 +101,17 @@ class PointTable:
             for start in range(0, len(self), batch_rows):
                 yield {name: self._arrays[name][start:start + batch_rows] for name in columns}
             return
-        for batch in self._file.iter_batches(batch_size=batch_rows, columns=list(columns)):
-            yield {name: batch.column(name).to_numpy(zero_copy_only=False) for name in columns}
+        with self._readable():
+            for batch in self._file.iter_batches(batch_size=batch_rows, columns=list(columns)):
+                yield {name: batch.column(name).to_numpy(zero_copy_only=False) for name in columns}
+
+    @contextmanager
+    def _readable(self):
+        """Reading the file: a damaged one (a flipped bit, a cut tail) raises RecordingError naming it."""
+        try:
+            yield
+        except (pa.ArrowInvalid, OSError) as error:
+            raise RecordingError(self.path, f"damaged Parquet data: {error}") from None
 
     def save(self, path: Path) -> None:
         """Write atomically with the contract's column types, in row groups of BATCH_ROWS."""
