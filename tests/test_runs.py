@@ -251,6 +251,11 @@ def test_apply_refuses_a_file_name_it_cannot_write(calibrated, tmp_path):
     result = CliRunner().invoke(app, ["apply", str(calibrated[1]), str(calibrated[0]), "--out", str(tmp_path / "c.xyz")])
     assert result.exit_code == 2 and "expected a .las, .laz, .ply file name" in result.output
     assert not list(tmp_path.iterdir())
+    (tmp_path / "folder.laz").mkdir()
+    result = CliRunner().invoke(app, ["apply", str(calibrated[1]), str(calibrated[0]), "--out",
+                                      str(tmp_path / "folder.laz")])
+    assert result.exit_code == 2 and "folder.laz: a directory" in result.output
+    assert not list((tmp_path / "folder.laz").iterdir())
 
 
 def test_las_refuses_a_point_that_is_not_finite_and_names_it(tmp_path):

@@ -100,3 +100,14 @@ def test_simulate_refuses_a_size_out_of_range_in_one_line(size, tmp_path):
     result = CliRunner().invoke(app, ["simulate", "sim6_turn", "--size", size, "--out", str(tmp_path / "rec"), "-q"])
     assert result.exit_code == 2 and "size" in result.output and "Traceback" not in result.output
     assert not (tmp_path / "rec").exists()
+
+
+def test_run_folders_stay_inside_runs_and_out_must_be_a_folder(tmp_path):
+    from graphcal.common.errors import ConfigError
+    from graphcal.common.run_folder import RunFolder
+
+    run = RunFolder.create(None, "../../../x", "calibrate", root=tmp_path / "runs")
+    assert run.path.parent == tmp_path / "runs" and run.path.resolve().is_relative_to((tmp_path / "runs").resolve())
+    (tmp_path / "a_file").write_text("not a folder")
+    with pytest.raises(ConfigError, match="a_file: --out names a file"):
+        RunFolder.create(tmp_path / "a_file", "rec", "calibrate")

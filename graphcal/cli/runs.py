@@ -203,6 +203,8 @@ def apply_run(calibration_path: Path, recording_path: Path, out: Path | None = N
 
     if out is not None and out.suffix.lower() not in STREAMED_SUFFIXES:  # before any work
         raise ConfigError(f"--out {out}: expected a {', '.join(STREAMED_SUFFIXES)} file name")
+    if out is not None and out.is_dir():
+        raise ConfigError(f"--out {out}: a directory; expected a {', '.join(STREAMED_SUFFIXES)} file name")
     if out is None:
         run, recording = start_run(recording_path, None, "apply", quiet)
     else:

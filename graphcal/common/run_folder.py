@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import datetime
 import os
+import re
 import sys
 import time
 from collections.abc import Iterator
@@ -25,13 +26,20 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from graphcal.common.errors import RecordingError
+from graphcal.common.errors import ConfigError, RecordingError
 from graphcal.common.yamlfile import read_yaml, write_yaml
 
 FORMAT = "graphcal-run/1"
 RUNS = Path("runs")
 MANIFEST = "run.yaml"
 LATEST = "latest"
+
+
+def folder_name(name: str) -> str:
+    """A name as one plain path component: letters, digits, '.', '_' and '-' kept, anything else (a separator, a
+    space) as '_', no leading dot (so neither '..' nor a hidden folder)."""
+    plain = re.sub(r"[^A-Za-z0-9._-]", "_", name).lstrip(".")
+    return plain or "recording"
 
 
 def utc_stamp() -> str:
@@ -50,8 +58,11 @@ class RunFolder:
 
     @classmethod
     def create(cls, out: Path | None, recording_name: str, command: str, root: Path = RUNS) -> RunFolder:
-        """The folder `out`, or root/<recording>-<command>-<stamp> with root/latest pointing at it."""
-        path = Path(out) if out is not None else root / f"{recording_name}-{command}-{utc_stamp()}"
+        """The folder `out`, or root/<recording>-<command>-<stamp> with root/latest pointing at it (the recording's
+        name made a plain folder name: a name such as ../../x stays inside root)."""
+        path = Path(out) if out is not None else root / f"{folder_name(recording_name)}-{command}-{utc_stamp()}"
+        if path.exists() and not path.is_dir():
+            raise ConfigError(f"{path}: --out names a file; a run folder is a directory")
         path.mkdir(parents=True, exist_ok=True)
         if out is None:
             link_latest(path)
