@@ -664,3 +664,17 @@ def test_a_batch_of_returns_shares_the_world_trajectory(simulated, monkeypatch):
     batch = recording.with_points(PointTable.from_arrays(**recording.points.read(["time", "fibre", "range", "azimuth"])))
     assert batch.world is world and len(calls) == 1
     assert len(batch.points) == len(recording.points) and batch.trajectory is recording.trajectory
+
+
+@pytest.mark.parametrize(("change", "fragments"), [
+    (lambda s: s["fibres"][3].update(elevation_deg=200.0), ("fibres", "row 3", "elevation_deg is 200", "-90..90")),
+    (lambda s: s["fibres"][5].update(elevation_deg=s["fibres"][2]["elevation_deg"]),
+     ("fibres [2, 5] share the elevation", "one elevation per laser")),
+    (lambda s: s.update(rotation_hzz=10.0), ("unknown field(s) ['rotation_hzz']",)),
+    (lambda s: s["fibres"][0].update(elevaton_deg=1.0), ("row 0", "unknown field(s) ['elevaton_deg']")),
+])
+def test_sensor_yaml_that_cannot_be_a_head_is_refused(rec_dir, change, fragments):
+    sensor = yaml.safe_load((rec_dir / "sensor.yaml").read_text())
+    change(sensor)
+    (rec_dir / "sensor.yaml").write_text(yaml.safe_dump(sensor))
+    load_error(rec_dir, "sensor.yaml", *fragments)

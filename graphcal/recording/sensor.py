@@ -119,6 +119,10 @@ class SensorModel:
         for key, what in expected.items():
             if key not in data:
                 raise RecordingError(path, "missing field", field=key, expected=what)
+        unknown = sorted(set(data) - set(expected))
+        if unknown:
+            raise RecordingError(path, f"unknown field(s) {unknown}", field=unknown[0],
+                                 expected=f"only {', '.join(expected)}")
         if not isinstance(data["model"], str) or not data["model"]:
             raise RecordingError(path, f"model is {data['model']!r}", field="model", expected="the sensor model name")
         rotation_hz = finite_number(data["rotation_hz"], path, "rotation_hz")
@@ -136,9 +140,22 @@ class SensorModel:
             if "elevation_deg" not in row:
                 raise RecordingError(path, "missing elevation_deg", field="fibres", row=row_index,
                                      expected="the fibre's elevation in degrees")
+            unknown = sorted(set(row) - {"id"} - set(columns))
+            if unknown:
+                raise RecordingError(path, f"unknown field(s) {unknown}", field="fibres", row=row_index,
+                                     expected=f"id, {', '.join(columns)}")
             for name in columns:
                 if name in row:
                     columns[name][row_index] = finite_number(row[name], path, f"fibres[{row_index}].{name}")
+            if not -90.0 <= columns["elevation_deg"][row_index] <= 90.0:
+                raise RecordingError(path, f"elevation_deg is {columns['elevation_deg'][row_index]}", field="fibres",
+                                     row=row_index, expected="an elevation within -90..90 deg")
+        values, counts = np.unique(columns["elevation_deg"], return_counts=True)
+        if np.any(counts > 1):
+            twice = int(np.argmax(counts > 1))
+            rows = np.flatnonzero(columns["elevation_deg"] == values[twice])
+            raise RecordingError(path, f"fibres {rows.tolist()} share the elevation {values[twice]} deg",
+                                 field="fibres", row=int(rows[1]), expected="one elevation per laser")
         reference = data["reference_fibre"]
         if isinstance(reference, bool) or not isinstance(reference, int) or not 0 <= reference < len(fibres):
             raise RecordingError(path, f"reference_fibre is {reference!r}", field="reference_fibre",
