@@ -49,6 +49,8 @@ def test_import_pcap_bad_input_is_one_line(tmp_path):
     runner = CliRunner()
     for arguments, words in ((["import", "pcap", str(cut)], "cut short"),
                              (["import", "pcap", str(pcap), "--position", "45,6"], "--position: '45,6' is not 3"),
+                             (["import", "pcap", str(pcap), "--position", "nan,nan,nan"], "finite numbers"),
+                             (["import", "pcap", str(pcap), "--attitude", "inf,0,0"], "--attitude: 'inf,0,0'"),
                              (["import", "pcap", str(pcap), "--model", "VLP-32"], "unknown Velodyne model")):
         result = runner.invoke(app, arguments)
         assert result.exit_code == 2, result.output

@@ -305,7 +305,9 @@ app.add_typer(import_app, name="import")
 
 
 def _numbers(text: str | None, option: str, count: int = 3) -> tuple[float, ...] | None:
-    """'a,b,c' -> (a, b, c), or ConfigError naming the option."""
+    """'a,b,c' -> (a, b, c) of finite numbers, or ConfigError naming the option."""
+    import math
+
     from graphcal.common.errors import ConfigError
 
     if text is None:
@@ -314,8 +316,8 @@ def _numbers(text: str | None, option: str, count: int = 3) -> tuple[float, ...]
         values = tuple(float(v) for v in text.split(","))
     except ValueError:
         values = ()
-    if len(values) != count:
-        raise ConfigError(f"{option}: {text!r} is not {count} comma-separated numbers")
+    if len(values) != count or not all(math.isfinite(v) for v in values):
+        raise ConfigError(f"{option}: {text!r} is not {count} comma-separated finite numbers")
     return values
 
 
