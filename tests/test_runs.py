@@ -177,6 +177,17 @@ def test_report_command_rewrites_the_report_and_rejects_other_folders(calibrated
     result = CliRunner().invoke(app, ["report", str(copy)])
     assert result.exit_code == 2 and result.output.count("\n") == 1, result.output
     assert "calibration.yaml" in result.output and "field 'sensor.reference_fibre'" in result.output
+    for change, command, words in (
+            (lambda c: c.update(unobservable=5), ["report", str(copy)], "field 'unobservable'"),
+            (lambda c: c["intrinsics"][2].update(d_elevation_deg=1e6),
+             ["apply", str(copy), str(calibrated[0]), "--out", str(tmp_path / "cloud.laz")],
+             "intrinsics[2].d_elevation_deg")):
+        tampered = yaml.safe_load((folder / "calibration.yaml").read_text())
+        change(tampered)
+        (copy / "calibration.yaml").write_text(yaml.safe_dump(tampered))
+        result = CliRunner().invoke(app, command)
+        assert result.exit_code == 2 and result.output.count("\n") == 1, result.output
+        assert words in result.output and not (tmp_path / "cloud.laz").exists()
 
 
 def test_evaluate_command_matches_the_run_and_needs_truth(calibrated, tmp_path):

@@ -34,6 +34,10 @@ FORMAT = "graphcal-calibration/1"
 CALIBRATION_FILE = "calibration.yaml"
 HALVES_FILE = "halves.yaml"
 
+# the largest intrinsic offset a calibration file may hold (file units): beyond, it is not a calibration of this head
+OFFSET_BOUND_M = 1.0
+OFFSET_BOUND_DEG = 10.0
+
 
 
 def calibration_file(path: str | Path) -> Path:
@@ -90,6 +94,11 @@ class Calibration:
             offsets[index] = [0.0 if row.get(name) is None  # held at its nominal value
                               else finite_number(row[name], path, f"intrinsics[{index}].{name}")
                               for name in INTRINSIC_NAMES]
+            for name, value in zip(INTRINSIC_NAMES, offsets[index]):
+                bound, unit = (OFFSET_BOUND_M, "m") if name.endswith("_m") else (OFFSET_BOUND_DEG, "deg")
+                if abs(value) > bound:
+                    raise RecordingError(path, f"{name} is {value}", field=f"intrinsics[{index}].{name}",
+                                         expected=f"an offset within ±{bound:g} {unit}")
             held += [f"fibre_{index}.{name}" for name in INTRINSIC_NAMES
                      if row.get(name) is None and index != sensor.reference_fibre]
         extrinsic = _mapping(data.get("extrinsic"), path, "extrinsic", "lever_arm_m and boresight_deg")
@@ -234,6 +243,14 @@ def read_calibration_yaml(path: Path) -> dict:
         raise RecordingError(path, f"intrinsics is {data.get('intrinsics')!r}", field="intrinsics",
                              expected="a list, one row per fibre")
     _mapping(data.get("extrinsic"), path, "extrinsic", "lever_arm_m and boresight_deg")
+    unobservable = data.get("unobservable") or []
+    if not isinstance(unobservable, list) or not all(isinstance(name, str) for name in unobservable):
+        raise RecordingError(path, f"unobservable is {unobservable!r}", field="unobservable",
+                             expected="a list of parameter names")
+    reasons = data.get("unobservable_reasons") or {}
+    if not isinstance(reasons, dict) or not all(isinstance(v, str) for v in reasons.values()):
+        raise RecordingError(path, f"unobservable_reasons is {reasons!r}", field="unobservable_reasons",
+                             expected="a mapping of parameter name to plain words")
     return data
 
 
