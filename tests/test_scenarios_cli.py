@@ -111,3 +111,14 @@ def test_run_folders_stay_inside_runs_and_out_must_be_a_folder(tmp_path):
     (tmp_path / "a_file").write_text("not a folder")
     with pytest.raises(ConfigError, match="a_file: --out names a file"):
         RunFolder.create(tmp_path / "a_file", "rec", "calibrate")
+
+
+def test_calibrate_refuses_a_recording_too_small_to_pair(tmp_path):
+    """A recording that `info` accepts but that holds too few returns to pair: one line, exit 2, no run folder."""
+    runner = CliRunner()
+    out = tmp_path / "tiny"
+    assert runner.invoke(app, ["simulate", "sim6_turn", "--size", "0.001", "--out", str(out), "-q"]).exit_code == 0
+    assert runner.invoke(app, ["info", str(out)]).exit_code == 0
+    result = runner.invoke(app, ["calibrate", str(out), "--out", str(tmp_path / "run"), "-q"])
+    assert result.exit_code == 2 and result.output.count("\n") == 1, result.output
+    assert "returns; a calibration needs at least 10,000" in result.output and not (tmp_path / "run").exists()

@@ -43,6 +43,16 @@ PHASES: tuple[Phase, ...] = ("coarse", "fine")
 # to loose ones
 LAMBDA_UPPER_BOUND = 1e12
 
+MIN_RETURNS = 10_000  # fewer cannot give pairs of neighbouring fibres on enough surfaces
+
+
+def enough_returns(recording: Recording) -> None:
+    """ConfigError naming the recording when it holds fewer than MIN_RETURNS returns."""
+    if len(recording.points) < MIN_RETURNS:
+        raise ConfigError(f"{recording.path or recording.name}: {len(recording.points):,} returns; a calibration "
+                          f"needs at least {MIN_RETURNS:,} (about 1/70 s of a 32-laser head) to pair returns of "
+                          "neighbouring fibres on common surfaces")
+
 
 @dataclass
 class History:
@@ -102,6 +112,7 @@ class Problem:
     def of(cls, recording: Recording, config: CalibrationConfig) -> Problem:
         """The returns of the recording (a seeded subset of config.max_points) and the settings resolved for
         it; the parameters config.static.hold names held at nominal."""
+        enough_returns(recording)
         data = prepare(recording, config.trajectory.control_interval_s, config.max_points,
                        np.random.default_rng(config.seed), range_noise_m=config.weighting.range_noise_m)
         config = config.for_sensor(data.static, data.range_noise_m, revisits(recording.world.poses))

@@ -43,10 +43,11 @@ def calibration_run(recording_path: Path, config: CalibrationConfig, out: Path |
     from graphcal.calibration.before_after import residuals_before_after
     from graphcal.calibration.calibrate import calibrate
     from graphcal.calibration.evaluate import evaluate as against_truth
+    from graphcal.calibration.problem import enough_returns
     from graphcal.viewer.calibration import log_calibration
     from graphcal.viewer.log import VIEWER_POINTS
 
-    run, recording = start_run(recording_path, out, command, quiet)
+    run, recording = start_run(recording_path, out, command, quiet, check=enough_returns)
     result = calibrate(recording, config, quiet=quiet)
     run.timings_s.update({f"calibrate: {name}": seconds for name, seconds in result.timings_s.items()})
     with run.stage("save results"):
