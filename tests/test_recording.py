@@ -678,3 +678,16 @@ def test_sensor_yaml_that_cannot_be_a_head_is_refused(rec_dir, change, fragments
     change(sensor)
     (rec_dir / "sensor.yaml").write_text(yaml.safe_dump(sensor))
     load_error(rec_dir, "sensor.yaml", *fragments)
+
+
+@pytest.mark.parametrize("column, value, words", [("x", "9e12", "metres within +-1e+08"),
+                                                  ("z", "-3e6", "metres within +-100000")])
+def test_trajectory_coordinate_no_vehicle_has(rec_dir, column, value, words):
+    """A grid coordinate of 9e12 m once reached open3d as 'voxel_size is too small': refused at load."""
+    lines = trajectory_lines(rec_dir)
+    header = lines[0].split(",")
+    cells = lines[12].split(",")
+    cells[header.index(column)] = value
+    lines[12] = ",".join(cells)
+    write_trajectory(rec_dir, lines)
+    load_error(rec_dir, "trajectory.csv", f"field '{column}', row 12", words)

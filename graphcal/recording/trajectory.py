@@ -13,6 +13,9 @@ from graphcal.common.tables import read_csv_columns, write_csv_columns
 GEODETIC_COLUMNS = ("time", "lat", "lon", "alt", "roll", "pitch", "yaw")
 PROJECTED_COLUMNS = ("time", "x", "y", "z", "roll", "pitch", "yaw")
 
+MAX_GRID_M = 1e8  # no map projection's easting or northing is larger (UTM: < 1e7)
+MAX_HEIGHT_M = 1e5  # above the atmosphere, below the deepest mine: not a vehicle's height
+
 
 @dataclass(frozen=True)
 class Trajectory:
@@ -54,8 +57,8 @@ class Trajectory:
         return trajectory
 
     def validate(self, path: Path) -> None:
-        """At least 2 poses, strictly increasing time, latitude/longitude in range (geodetic);
-        RecordingError naming `path` and the 1-based row otherwise."""
+        """At least 2 poses, strictly increasing time, latitude/longitude (geodetic), grid coordinates and heights
+        in range; RecordingError naming `path` and the 1-based row otherwise."""
         if len(self.time) < 2:
             raise RecordingError(path, f"{len(self.time)} pose(s)", expected="at least 2 poses to interpolate")
         bad = np.flatnonzero(np.diff(self.time) <= 0)
@@ -64,10 +67,10 @@ class Trajectory:
             raise RecordingError(path, f"time {float(self.time[row - 1])!r} does not increase after "
                                        f"{float(self.time[row - 2])!r}",
                                  field="time", row=row, expected="strictly increasing times")
-        if self.geodetic:
-            lat, lon = self.position[:, 0], self.position[:, 1]
-            for name, column, limit in (("lat", lat, 90.0), ("lon", lon, 180.0)):
-                out = np.flatnonzero(np.abs(column) > limit)
-                if out.size:
-                    raise RecordingError(path, f"value {float(column[out[0]])!r}", field=name, row=int(out[0]) + 1,
-                                         expected=f"degrees within +-{limit:g}")
+        limits = (90.0, 180.0, MAX_HEIGHT_M) if self.geodetic else (MAX_GRID_M, MAX_GRID_M, MAX_HEIGHT_M)
+        units = ("degrees", "degrees", "metres") if self.geodetic else ("metres",) * 3
+        for name, column, limit, unit in zip(self.columns[1:4], self.position.T, limits, units):
+            out = np.flatnonzero(np.abs(column) > limit)
+            if out.size:
+                raise RecordingError(path, f"value {float(column[out[0]])!r}", field=name, row=int(out[0]) + 1,
+                                     expected=f"{unit} within +-{limit:g}")
