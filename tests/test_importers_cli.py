@@ -56,6 +56,11 @@ def test_import_pcap_bad_input_is_one_line(tmp_path):
         assert result.exit_code == 2, result.output
         lines = result.output.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("error: ") and words in lines[0]
+    (tmp_path / "taken").mkdir()
+    (tmp_path / "taken" / "recording.yaml").write_text("format: graphcal-recording/1\n")
+    result = runner.invoke(app, ["import", "pcap", str(pcap), "--out", str(tmp_path / "taken")])
+    assert result.exit_code == 2 and "taken: already exists; an import does not replace it" in result.output
+    assert (tmp_path / "taken" / "recording.yaml").read_text() == "format: graphcal-recording/1\n"
 
 
 def test_import_sbet_and_csv_write_trajectory_csv(tmp_path):

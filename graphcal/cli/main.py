@@ -355,6 +355,8 @@ def import_pcap_command(
     from graphcal.importers.velodyne_calibration import read_velodyne_calibration
     from graphcal.importers.velodyne_pcap import import_pcap
 
+    if out is not None:  # before the import's work
+        _imported_recording_folder(out, "")
     extrinsic = None
     if lever_arm is not None or boresight is not None:
         extrinsic = Extrinsic(lever_arm_m=_numbers(lever_arm, "--lever-arm") or (0.0, 0.0, 0.0),
@@ -370,9 +372,20 @@ def import_pcap_command(
     else:
         recording = import_pcap(pcap, **options)
     recording.crs = crs
-    out = out or Path("out") / recording.name
+    out = _imported_recording_folder(out, recording.name)
     recording.save(out)
     _print_notes(recording, out, quiet)
+
+
+def _imported_recording_folder(out: Path | None, name: str) -> Path:
+    """Where an import writes: `out`, or out/<name> (a plain folder name); never over an existing recording."""
+    from graphcal.common.errors import ConfigError
+    from graphcal.common.run_folder import folder_name
+
+    path = out or Path("out") / folder_name(name)
+    if path.exists() and (not path.is_dir() or any(path.iterdir())):
+        raise ConfigError(f"{path}: already exists; an import does not replace it (remove it or choose another --out)")
+    return path
 
 
 def _read_trajectory(path: Path):
@@ -393,9 +406,11 @@ def import_kitti_command(
     from graphcal.importers.kitti import import_kitti
     from graphcal.importers.velodyne_calibration import read_velodyne_calibration
 
+    if out is not None:  # before the import's work
+        _imported_recording_folder(out, "")
     recording = import_kitti(drive, calibration=read_velodyne_calibration(calibration) if calibration else None,
                              quiet=quiet)
-    out = out or Path("out") / recording.name
+    out = _imported_recording_folder(out, recording.name)
     recording.save(out)
     _print_notes(recording, out, quiet)
 
