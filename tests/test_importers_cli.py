@@ -90,3 +90,11 @@ def test_import_kitti(tmp_path):
     assert result.exit_code == 0, result.output
     assert "DERIVED from the azimuth" in result.output
     assert len(Recording.load(tmp_path / "kitti").points) == len(truth["time"])
+
+
+def test_import_of_a_folder_that_is_no_bag_is_one_line(tmp_path):
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "photos" / "a.txt").write_text("not a bag")
+    result = CliRunner().invoke(app, ["import", "pcap", str(tmp_path / "photos"), "--out", str(tmp_path / "rec")])
+    assert result.exit_code == 2 and result.output.count("\n") == 1, result.output
+    assert "not a readable ROS bag" in result.output and not (tmp_path / "rec").exists()

@@ -122,3 +122,12 @@ def test_calibrate_refuses_a_recording_too_small_to_pair(tmp_path):
     result = runner.invoke(app, ["calibrate", str(out), "--out", str(tmp_path / "run"), "-q"])
     assert result.exit_code == 2 and result.output.count("\n") == 1, result.output
     assert "returns; a calibration needs at least 10,000" in result.output and not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("script, words", [("def scenario(:\n", "line 1: invalid syntax"),
+                                           ("import math\nx = 1 / 0\n", "line 2: ZeroDivisionError")])
+def test_a_broken_scenario_script_is_one_line(script, words, tmp_path):
+    path = tmp_path / "broken.py"
+    path.write_text(script)
+    result = CliRunner().invoke(app, ["simulate", str(path), "--out", str(tmp_path / "rec"), "-q"])
+    assert result.exit_code == 2 and result.output.count("\n") == 1 and words in result.output, result.output

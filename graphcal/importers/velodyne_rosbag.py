@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from graphcal.common.errors import ConfigError, RecordingError
+from graphcal.common.errors import ConfigError, GraphcalError, RecordingError
 from graphcal.importers.velodyne_calibration import VelodyneCalibration
 from graphcal.importers.velodyne_packets import PACKET, PACKET_BYTES
 from graphcal.importers.velodyne_pcap import (
@@ -42,20 +42,27 @@ def read_velodyne_packets(bag: str | Path, topic: str | None = None) -> tuple[np
     for name, definition in _DEFINITIONS.items():
         store.register(get_types_from_msg(definition, name))
     data, stamps = [], []
-    with AnyReader([bag], default_typestore=store) as reader:
-        scans = [c for c in reader.connections if c.msgtype.replace("/msg/", "/") == SCAN_TYPE.replace("/msg/", "/")
-                 and (topic is None or c.topic == topic)]
-        if not scans:
-            found = ", ".join(sorted(f"{c.topic} ({c.msgtype})" for c in reader.connections)) or "none"
-            raise RecordingError(bag, f"no {SCAN_TYPE} topic{f' named {topic}' if topic else ''}; topics: {found}",
-                                 field="topic", expected="Velodyne packets (velodyne_driver output)")
-        for connection, _, raw in reader.messages(connections=scans):
-            for packet in reader.deserialize(raw, connection.msgtype).packets:
-                if len(packet.data) != PACKET_BYTES:
-                    raise RecordingError(bag, f"packet of {len(packet.data)} bytes on {connection.topic}",
-                                         expected=f"{PACKET_BYTES}-byte Velodyne data packets")
-                data.append(np.asarray(packet.data, dtype=np.uint8))
-                stamps.append(packet.stamp.sec + 1e-9 * packet.stamp.nanosec)
+    try:
+        with AnyReader([bag], default_typestore=store) as reader:
+            wanted = SCAN_TYPE.replace("/msg/", "/")
+            scans = [c for c in reader.connections if c.msgtype.replace("/msg/", "/") == wanted
+                     and (topic is None or c.topic == topic)]
+            if not scans:
+                found = ", ".join(sorted(f"{c.topic} ({c.msgtype})" for c in reader.connections)) or "none"
+                raise RecordingError(bag, f"no {SCAN_TYPE} topic{f' named {topic}' if topic else ''}; topics: {found}",
+                                     field="topic", expected="Velodyne packets (velodyne_driver output)")
+            for connection, _, raw in reader.messages(connections=scans):
+                for packet in reader.deserialize(raw, connection.msgtype).packets:
+                    if len(packet.data) != PACKET_BYTES:
+                        raise RecordingError(bag, f"packet of {len(packet.data)} bytes on {connection.topic}",
+                                             expected=f"{PACKET_BYTES}-byte Velodyne data packets")
+                    data.append(np.asarray(packet.data, dtype=np.uint8))
+                    stamps.append(packet.stamp.sec + 1e-9 * packet.stamp.nanosec)
+    except GraphcalError:
+        raise
+    except Exception as error:  # rosbags' own (a folder without metadata.yaml, an empty or damaged bag, a cut message)
+        raise RecordingError(bag, f"not a readable ROS bag: {type(error).__name__}: {error}",
+                             expected="a rosbag1 file or a rosbag2 folder with its metadata.yaml") from None
     if not data:
         raise RecordingError(bag, "no packet in the VelodyneScan messages", expected="Velodyne data packets")
     return np.stack(data).view(PACKET).ravel(), np.asarray(stamps)

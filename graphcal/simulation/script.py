@@ -6,6 +6,7 @@ import argparse
 import importlib.util
 import inspect
 import time
+import traceback
 from collections.abc import Callable
 from pathlib import Path
 
@@ -27,7 +28,15 @@ def load_scenario_builder(name_or_path: str) -> Callable[..., Scenario]:
         raise ConfigError(f"{name_or_path}: no such scenario (a script path, or one of: {known})")
     spec = importlib.util.spec_from_file_location(f"graphcal_scenario_{path.stem}", path)
     module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    try:
+        spec.loader.exec_module(module)
+    except SyntaxError as error:
+        raise ConfigError(f"{path}: line {error.lineno}: {error.msg} (the scenario script does not parse)") from None
+    except Exception as error:  # the script's own code failed as it was loaded
+        line = next((frame.lineno for frame in reversed(traceback.extract_tb(error.__traceback__))
+                     if Path(frame.filename) == path), None)
+        raise ConfigError(f"{path}{f': line {line}' if line else ''}: {type(error).__name__}: {error} "
+                          "(the scenario script failed as it was loaded)") from None
     if not hasattr(module, "scenario"):
         raise ConfigError(f"{path}: a scenario script must define scenario(size=..., seed=...)")
     return module.scenario
