@@ -181,7 +181,10 @@ def test_report_command_rewrites_the_report_and_rejects_other_folders(calibrated
             (lambda c: c.update(unobservable=5), ["report", str(copy)], "field 'unobservable'"),
             (lambda c: c["intrinsics"][2].update(d_elevation_deg=1e6),
              ["apply", str(copy), str(calibrated[0]), "--out", str(tmp_path / "cloud.laz")],
-             "intrinsics[2].d_elevation_deg")):
+             "intrinsics[2].d_elevation_deg"),
+            (lambda c: [row.update(time=row["time"] + 1e5) for row in c["trajectory_corrections"]],
+             ["apply", str(copy), str(calibrated[0]), "--out", str(tmp_path / "cloud.laz")],
+             "trajectory corrections apply only to the drive they were made on")):
         tampered = yaml.safe_load((folder / "calibration.yaml").read_text())
         change(tampered)
         (copy / "calibration.yaml").write_text(yaml.safe_dump(tampered))

@@ -18,7 +18,7 @@ import pyarrow.parquet as pq
 from graphcal.calibration.evaluate import apply_calibration
 from graphcal.calibration.result import Calibration
 from graphcal.clouds.formats import cloud_writer
-from graphcal.common.errors import RecordingError
+from graphcal.common.errors import ConfigError, RecordingError
 from graphcal.recording.points import PointTable
 from graphcal.common.progress import progress
 from graphcal.recording.directory import Recording
@@ -40,11 +40,25 @@ def read_residuals(path: Path, n_points: int) -> tuple[np.ndarray, np.ndarray]:
     return unique, np.sqrt(mean_square)
 
 
+def corrections_cover(calibration: Calibration, recording: Recording, path: Path) -> None:
+    """ConfigError when the calibration's trajectory corrections (made on one drive) are at times the recording's
+    trajectory never reaches: they cannot be this drive's."""
+    times = calibration.control_times_s
+    if len(times) == 0:
+        return
+    first, last = recording.world.poses.span
+    if times[-1] < first or times[0] > last:
+        raise ConfigError(f"{path}: the calibration's trajectory corrections cover {times[0]:.3f}-{times[-1]:.3f} s, "
+                          f"the recording {recording.path or recording.name} spans {first:.3f}-{last:.3f} s: "
+                          "trajectory corrections apply only to the drive they were made on")
+
+
 def write_corrected_cloud(path: Path, calibration: Calibration, recording: Recording,
                           residuals: tuple[np.ndarray, np.ndarray] | None = None, quiet: bool = False) -> Path:
     """Every return of `recording` placed with `calibration`, written by the file's suffix
     (.las, .laz, .ply) BATCH_ROWS returns at a time (memory stays flat: about 1 kB per return of
     a batch); residuals: (rows, residual [m]) of the calibration's own recording."""
+    corrections_cover(calibration, recording, path)
     n_points = len(recording.points)
     residual = np.full(n_points, np.nan, dtype=np.float32)
     if residuals is not None:
