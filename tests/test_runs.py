@@ -328,16 +328,43 @@ def test_run_folder_names_times_and_links_the_latest(tmp_path):
     from graphcal.common.run_folder import RunFolder, read_manifest
 
     first = RunFolder.create(None, "sim6_turn", "calibrate", root=tmp_path)
-    assert re.fullmatch(r"sim6_turn-calibrate-\d{8}T\d{6}Z", first.path.name)
+    assert re.fullmatch(r"sim6_turn-calibrate-\d{8}T\d{6}Z", first.final.name)
     with first.stage("solve"):
         pass
     with first.stage("solve"):  # a stage run twice adds up
         pass
     first.finish(recording="/data/rec")
+    assert not first.final.exists()  # written aside until complete
+    assert first.publish() == first.final and first.path == first.final
     manifest = read_manifest(first.path)
     assert manifest["recording"] == "/data/rec" and list(manifest["timings_s"]) == ["solve"]
     second = RunFolder.create(tmp_path / "second", "sim6_turn", "deskew-ins", root=tmp_path)
+    second.publish()
     assert (tmp_path / "latest").resolve() == first.path.resolve()  # an explicit --out is not "latest"
     assert second.path == tmp_path / "second"
     with pytest.raises(RecordingError, match="not a graphcal run manifest|file not found"):
         read_manifest(second.path)
+
+
+def test_a_re_run_into_an_existing_folder_replaces_it_whole_or_not_at_all(tmp_path):
+    """A run interrupted half way (here an error; a SIGKILL leaves only a hidden .partial folder) leaves the previous
+    run at --out as it was; a complete one replaces it whole, with none of the old files beside the new."""
+    from graphcal.common.run_folder import RunFolder, abandon_unpublished
+
+    old = RunFolder.create(tmp_path / "run", "rec", "calibrate")
+    for name in ("calibration.yaml", "report.html", "run.rrd"):
+        (old.path / name).write_text("old")
+    old.finish(recording="/data/rec")
+    old.publish()
+    half = RunFolder.create(tmp_path / "run", "rec", "calibrate")
+    (half.path / "calibration.yaml").write_text("new")
+    abandon_unpublished()  # what the command line does on an error (and the interpreter at exit)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+    assert {p.name: p.read_text() for p in (tmp_path / "run").iterdir() if p.suffix != ".yaml" or
+            p.name == "calibration.yaml"} == {"calibration.yaml": "old", "report.html": "old", "run.rrd": "old"}
+    whole = RunFolder.create(tmp_path / "run", "rec", "calibrate")
+    (whole.path / "calibration.yaml").write_text("new")
+    whole.finish(recording="/data/rec")
+    whole.publish()
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["calibration.yaml", "run.yaml"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]

@@ -25,10 +25,12 @@ def _clear_errors(command):
         from pydantic import ValidationError
 
         from graphcal.common.errors import CalibrationError, GraphcalError
+        from graphcal.common.run_folder import abandon_unpublished
 
         try:
             return command(*args, **kwargs)
         except GraphcalError as error:
+            abandon_unpublished()
             typer.echo(f"error: {error}", err=True)
             raise typer.Exit(3 if isinstance(error, CalibrationError) else 2) from None
         except ValidationError as error:  # a setting out of range (simulate --size 0, a scenario's field)

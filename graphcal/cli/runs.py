@@ -62,9 +62,9 @@ def calibration_run(recording_path: Path, config: CalibrationConfig, out: Path |
             write_yaml(run.path / "evaluation.yaml", evaluation.to_dict())
     with (run.stage("viewer file"), status(f"writing {run.path / RRD}", quiet),
           recording_stream(run.path / RRD, recording.name, spawn) as rec):
-        log_calibration(rec, recording, result, residuals, evaluation, run.path, viewer_points or VIEWER_POINTS)
+        log_calibration(rec, recording, result, residuals, evaluation, run.final, viewer_points or VIEWER_POINTS)
     _finish_with_report(run, recording_path, quiet)
-    return CalibrationRun(run.path, result, residuals, evaluation)
+    return CalibrationRun(run.publish(), result, residuals, evaluation)
 
 
 def deskew_run(recording_path: Path, source: str, cloud_format: str, out: Path | None = None, use_gyro: bool = True,
@@ -89,9 +89,9 @@ def deskew_run(recording_path: Path, source: str, cloud_format: str, out: Path |
                                    iter_scans(recording, source, use_gyro=use_gyro, quiet=True),
                                    len(recording.points), recording.world.poses.position_m,
                                    viewer_points or VIEWER_POINTS)
-        log_summary(rec, deskew_summary(recording, source, scans, shown, origin, run.path))
+        log_summary(rec, deskew_summary(recording, source, scans, shown, origin, run.final))
     run.finish(recording=str(Path(recording_path).resolve()))
-    return run.path, scans
+    return run.publish(), scans
 
 
 @dataclass(frozen=True)
@@ -158,10 +158,10 @@ def diagnosis_run(recording_path: Path, config: CalibrationConfig, how: Diagnose
         diagnosis.save(run.path, command=" ".join(["graphcal"] + sys.argv[1:]))
     with (run.stage("viewer file"), status(f"writing {run.path / RRD}", quiet),
           recording_stream(run.path / RRD, recording.name, spawn) as rec):
-        log_diagnosis(rec, recording, diagnosis, run.path, viewer_points or VIEWER_POINTS)
+        log_diagnosis(rec, recording, diagnosis, run.final, viewer_points or VIEWER_POINTS)
     references = {"simulation": str(Path(simulation).resolve())} if simulation is not None else {}
     run.finish(recording=str(Path(recording_path).resolve()), **references)
-    return DiagnosisRun(run.path, diagnosis)
+    return DiagnosisRun(run.publish(), diagnosis)
 
 
 def evaluation_run(calibration_path: Path, recording_path: Path, quiet: bool = False) -> tuple[Evaluation, Path]:
@@ -224,6 +224,7 @@ def apply_run(calibration_path: Path, recording_path: Path, out: Path | None = N
             write_corrected_cloud(path, calibration, recording, residuals, quiet)
         run.finish(recording=str(Path(recording_path).resolve()), calibration=str(Path(calibration_path).resolve()),
                        cloud=path.name, residuals="from the calibration's final fit" if residuals else "none (NaN)")
+        path = run.publish() / path.name
     return path
 
 

@@ -10,15 +10,22 @@ Commands use it as
 
     run = RunFolder.create(out, recording.name, "calibrate")
     with run.stage("calibrate"):
-        ...
+        ...                                  # files written into run.path
     run.finish(recording=str(path))
+    run.publish()                            # run.path becomes run.final, whole
+
+A run is written into a hidden sibling folder (.<name>.partial-<pid>) and moved to its place only when complete,
+so an interrupted run (even a SIGKILL) never leaves a folder that mixes a new calibration with an old report: a
+re-run into an existing --out replaces it at the end, or leaves it as it was.
 """
 
 from __future__ import annotations
 
+import atexit
 import datetime
 import os
 import re
+import shutil
 import sys
 import time
 from collections.abc import Iterator
@@ -53,6 +60,8 @@ class RunFolder:
 
     path: Path
     command: str
+    final: Path
+    latest: bool = False
     timings_s: dict[str, float] = field(default_factory=dict)
     created: str = field(default_factory=lambda: datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"))
 
@@ -60,13 +69,36 @@ class RunFolder:
     def create(cls, out: Path | None, recording_name: str, command: str, root: Path = RUNS) -> RunFolder:
         """The folder `out`, or root/<recording>-<command>-<stamp> with root/latest pointing at it (the recording's
         name made a plain folder name: a name such as ../../x stays inside root)."""
-        path = Path(out) if out is not None else root / f"{folder_name(recording_name)}-{command}-{utc_stamp()}"
-        if path.exists() and not path.is_dir():
-            raise ConfigError(f"{path}: --out names a file; a run folder is a directory")
-        path.mkdir(parents=True, exist_ok=True)
-        if out is None:
-            link_latest(path)
-        return cls(path, command)
+        final = Path(out) if out is not None else root / f"{folder_name(recording_name)}-{command}-{utc_stamp()}"
+        if final.exists() and not final.is_dir():
+            raise ConfigError(f"{final}: --out names a file; a run folder is a directory")
+        working = final.parent / f".{final.name}.partial-{os.getpid()}"
+        if working.exists():
+            shutil.rmtree(working)
+        working.mkdir(parents=True)
+        run = cls(working, command, final, latest=out is None)
+        _UNPUBLISHED.append(run)
+        return run
+
+    def publish(self) -> Path:
+        """Move the complete run to its place (replacing a previous run there) and point runs/latest at it. A
+        recording inside the folder it replaces (the demo's out/recording, an input rather than a result) is kept."""
+        if self.path != self.final:
+            replaced = self.final.parent / f".{self.final.name}.replaced-{os.getpid()}"
+            if self.final.exists():
+                for child in self.final.iterdir():
+                    if (child / "recording.yaml").is_file() and not (self.path / child.name).exists():
+                        os.replace(child, self.path / child.name)
+                os.replace(self.final, replaced)
+            os.replace(self.path, self.final)
+            if replaced.exists():
+                shutil.rmtree(replaced)
+            self.path = self.final
+        if self in _UNPUBLISHED:
+            _UNPUBLISHED.remove(self)
+        if self.latest:
+            link_latest(self.final)
+        return self.final
 
     @contextmanager
     def stage(self, name: str) -> Iterator[None]:
@@ -86,6 +118,21 @@ class RunFolder:
                     "timings_s": {name: round(seconds, 3) for name, seconds in self.timings_s.items()}}
         write_yaml(self.path / MANIFEST, manifest)
         return self.path / MANIFEST
+
+
+_UNPUBLISHED: list[RunFolder] = []
+
+
+def abandon_unpublished() -> None:
+    """Remove the working folders of runs that ended without publish (an error): what they had written is gone,
+    the previous run at their place untouched. Also called at exit."""
+    while _UNPUBLISHED:
+        run = _UNPUBLISHED.pop()
+        if run.path != run.final:
+            shutil.rmtree(run.path, ignore_errors=True)
+
+
+atexit.register(abandon_unpublished)
 
 
 def read_manifest(folder: Path) -> dict:
