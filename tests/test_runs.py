@@ -182,6 +182,8 @@ def test_report_command_rewrites_the_report_and_rejects_other_folders(calibrated
             (lambda c: c["intrinsics"][2].update(d_elevation_deg=1e6),
              ["apply", str(copy), str(calibrated[0]), "--out", str(tmp_path / "cloud.laz")],
              "intrinsics[2].d_elevation_deg"),
+            (lambda c: c.update(effects=[{"effect": "quantum_foam", "magnitude": 1.0}]), ["report", str(copy)],
+             "effects[0].effect"),
             (lambda c: [row.update(time=row["time"] + 1e5) for row in c["trajectory_corrections"]],
              ["apply", str(copy), str(calibrated[0]), "--out", str(tmp_path / "cloud.laz")],
              "trajectory corrections apply only to the drive they were made on")):

@@ -14,6 +14,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from scipy.spatial.transform import Rotation
 
+from factors.effects import CANDIDATES
 from graphcal.common.atomic import atomic_path
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.observability import (
@@ -36,6 +37,8 @@ HALVES_FILE = "halves.yaml"
 
 # the largest intrinsic offset a calibration file may hold (file units): beyond, it is not a calibration of this head
 OFFSET_BOUND_M = 1.0
+# what a calibration.yaml's `effects` may name: graphcal.diagnose's findings
+KNOWN_EFFECTS = frozenset(CANDIDATES) | {"discovered", "unexplained"}
 OFFSET_BOUND_DEG = 10.0
 
 
@@ -247,6 +250,12 @@ def read_calibration_yaml(path: Path) -> dict:
     if not isinstance(unobservable, list) or not all(isinstance(name, str) for name in unobservable):
         raise RecordingError(path, f"unobservable is {unobservable!r}", field="unobservable",
                              expected="a list of parameter names")
+    effects = data.get("effects") or []
+    for index, row in enumerate(effects if isinstance(effects, list) else [effects]):
+        name = row.get("effect") if isinstance(row, dict) else row
+        if not isinstance(effects, list) or name not in KNOWN_EFFECTS:
+            raise RecordingError(path, f"effect {name!r}", field=f"effects[{index}].effect",
+                                 expected=f"one of {', '.join(sorted(KNOWN_EFFECTS))}")
     reasons = data.get("unobservable_reasons") or {}
     if not isinstance(reasons, dict) or not all(isinstance(v, str) for v in reasons.values()):
         raise RecordingError(path, f"unobservable_reasons is {reasons!r}", field="unobservable_reasons",
