@@ -29,7 +29,8 @@ class UdpPayloads:
     """The UDP payloads of a capture, in file order.
 
     time_s: capture (host clock) time of each record, s since 1970 UTC; port: destination port;
-    start/length: where each payload lies in `data`; record: its 0-based record index in the file.
+    start/length: where each payload lies in `data`; record: its 0-based record index in the file;
+    cut_bytes: the bytes of an incomplete last record dropped (what a crashed capture leaves), 0 for none.
     """
 
     path: Path
@@ -40,6 +41,7 @@ class UdpPayloads:
     length: np.ndarray
     record: np.ndarray
     n_records: int
+    cut_bytes: int = 0
 
     def stack(self, mask: np.ndarray, size: int) -> np.ndarray:
         """The selected payloads (all `size` bytes long) as one (n, size) uint8 array."""
@@ -67,7 +69,7 @@ def read_udp_payloads(path: str | Path) -> UdpPayloads:
     if link not in _LINK_LAYERS:
         raise RecordingError(path, f"link type {link}", field="link type",
                              expected="Ethernet (1), Linux cooked (113, 276) or raw IP (12, 101, 228)")
-    offsets, seconds, fractions, captured = _walk_records(path, data, order)
+    offsets, seconds, fractions, captured, cut_bytes = _walk_records(path, data, order)
     time_s = seconds + fractions * tick
     l2, proto_at = _LINK_LAYERS[link]
     n = len(offsets)
@@ -91,30 +93,29 @@ def read_udp_payloads(path: str | Path) -> UdpPayloads:
     udp_length = (data[udp + 4].astype(np.int64) << 8 | data[udp + 5]) - 8
     start = udp + 8
     return UdpPayloads(path=path, data=data, time_s=time_s[keep], port=port, start=start,
-                       length=np.minimum(udp_length, end[keep] - start), record=keep, n_records=n)
+                       length=np.minimum(udp_length, end[keep] - start), record=keep, n_records=n, cut_bytes=cut_bytes)
 
 
 def _walk_records(path: Path, data: np.ndarray, order: str):
-    """Offsets and header fields of every record; RecordingError when the file ends inside one."""
+    """Offsets and header fields of every whole record, and the bytes of an incomplete last record (the file ends
+    inside it: a capture cut short), which are dropped."""
     buffer, size = data.data, len(data)
     header = struct.Struct(order + "IIII")
     offsets, seconds, fractions, captured = [], [], [], []
     offset = 24
     while offset < size:
         if offset + 16 > size:
-            raise RecordingError(path, f"record {len(offsets)} at byte {offset}: file ends inside its 16-byte header",
-                                 expected="whole records (the capture was cut short)")
+            break
         sec, frac, incl, _ = header.unpack_from(buffer, offset)
         if offset + 16 + incl > size:
-            raise RecordingError(path, f"record {len(offsets)} at byte {offset}: {size - offset - 16} of its "
-                                       f"{incl} bytes present", expected="whole records (the capture was cut short)")
+            break
         offsets.append(offset)
         seconds.append(sec)
         fractions.append(frac)
         captured.append(incl)
         offset += 16 + incl
     return (np.asarray(offsets, dtype=np.int64), np.asarray(seconds, dtype=np.float64),
-            np.asarray(fractions, dtype=np.float64), np.asarray(captured, dtype=np.int64))
+            np.asarray(fractions, dtype=np.float64), np.asarray(captured, dtype=np.int64), size - offset)
 
 
 def _u16be(data: np.ndarray, at: np.ndarray, captured: np.ndarray, needed: int) -> np.ndarray:

@@ -71,6 +71,7 @@ class VelodyneReturns:
     host_hour_utc_s: float = 0.0
     n_data_packets: int = 0
     n_other_packets: int = 0
+    cut_bytes: int = 0
 
 
 def decode_pcap(path: str | Path, model: str | None = None, distance_resolution_m: float = 0.002,
@@ -92,7 +93,8 @@ def decode_pcap(path: str | Path, model: str | None = None, distance_resolution_
                              interpolate_azimuth, quiet)
     is_position = (udp.length == POSITION_PACKET_BYTES) & (udp.port == POSITION_PORT)
     return replace(decoded, fixes=_fixes(udp, is_data, is_position, unwrap_hour_us(packets["stamp_us"])),
-                   n_other_packets=int((~is_data & ~is_position).sum()) + udp.n_records - len(udp.record))
+                   n_other_packets=int((~is_data & ~is_position).sum()) + udp.n_records - len(udp.record),
+                   cut_bytes=udp.cut_bytes)
 
 
 def decode_packets(source: Path, packets: np.ndarray, host_time_s: np.ndarray, records: np.ndarray,
@@ -143,6 +145,8 @@ def recording_from_returns(decoded: VelodyneReturns, importer: str, *, calibrati
               f"{len(decoded.returns['time_s'])} returns, {decoded.rotation_hz:.2f} Hz")]
     if decoded.n_other_packets:
         notes.append(f"{decoded.n_other_packets} other records skipped (neither lidar data nor position packets)")
+    if decoded.cut_bytes:
+        notes.append(f"the capture ends inside a record (cut short): its last {decoded.cut_bytes} bytes dropped")
     sensor = _sensor(path, decoded, calibration, notes)
     hour_utc_s = _hour(decoded, notes)
     time, week = seconds_of_week(hour_utc_s, decoded.returns["time_s"])
