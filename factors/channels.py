@@ -33,7 +33,7 @@ Exp(omega d_t) z) x n.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -51,8 +51,7 @@ class Context:
     azimuth [rad], fibre id, number of fibres, time within the revolution [s] (azimuth / (2 pi
     nominal rate)), time since the recording's first pose [s], |cos| of the incidence angle, INS
     position X_nav (N,3) [m, world minus the local origin]; and where known, the return's intensity
-    (points.parquet's units), the INS speed [m/s] and yaw rate [rad/s, about world z], and any other
-    numeric column of points.parquet by its name (columns)."""
+    (points.parquet's units), the INS speed [m/s] and yaw rate [rad/s, about world z]."""
 
     range_m: np.ndarray
     azimuth_rad: np.ndarray
@@ -65,7 +64,6 @@ class Context:
     intensity: np.ndarray | None = None
     speed_m_s: np.ndarray | None = None
     yaw_rate_rad_s: np.ndarray | None = None
-    columns: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

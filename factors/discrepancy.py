@@ -60,10 +60,7 @@ def regressor_values(context: Context, regressor: str) -> np.ndarray | None:
         "speed": lambda: context.speed_m_s,
         "yaw_rate": lambda: None if context.yaw_rate_rad_s is None else np.degrees(context.yaw_rate_rad_s),
     }
-    if regressor in values:
-        out = values[regressor]()
-    else:
-        out = context.columns.get(regressor)
+    out = values[regressor]()
     return None if out is None else np.asarray(out, dtype=np.float64)
 
 

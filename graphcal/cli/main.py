@@ -358,7 +358,7 @@ def import_pcap_command(
     from graphcal.importers.velodyne_pcap import import_pcap
 
     if out is not None:  # before the import's work
-        _imported_recording_folder(out, "")
+        _not_taken(out)
     extrinsic = None
     if lever_arm is not None or boresight is not None:
         extrinsic = Extrinsic(lever_arm_m=_numbers(lever_arm, "--lever-arm") or (0.0, 0.0, 0.0),
@@ -381,10 +381,15 @@ def import_pcap_command(
 
 def _imported_recording_folder(out: Path | None, name: str) -> Path:
     """Where an import writes: `out`, or out/<name> (a plain folder name); never over an existing recording."""
-    from graphcal.common.errors import ConfigError
     from graphcal.common.run_folder import folder_name
 
-    path = out or Path("out") / folder_name(name)
+    return _not_taken(out or Path("out") / folder_name(name))
+
+
+def _not_taken(path: Path) -> Path:
+    """path, or ConfigError when something is there already (an import does not replace a recording)."""
+    from graphcal.common.errors import ConfigError
+
     if path.exists() and (not path.is_dir() or any(path.iterdir())):
         raise ConfigError(f"{path}: already exists; an import does not replace it (remove it or choose another --out)")
     return path
@@ -409,7 +414,7 @@ def import_kitti_command(
     from graphcal.importers.velodyne_calibration import read_velodyne_calibration
 
     if out is not None:  # before the import's work
-        _imported_recording_folder(out, "")
+        _not_taken(out)
     recording = import_kitti(drive, calibration=read_velodyne_calibration(calibration) if calibration else None,
                              quiet=quiet)
     out = _imported_recording_folder(out, recording.name)

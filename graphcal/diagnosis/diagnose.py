@@ -213,16 +213,15 @@ def _row(test: CandidateTest, recording: Recording, n: int) -> dict:
             "plausible": plausible(test, recording) if test.identifiable else False}
 
 
-def candidate_names(fit: Fit, candidates: list[str] | None, open_world: bool = True) -> list[str]:
-    """The candidates to test: all by default, less those the model already estimates (the lever arm
-    when the extrinsic is estimated) or has added; and with open_world, a generic discrepancy of every
-    channel against every regressor the returns have (discrepancies)."""
+def candidate_names(fit: Fit, candidates: list[str] | None, generic: list[str] = ()) -> list[str]:
+    """The candidates to test: all by default, and the generic discrepancies given (discrepancies), less those
+    the model already estimates (the lever arm when the extrinsic is estimated) or has added."""
     names = list(candidates or CANDIDATES)
     unknown = sorted(set(names) - set(CANDIDATES))
     if unknown:
         from graphcal.common.errors import ConfigError
         raise ConfigError(f"unknown candidate effect(s) {unknown}; known: {', '.join(CANDIDATES)}")
-    names += discrepancies(fit) if open_world else []
+    names += list(generic)
     return [n for n in names if n not in fit.model.names and not (n == "lever_arm" and fit.estimated[1])]
 
 
@@ -249,8 +248,8 @@ def generic_if_better(winner: CandidateTest, eligible: list[CandidateTest]) -> C
     signature = NAMED_SIGNATURE.get(winner.name)
     if signature is None:
         return winner
-    prefix = f"{signature[0]}~{signature[1]}/"
-    generic = [t for t in eligible if t.name.startswith(prefix)]
+    generic = [t for t in eligible if is_discrepancy(t.name)
+               and (Discrepancy.parse(t.name).channel, Discrepancy.parse(t.name).regressor) == signature]
     return generic[0] if generic and generic[0].bic_gain > winner.bic_gain else winner
 
 
@@ -279,10 +278,11 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
     findings, not_separable, first_round, concealed, added, at_known_size = [], [], None, [], None, []
     withdrawn, previous = [], None
     # a round adds a finding, withdraws one (at most every candidate once) or ends the diagnosis
-    rounds = max_effects + 1 + len(candidate_names(fit, candidates, open_world))
+    generic = discrepancies(fit) if open_world else []  # the returns' context, the same in every round
+    rounds = max_effects + 1 + len(candidate_names(fit, candidates, generic))
     # rounds is a bound the diagnosis seldom reaches: an open-ended bar, not a percentage of it
     for _ in progress(iter(range(rounds)), f"diagnosing (rounds, at most {rounds})", quiet=quiet):
-        names = candidate_names(fit, candidates, open_world)
+        names = candidate_names(fit, candidates, generic)
         tests, lin = score_all(fit, names)
         if added is not None:  # the effect added last, with its sigma at the refit
             winner, before, hypothesis = added
