@@ -104,22 +104,29 @@ class Recording:
     def save(self, path: str | Path) -> Path:
         """Write the whole recording atomically (a temporary directory renamed at the end)."""
         path = Path(path)
+        truth = self.truth
+        with atomic_directory(path) as tmp:
+            self.points.save(tmp / "points.parquet")
+            if truth is not None:
+                truth.save_world_points(tmp / "truth")
+            self.save_beside_points(tmp)
+        self.path = path
+        self.points = PointTable.open(path / "points.parquet")
+        return path
+
+    def save_beside_points(self, directory: Path) -> None:
+        """Every file of the recording but points.parquet and truth's world points, into `directory`
+        (save() writes those too; a streaming simulation writes them as it goes)."""
         manifest = {"format": FORMAT, "name": self.name, "crs": self.crs}
         if self.odometry is not None:
             manifest["odometry"] = self.odometry.params()
         if self.source:
             manifest["source"] = self.source
-        truth = self.truth
-        with atomic_directory(path) as tmp:
-            write_yaml(tmp / "recording.yaml", manifest)
-            write_yaml(tmp / "sensor.yaml", self.sensor.to_dict())
-            write_yaml(tmp / "extrinsic.yaml", self.extrinsic.to_dict())
-            self.trajectory.save_csv(tmp / "trajectory.csv")
-            self.points.save(tmp / "points.parquet")
-            if self.odometry is not None:
-                self.odometry.save_csv(tmp / "odometry.csv")
-            if truth is not None:
-                truth.save(tmp / "truth")
-        self.path = path
-        self.points = PointTable.open(path / "points.parquet")
-        return path
+        write_yaml(directory / "recording.yaml", manifest)
+        write_yaml(directory / "sensor.yaml", self.sensor.to_dict())
+        write_yaml(directory / "extrinsic.yaml", self.extrinsic.to_dict())
+        self.trajectory.save_csv(directory / "trajectory.csv")
+        if self.odometry is not None:
+            self.odometry.save_csv(directory / "odometry.csv")
+        if self.truth is not None:
+            self.truth.save_beside_world_points(directory / "truth")

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +24,25 @@ SCHEMA = {
     "scan": (pa.int32(), ("int",), False),
 }
 BATCH_ROWS = 1 << 20
+
+
+def point_schema(column_names: Sequence[str]) -> pa.Schema:
+    """The contract's columns among column_names, in the contract's order and types."""
+    return pa.schema([(name, SCHEMA[name][0]) for name in SCHEMA if name in column_names])
+
+
+@contextmanager
+def row_group_writer(path: Path, schema: pa.Schema) -> Iterator[Callable[[dict[str, np.ndarray]], None]]:
+    """A Parquet file (zstd) written as it goes: each write(columns) appends its rows, cast to the schema's
+    types, as row groups of at most BATCH_ROWS rows (an empty write adds nothing). Not atomic by itself:
+    write into a temporary path (graphcal.common.atomic)."""
+    with pq.ParquetWriter(path, schema, compression="zstd") as writer:
+        def write(columns: dict[str, np.ndarray]) -> None:
+            if len(columns[schema.names[0]]):
+                typed = {field.name: np.asarray(columns[field.name], dtype=field.type.to_pandas_dtype())
+                         for field in schema}
+                writer.write_table(pa.table(typed, schema=schema), row_group_size=BATCH_ROWS)
+        yield write
 
 
 def _kind_ok(arrow_type: pa.DataType, kinds: Sequence[str]) -> bool:
@@ -115,11 +134,10 @@ class PointTable:
 
     def save(self, path: Path) -> None:
         """Write atomically with the contract's column types, in row groups of BATCH_ROWS."""
-        schema = pa.schema([(name, SCHEMA[name][0]) for name in SCHEMA if name in self.column_names])
-        with atomic_path(path) as tmp, pq.ParquetWriter(tmp, schema, compression="zstd") as writer:
+        schema = point_schema(self.column_names)
+        with atomic_path(path) as tmp, row_group_writer(tmp, schema) as write:
             for batch in self.iter_batches(schema.names):
-                writer.write_table(pa.table({n: pa.array(batch[n], type=schema.field(n).type) for n in schema.names}),
-                                   row_group_size=BATCH_ROWS)
+                write(batch)
 
     def validate(self, n_fibres: int, source: Path | str = "points.parquet") -> PointSummary:
         """Check types, values and time order batch by batch; return what was learnt."""

@@ -46,7 +46,10 @@ class PoseTrack:
         t0, t1 = self.time[index], self.time[index + 1]
         alpha = ((t - t0) / (t1 - t0))[:, None]
         position = (1.0 - alpha) * self.position_m[index] + alpha * self.position_m[index + 1]
-        return position, Slerp(self.time, self.rotation)(t)
+        # SLERP over the poses around t only (from the one before, where SLERP puts a time on a pose):
+        # the same values as over the whole track, at a cost that does not grow with the track's length
+        first, last = (max(int(index.min()) - 1, 0), int(index.max()) + 2) if t.size else (0, 2)
+        return position, Slerp(self.time[first:last], self.rotation[first:last])(t)
 
     def transform(self, t, p_body) -> np.ndarray:
         """Body-frame points (M,3) observed at times t (M,) -> world frame (M,3) [m]."""

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -12,10 +14,20 @@ import pyarrow.parquet as pq
 from graphcal.common.atomic import atomic_path
 from graphcal.recording.extrinsic import Extrinsic
 from graphcal.recording.intrinsics import load_offsets_csv, save_offsets_csv
+from graphcal.recording.points import row_group_writer
 from graphcal.recording.trajectory import Trajectory
 from graphcal.common.yamlfile import read_yaml, write_yaml
 
 WORLD_POINTS = "points.parquet"
+_WORLD_SCHEMA = pa.schema([(name, pa.float64()) for name in "xyz"])
+
+
+@contextmanager
+def world_point_writer(path: Path) -> Iterator[Callable[[np.ndarray], None]]:
+    """truth/points.parquet written as it goes: each write(xyz (N,3) true world position [m, world frame])
+    appends its rows as row groups. Not atomic by itself: write into a temporary path."""
+    with row_group_writer(path, _WORLD_SCHEMA) as write:
+        yield lambda xyz: write({name: xyz[:, k] for k, name in enumerate("xyz")})
 
 
 @dataclass
@@ -40,16 +52,18 @@ class Truth:
             self._world_points = np.column_stack([table.column(n).to_numpy() for n in "xyz"])
         return self._world_points
 
-    def save(self, directory: Path) -> None:
+    def save_world_points(self, directory: Path) -> None:
+        """truth/points.parquet, atomically."""
+        with atomic_path(directory / WORLD_POINTS) as tmp, world_point_writer(tmp) as write:
+            write(self.world_points())
+
+    def save_beside_world_points(self, directory: Path) -> None:
+        """Every file of truth/ but the world points (which a streaming simulation writes as it goes)."""
         directory.mkdir(parents=True, exist_ok=True)
         save_offsets_csv(directory / "intrinsics.csv", self.intrinsics)
         write_yaml(directory / "extrinsic.yaml", self.extrinsic.to_dict())
         self.trajectory.save_csv(directory / "trajectory.csv")
         write_yaml(directory / "effects.yaml", self.effects)
-        xyz = self.world_points()
-        with atomic_path(directory / WORLD_POINTS) as tmp:
-            pq.write_table(pa.table({n: xyz[:, k] for k, n in enumerate("xyz")}), tmp,
-                           compression="zstd", row_group_size=1 << 20)
 
     @classmethod
     def load(cls, directory: Path, n_fibres: int) -> Truth:

@@ -10,6 +10,7 @@ from graphcal.recording.geodesy import enu_to_grid_rotation, grid_to_geodetic, m
 from graphcal.recording.poses import PoseTrack
 from graphcal.recording.rotations import rpy_deg_from_rotation, unwrap_deg
 from graphcal.simulation.drive import Drive
+from graphcal.simulation.ins_drift import ins_drift
 from graphcal.simulation.scenario import InsErrors
 from graphcal.recording.trajectory import Trajectory
 
@@ -32,7 +33,8 @@ def true_poses(drive: Drive, start_time_s: float, duration_s: float, rate_hz: fl
 def recorded_poses(truth: PoseTrack, errors: InsErrors, effects: list[Effect],
                    rng: np.random.Generator) -> PoseTrack:
     """What the GNSS/INS writes: truth resampled at errors.rate_hz, plus a piecewise-linear
-    position error, white noise and the switched-on INS effects (e.g. heading drift, projection scale)."""
+    position error, white noise, the INS drift (random walks, slow bias, jumps: ins_drift.py) and
+    the switched-on INS effects (e.g. heading drift, projection scale)."""
     t0, t1 = truth.span
     time = sample_times(t0, t1, errors.rate_hz)
     ins = truth.resample(time)
@@ -43,6 +45,9 @@ def recorded_poses(truth: PoseTrack, errors: InsErrors, effects: list[Effect],
         position += np.column_stack([np.interp(time, knots, error[:, k]) for k in range(3)])
     position += rng.normal(0.0, errors.position_noise_m, position.shape)
     rpy = unwrap_deg_columns(ins.rpy_deg) + rng.normal(0.0, errors.attitude_noise_deg, position.shape)
+    drift_m, heading_drift_deg = ins_drift(time, errors, rng)
+    position += drift_m
+    rpy[:, 2] += heading_drift_deg
     for effect in effects:
         rpy = effect.ins_rpy(time - t0, rpy)
         position = effect.ins_position(time - t0, position)

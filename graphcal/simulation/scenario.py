@@ -42,7 +42,13 @@ class IntrinsicErrors(BaseModel):
 
 
 class InsErrors(BaseModel):
-    """How the recorded GNSS/INS trajectory departs from the truth."""
+    """How the recorded GNSS/INS trajectory departs from the truth.
+
+    Besides white noise and a piecewise-linear error, the drift of a GNSS-aided INS (ins_drift.py):
+    a random walk of the position and of the heading, a slowly wandering position bias (first-order
+    Gauss-Markov) and GNSS-like jumps (a position step at Poisson-distributed times, kept until the
+    next). All off by default; every draw comes from the scenario's seed.
+    """
 
     model_config = _FROZEN
     rate_hz: float = Field(100.0, gt=0, le=1000)
@@ -50,6 +56,13 @@ class InsErrors(BaseModel):
     attitude_noise_deg: float = Field(0.0, ge=0, description="white noise per pose, each angle")
     piecewise_error_m: float = Field(0.0, ge=0, description="RMS norm of a piecewise-linear position error")
     piecewise_interval_s: float = Field(1.0, gt=0)
+    position_walk_m_sqrt_s: float = Field(0.0, ge=0, description="position random walk, each axis: "
+                                                                 "sigma after t seconds = value x sqrt(t) [m/sqrt(s)]")
+    heading_walk_deg_sqrt_s: float = Field(0.0, ge=0, description="heading (yaw) random walk [deg/sqrt(s)]")
+    position_bias_m: float = Field(0.0, ge=0, description="slow position bias, stationary sigma each axis [m]")
+    bias_correlation_s: float = Field(60.0, gt=0, description="correlation time of the slow bias [s]")
+    jump_rate_hz: float = Field(0.0, ge=0, description="mean number of GNSS-like position jumps per second")
+    jump_m: float = Field(0.0, ge=0, description="sigma of each jump's step, each axis [m]")
 
 
 class OdometrySpec(BaseModel):

@@ -1,4 +1,4 @@
-"""Scene builders: triangle meshes (open3d) for ground, facades, poles, boxes and parked cars.
+"""Scene builders: triangle meshes (open3d) for ground, facades, poles, boxes, parked cars and trees.
 
 Coordinates are in the simulator's local frame: x east, y north, z up [m], origin at the
 scenario's map origin. Each builder is a validated spec with `kind` and `mesh()`; an object may
@@ -127,7 +127,26 @@ class ParkedCar(_Object):
         return body + _box((2.5, 1.6, 0.5), (*cabin_xy, 1.55), self.yaw_deg)
 
 
-SceneObject = Annotated[Ground | Facade | Pole | Box | ParkedCar, Field(discriminator="kind")]
+class Tree(_Object):
+    """A street tree standing on the ground at xy: a trunk (8-sided cylinder) under a round crown (a coarse
+    sphere, solid) whose centre is 0.8 crown radius above the trunk's top [m]."""
+
+    kind: Literal["tree"] = "tree"
+    xy: Vec2
+    trunk_radius_m: float = Field(0.15, gt=0)
+    trunk_height_m: float = Field(3.0, gt=0)
+    crown_radius_m: float = Field(2.0, gt=0)
+    reflectivity: float = Field(0.3, gt=0, le=1, description="diffuse reflectivity, 0-1")
+
+    def mesh(self) -> o3d.geometry.TriangleMesh:
+        trunk = o3d.geometry.TriangleMesh.create_cylinder(self.trunk_radius_m, self.trunk_height_m, resolution=8,
+                                                          split=1)
+        crown = o3d.geometry.TriangleMesh.create_sphere(self.crown_radius_m, resolution=6)
+        crown_z = self.trunk_height_m + 0.8 * self.crown_radius_m
+        return trunk.translate((*self.xy, self.trunk_height_m / 2)) + crown.translate((*self.xy, crown_z))
+
+
+SceneObject = Annotated[Ground | Facade | Pole | Box | ParkedCar | Tree, Field(discriminator="kind")]
 
 
 def street(length_m: float, width_m: float, height_m: float = 12.0, relief_spacing_m: float = 6.0,

@@ -11,8 +11,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 from graphcal.common.errors import ConfigError
+from graphcal.recording.points import PointTable
 from graphcal.simulation.scenario import Scenario
-from graphcal.simulation.simulator import simulate
+from graphcal.simulation.simulator import simulate_to
 
 # the scenario scripts of scenarios/, shipped inside the package as graphcal.scenarios (pyproject.toml)
 SCENARIOS_DIR = Path(importlib.util.find_spec("graphcal.scenarios").submodule_search_locations[0])
@@ -43,17 +44,22 @@ def load_scenario_builder(name_or_path: str) -> Callable[..., Scenario]:
 
 
 def run_scenario_script(build: Callable[..., Scenario], argv: list[str] | None = None) -> Path:
-    """Parse --out/--size/--seed/--quiet, simulate build(size=, seed=) and write the recording."""
+    """Parse --out/--size/--seed/--quiet (and --duration when build takes duration_s), simulate
+    build(size=, seed=[, duration_s=]) and write the recording as it goes (simulate_to: flat memory)."""
     name = Path(inspect.getfile(build)).stem
     parser = argparse.ArgumentParser(description=(build.__doc__ or name).strip().splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("out") / name, help="recording directory to write")
     parser.add_argument("--size", type=float, default=1.0, help="fraction of the sensor's firings kept (0-1]")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random draw")
+    if "duration_s" in inspect.signature(build).parameters:
+        parser.add_argument("--duration", type=float, dest="duration_s", help="seconds of drive (the scenario's "
+                            "default when not given)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    args = parser.parse_args(argv)
+    args = vars(parser.parse_args(argv))
+    out, quiet = args.pop("out"), args.pop("quiet")
     started = time.perf_counter()
-    recording = simulate(build(size=args.size, seed=args.seed), quiet=args.quiet)
-    recording.save(args.out)
-    if not args.quiet:
-        print(f"{len(recording.points):,} returns written to {args.out} in {time.perf_counter() - started:.1f} s")
-    return args.out
+    simulate_to(build(**{key: value for key, value in args.items() if value is not None}), out, quiet=quiet)
+    if not quiet:
+        print(f"{len(PointTable.open(out / 'points.parquet')):,} returns written to {out} "
+              f"in {time.perf_counter() - started:.1f} s")
+    return out

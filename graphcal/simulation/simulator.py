@@ -3,20 +3,29 @@
 For every firing: its own time -> true pose (PoseTrack of the truth) -> true beam (eq. 4.2
 with the true offsets, true extrinsic) -> open3d raycast -> the raw values a real sensor
 reports (inverse of eq. 4.2 with the true offsets, encoder azimuth, noise, effects).
+
+The returns are cast chunk by chunk and put in time order as they come (_returns): simulate keeps
+them all in memory; simulate_to writes each chunk_s seconds of them as a row group of points.parquet
+and truth/points.parquet, so that its memory stays flat whatever the duration (only the trajectories
+and odometry, a few kB per second of drive, are held whole).
 """
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 from pyproj import CRS
 
 from factors.spherical import FactoryTerms, beam_rays, from_xyz
 from factors.effects import Effect
+from graphcal.common.atomic import atomic_directory
 from graphcal.simulation.effects import build_effects, describe
 from graphcal.recording.extrinsic import Extrinsic
-from graphcal.recording.points import PointTable
+from graphcal.recording.points import SCHEMA, PointTable, point_schema, row_group_writer
 from graphcal.recording.poses import PoseTrack
 from graphcal.common.progress import progress
 from graphcal.recording.directory import Recording
@@ -25,10 +34,12 @@ from graphcal.simulation.ins import recorded_poses, to_trajectory, true_poses
 from graphcal.simulation.odometry import simulate_odometry
 from graphcal.simulation.scenario import Scenario, draw_offsets
 from graphcal.simulation.scene import RaycastScene
-from graphcal.recording.truth import Truth
+from graphcal.recording.truth import WORLD_POINTS, Truth, world_point_writer
 
 # the lidar records inside the trajectory span, this far from each end [s]
 _EDGE_S = 0.1
+# seconds of firings per row group of simulate_to (and per batch of simulate)
+CHUNK_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -44,33 +55,71 @@ class _Rig:
     min_range_m: float
     max_range_m: float
 
+    @property
+    def spin_hz(self) -> float:
+        """The head's true spin rate [Hz] as the effects make it."""
+        spin_hz = self.sensor.rotation_hz
+        for effect in self.effects:
+            spin_hz = effect.spin_hz(spin_hz)
+        return spin_hz
+
 
 def simulate(scenario: Scenario, quiet: bool = False) -> Recording:
-    """Simulate a recording (with truth/) from a scenario. Deterministic for a given seed."""
+    """Simulate a recording (with truth/) from a scenario, in memory. Deterministic for a given seed."""
+    rig, nominal, rng = _prepare(scenario)
+    batches = list(_returns(scenario, rig, rng, CHUNK_S, quiet))
+    columns = {name: np.concatenate([batch[name] for batch, _ in batches]) for name in batches[0][0]}
+    world = np.concatenate([xyz for _, xyz in batches])
+    return _recording(scenario, rig, nominal, rng, PointTable.from_arrays(**columns), world)
+
+
+def simulate_to(scenario: Scenario, directory: str | Path, chunk_s: float = CHUNK_S, quiet: bool = False) -> Path:
+    """Simulate a recording straight into `directory` (replaced whole, atomically), points.parquet and
+    truth/points.parquet one row group per chunk_s seconds of firings [s], so that memory does not grow
+    with the duration. The folder holds what simulate(scenario).save(directory) writes, row for row."""
+    rig, nominal, rng = _prepare(scenario)
+    directory = Path(directory)
+    with atomic_directory(directory) as tmp:
+        (tmp / "truth").mkdir()
+        with (row_group_writer(tmp / "points.parquet", point_schema(list(SCHEMA))) as write_points,
+              world_point_writer(tmp / "truth" / WORLD_POINTS) as write_world):
+            for columns, world in _returns(scenario, rig, rng, chunk_s, quiet):
+                write_points(columns)
+                write_world(world)
+        _recording(scenario, rig, nominal, rng, PointTable.open(tmp / "points.parquet")).save_beside_points(tmp)
+    return directory
+
+
+def _prepare(scenario: Scenario) -> tuple[_Rig, Extrinsic, np.random.Generator]:
+    """The true rig, the nominal extrinsic and the generator every later draw takes from (offsets drawn)."""
     rng = np.random.default_rng(scenario.seed)
     sensor = sensor_from_catalog(scenario.sensor_model, scenario.rotation_hz)
-    effects = build_effects(scenario.effects)
     spec = scenario.extrinsic
     nominal = Extrinsic(spec.lever_arm_m, spec.boresight_deg)
     true_extrinsic = Extrinsic(tuple(np.add(spec.lever_arm_m, spec.error_lever_arm_m)),
                                tuple(np.add(spec.boresight_deg, spec.error_boresight_deg)))
     offsets = draw_offsets(scenario.intrinsic_errors, sensor.n_fibres, sensor.reference_fibre, rng)
     truth_poses = true_poses(scenario.drive, scenario.start_time_s, scenario.duration_s, scenario.truth_rate_hz)
-    rig = _Rig(sensor, offsets, true_extrinsic, truth_poses, effects, scenario.range_noise_m,
+    rig = _Rig(sensor, offsets, true_extrinsic, truth_poses, build_effects(scenario.effects), scenario.range_noise_m,
                scenario.min_range_m, scenario.max_range_m)
+    return rig, nominal, rng
 
-    columns, world = _cast_all(scenario, rig, RaycastScene(scenario.scene), rng, quiet)
+
+def _recording(scenario: Scenario, rig: _Rig, nominal: Extrinsic, rng: np.random.Generator, points: PointTable,
+               world_points: np.ndarray | None = None) -> Recording:
+    """The recording around the cast returns: INS and odometry drawn (after the returns), truth (with the
+    true world points [m, grid frame] when given)."""
     crs = CRS.from_user_input(scenario.crs)
     geodetic = scenario.trajectory_format == "geodetic"
-    ins = recorded_poses(truth_poses, scenario.ins, effects, rng)
+    ins = recorded_poses(rig.poses, scenario.ins, rig.effects, rng)
     odometry = (None if scenario.odometry is None else
                 simulate_odometry(scenario.drive, scenario.odometry, scenario.start_time_s, scenario.duration_s, rng))
-    truth = Truth(intrinsics=offsets, extrinsic=true_extrinsic,
-                  trajectory=to_trajectory(truth_poses, scenario.origin_m, crs, geodetic),
-                  effects=describe(effects), _world_points=world + np.asarray(scenario.origin_m))
-    return Recording(name=scenario.name, crs=scenario.crs, sensor=sensor, extrinsic=nominal,
+    truth = Truth(intrinsics=rig.offsets, extrinsic=rig.extrinsic,
+                  trajectory=to_trajectory(rig.poses, scenario.origin_m, crs, geodetic),
+                  effects=describe(rig.effects), _world_points=world_points)
+    return Recording(name=scenario.name, crs=scenario.crs, sensor=rig.sensor, extrinsic=nominal,
                      trajectory=to_trajectory(ins, scenario.origin_m, crs, geodetic),
-                     points=PointTable.from_arrays(**columns), odometry=odometry, _truth=truth)
+                     points=points, odometry=odometry, _truth=truth)
 
 
 def firing_times(scenario: Scenario, sensor: SensorModel, effects: list[Effect]) -> tuple[np.ndarray, float]:
@@ -85,29 +134,46 @@ def firing_times(scenario: Scenario, sensor: SensorModel, effects: list[Effect])
     return lidar_start + np.arange(0, n_cycles, stride) * timing.cycle_s, lidar_start
 
 
-def _cast_all(scenario, rig: _Rig, scene: RaycastScene, rng, quiet):
+def _returns(scenario: Scenario, rig: _Rig, rng: np.random.Generator, chunk_s: float,
+             quiet: bool) -> Iterator[tuple[dict[str, np.ndarray], np.ndarray]]:
+    """The returns in time order, a batch per chunk_s [s] of firings: (raw columns, true world xyz [m, grid frame]).
+
+    Rays are cast in chunks of 0.25 s (0.01 s when objects move: the scene is rebuilt for each), the same
+    whatever chunk_s, so that the returns do not depend on it. Returns whose stamp a later firing may still
+    precede (stamps lag the firing by up to a revolution plus the effects' max_stamp_shift_s) wait for the
+    next batch; concatenated, the batches are every return in a stable sort by time.
+    """
+    scene = RaycastScene(scenario.scene)
     cycles, lidar_start = firing_times(scenario, rig.sensor, rig.effects)
-    chunk_s = 0.01 if scene.moving else 0.25
+    casts = _chunks(cycles, 0.01 if scene.moving else 0.25)
+    lag_s = 1.0 / rig.spin_hz + sum(effect.max_stamp_shift_s() for effect in rig.effects)
+    batches = [list(group) for _, group in
+               itertools.groupby(casts, key=lambda c: int((cycles[c.start] - cycles[0]) // chunk_s))]
+    origin_m = np.asarray(scenario.origin_m)
+    waiting = []
+    for batch in progress(batches, f"simulating {scenario.name}", total=len(batches), quiet=quiet):
+        parts = waiting + [_cast_chunk(cycles[c], lidar_start, scenario, rig, scene, rng) for c in batch]
+        columns = {name: np.concatenate([p[0][name] for p in parts]) for name in parts[0][0]}
+        world = np.concatenate([p[1] for p in parts])
+        order = np.argsort(columns["time"], kind="stable")
+        columns, world = {name: values[order] for name, values in columns.items()}, world[order]
+        next_firing_s = cycles[batch[-1].stop] if batch[-1].stop < len(cycles) else np.inf
+        ready = int(np.searchsorted(columns["time"], next_firing_s - lag_s))
+        yield {name: values[:ready] for name, values in columns.items()}, world[:ready] + origin_m
+        waiting = [({name: values[ready:] for name, values in columns.items()}, world[ready:])]
+
+
+def _chunks(cycles: np.ndarray, chunk_s: float) -> list[slice]:
+    """Consecutive non-empty slices of the firing cycles' start times [s], chunk_s apart."""
     edges = np.searchsorted(cycles, np.arange(cycles[0], cycles[-1] + chunk_s, chunk_s))
-    chunks = [slice(a, b) for a, b in zip(edges, np.r_[edges[1:], len(cycles)]) if b > a]
-    parts = [_cast_chunk(cycles[c], lidar_start, scenario, rig, scene, rng)
-             for c in progress(chunks, f"simulating {scenario.name}", total=len(chunks), quiet=quiet)]
-    columns = {name: np.concatenate([p[0][name] for p in parts]) for name in parts[0][0]}
-    world = np.concatenate([p[1] for p in parts])
-    order = np.argsort(columns["time"], kind="stable")
-    if not np.array_equal(order, np.arange(len(order))):
-        columns = {name: values[order] for name, values in columns.items()}
-        world = world[order]
-    return columns, world
+    return [slice(a, b) for a, b in zip(edges, np.r_[edges[1:], len(cycles)]) if b > a]
 
 
 def _cast_chunk(cycle_start, lidar_start, scenario, rig: _Rig, scene, rng):
     sensor, n = rig.sensor, rig.sensor.n_fibres
     fibre = np.tile(np.arange(n, dtype=np.int16), len(cycle_start))
     t_fire = (cycle_start[:, None] + sensor.timing.laser_spacing_s * np.arange(n)[None, :]).ravel()
-    spin_hz = sensor.rotation_hz
-    for effect in rig.effects:
-        spin_hz = effect.spin_hz(spin_hz)
+    spin_hz = rig.spin_hz
     turns = spin_hz * (t_fire - lidar_start)
     revolution = np.floor(turns)
     t_rev = lidar_start + revolution / spin_hz
