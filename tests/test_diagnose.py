@@ -116,7 +116,8 @@ def test_diagnosis_run_folder(two_effects):
     assert "time_offset" in calibration and "azimuth_eccentricity" in calibration
     manifest = yaml.safe_load((folder / "run.yaml").read_text())
     assert manifest["command"] == "diagnose" and manifest["recording"] == str(rec.path.resolve())
-    for stage in ("load and validate the recording", "diagnose", "save results", "viewer file"):
+    assert "Findings" in (folder / "report.html").read_text()
+    for stage in ("load and validate the recording", "diagnose", "save results", "report", "viewer file"):
         assert manifest["timings_s"][stage] >= 0.0, stage
     assert len(RrdReader(folder / "run.rrd").blueprints()) == 1
     found = chunks(folder / "run.rrd")

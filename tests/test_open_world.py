@@ -67,3 +67,23 @@ def test_the_viewer_draws_the_discovered_curve_with_its_band(wobble, tmp_path):
     np.testing.assert_allclose(np.ravel(upper), np.asarray(curve["y"]) + np.asarray(curve["sigma"]), rtol=1e-6)
     ((summary,),) = column(found["/summary"], "TextDocument:text")
     assert "discovered/elevation_by_azimuth" in summary and "curve_point" in summary
+
+
+def test_the_binned_residuals_against_the_regressor_flatten_once_the_curve_is_modelled(wobble):
+    """The fit's residuals binned against the azimuth (the curve's regressor): the structure the wobble leaves
+    (spread of the bin means) is smaller after the curve is added than before."""
+    binned = wobble.findings[0]["binned_residual_cm"]
+    before, after = (np.asarray(binned[k]["effect_cm"], dtype=float) for k in ("before", "after"))
+    assert len(before) == len(binned["before"]["x"]) >= 4
+    assert np.std(after) < np.std(before)
+    assert all(0 <= x <= 360 for x in binned["after"]["x"])
+
+
+def test_the_report_shows_the_discovered_curve(wobble, tmp_path):
+    from graphcal.report.diagnosis_html import write_diagnosis_report
+
+    wobble.save(tmp_path)
+    page = write_diagnosis_report(tmp_path).read_text()
+    assert "Discovered: elevation against azimuth" in page and "data:image/png;base64," in page
+    assert wobble.findings[0]["hypotheses"][0] in page
+    assert page.count("<tr>") == (len(wobble.candidates) + 1) + (4 + 1)  # the candidates and the header, with heads

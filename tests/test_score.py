@@ -25,7 +25,7 @@ def _problem(rng, theta_true: float, shared_sigma: float = 0.0, noise_sigma: flo
     cluster = np.repeat(np.arange(CLUSTERS), K_ROWS // CLUSTERS)
     noise = noise_sigma * rng.normal(size=K_ROWS) + shared_sigma * rng.normal(size=CLUSTERS)[cluster]
     r = -(A @ np.array([*base, theta_true])) + noise  # at the linearisation point every parameter is 0
-    return linearisation_of_rows(r, A, ["x0", "x1", "range_scale"], {"range_scale": np.array([2])}, cluster, cluster % 2, 0.01), A, r
+    return linearisation_of_rows(r, A, ["x0", "x1", "range_scale"], {"range_scale": np.array([2])}, cluster, cluster, 0.01), A, r
 
 
 def test_estimate_sigma_concealment_and_absorbing_parameter():
@@ -39,6 +39,29 @@ def test_estimate_sigma_concealment_and_absorbing_parameter():
     assert test.absorbed_by[0][0] == "x1" and test.absorbed_by[0][1] < -0.5
     assert abs(test.magnitude - 0.5) < 4 * test.sigma and test.p_value < 1e-10
     assert test.held_out_cm2[1] < test.held_out_cm2[0]
+
+
+def test_held_out_drop_and_its_standard_error_match_a_fit_on_each_half():
+    """Independent least squares on each half's rows (the linear problem has no prior), evaluated block by block
+    on the other half: the held-out J of both models and the ratio estimator's standard error of their drop."""
+    rng = np.random.default_rng(3)
+    lin, A, r = _problem(rng, theta_true=0.05, shared_sigma=0.5)
+    test = score_candidate(lin, "range_scale", ["range_scale"])
+    cluster = np.repeat(np.arange(CLUSTERS), K_ROWS // CLUSTERS)
+    held, variance = np.zeros(2), 0.0
+    for h in (0, 1):
+        fit, out = cluster % 2 == h, cluster % 2 != h
+        cost = []
+        for columns in ([0, 1], [0, 1, 2]):
+            step, *_ = np.linalg.lstsq(A[fit][:, columns], -r[fit], rcond=None)
+            cost.append((r[out] + A[out][:, columns] @ step) ** 2)
+        held += [c.sum() / out.sum() * 0.01 ** 2 * 1e4 / 2 for c in cost]
+        drop = np.bincount(cluster[out], weights=cost[0] - cost[1])[cluster[out].min()::2]
+        weight = np.full(len(drop), K_ROWS // CLUSTERS)
+        ratio = drop.sum() / weight.sum()
+        variance += np.sum((drop - ratio * weight) ** 2) / weight.sum() ** 2 * len(drop) / (len(drop) - 1)
+    assert test.held_out_cm2 == pytest.approx(tuple(held), rel=1e-9)
+    assert test.held_out_se_cm2 == pytest.approx(np.sqrt(variance) / 2 * 0.01 ** 2 * 1e4, rel=1e-9)
 
 
 def test_the_refit_check_is_the_wald_statistic_of_the_re_solved_size():

@@ -22,30 +22,40 @@ from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.calibration.returns import Estimate, initial_estimate
 from graphcal.calibration.static_sensor import halves_over_draws, pair_draws, soft_over_draws
 from graphcal.calibration.weak_directions import WeakDirections
+from graphcal.common.cluster import IN_PROCESS, TaskMap, open_task_map
 from graphcal.recording.directory import Recording
 
+TILE_M = 50.0  # the tiles of a calibration spread over a cluster when no size is set [m]
 HELD_REASON = "held at its nominal value (setting hold, or a static sensor's checks)"
 RIGID_REASON = "a static sensor: the whole cloud moves rigidly with it"
 
 
-def calibrate(recording: Recording, config: CalibrationConfig | None = None, quiet: bool = False) -> CalibrationResult:
+def calibrate(recording: Recording, config: CalibrationConfig | None = None, quiet: bool = False,
+              dask: str | None = None) -> CalibrationResult:
     """Estimate what config.mode asks for (intrinsics, extrinsic, trajectory corrections, or successive
     stages) from the recording alone; every estimated parameter gets a 1-sigma, and what the data cannot
-    see, or see only weakly, is held at its nominal value and named with its reason."""
+    see, or see only weakly, is held at its nominal value and named with its reason.
+
+    dask: where the tiles' features and pairs are computed (graphcal.common.cluster: "local", "local:N" or a
+    scheduler address such as "tcp://HOST:PORT"); the factor graph stays here. Tiles of
+    association.tile_m [m] (TILE_M when not set): the result equals the one computed here with the same tiles."""
+    config = config or CalibrationConfig()
+    if dask is not None and config.association.tile_m is None:
+        config = config.with_settings(association={"tile_m": TILE_M})
     # the block factors' matrix products are modest and run one at a time inside GTSAM's callbacks: BLAS
     # threads there only spin against open3d's and GTSAM's (measured 20x slower on a loaded 2-core machine)
-    with threadpool_limits(limits=1, user_api="blas"):
-        return CalibrationPipeline(recording, config or CalibrationConfig(), quiet).run()
+    with threadpool_limits(limits=1, user_api="blas"), open_task_map(dask) as task_map:
+        return CalibrationPipeline(recording, config, quiet, task_map).run()
 
 
 class CalibrationPipeline:
     """The steps of one calibration (run lists them) and what they share: the problem, the estimate, the
     history of outer iterations, the weak directions held, the seconds of each step."""
 
-    def __init__(self, recording: Recording, config: CalibrationConfig, quiet: bool):
+    def __init__(self, recording: Recording, config: CalibrationConfig, quiet: bool, task_map: TaskMap = IN_PROCESS):
         self.recording, self.quiet = recording, quiet
         self.started, self.timings, self.history = time.perf_counter(), {}, History()
-        self.problem = self.timed("prepare", Problem.of, recording, config)
+        self.problem = self.timed("prepare", Problem.of, recording, config, task_map)
         self.estimate = initial_estimate(recording, self.problem.full)
         self.weak = WeakDirections.none(self.problem.layout())
         self.used: dict[str, int] = {}  # outer iterations each stage has run: n_max counts both phases

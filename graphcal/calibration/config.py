@@ -68,13 +68,15 @@ class AssociationSettings(BaseModel):
     (it only has to reach the basin; the fine phase sets the accuracy) and of the fine phase, and fixed:
     pair and estimate normals once, at the start with the fine gates, and keep them (the energy is then a
     plain least-squares fit; None: for a static sensor, whose re-associated energy falls by dropping pairs
-    and re-shaping the ground)."""
+    and re-shaping the ground); tile_m: features and pairs computed tile by tile of tile_m [m] of the plan
+    (graphcal.calibration.tiles; what a Dask cluster spreads; None: the whole cloud at once)."""
 
     model_config = _SECTION
     neighbours: int = Field(2, ge=1)
     coarse: PhaseGates = COARSE
     fine: PhaseGates = FINE
     fixed: bool | None = None
+    tile_m: float | None = Field(None, ge=10.0)
 
     @model_validator(mode="before")
     @classmethod

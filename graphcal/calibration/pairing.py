@@ -22,12 +22,16 @@ from graphcal.calibration.association import (
 )
 from graphcal.calibration.config import FeatureSettings, PhaseGates
 from graphcal.calibration.returns import ReturnData
+from graphcal.calibration.tiles import Tiling
 
 CANDIDATES_PER_PAIR = 5  # candidate p's of a fibre per pair drawn for each of its fibre pairs
 
 
-def features_at(points_m: np.ndarray, settings: FeatureSettings) -> Features:
-    """local_features of the points [m] with the settings' radius, neighbours and voxel size."""
+def features_at(points_m: np.ndarray, settings: FeatureSettings, tiling: Tiling | None = None) -> Features:
+    """local_features of the points [m] with the settings' radius, neighbours and voxel size (tile by tile with
+    a tiling)."""
+    if tiling is not None:
+        return tiling.features(points_m, settings)
     return local_features(points_m, settings.radius_m, settings.neighbours, settings.voxel_m)
 
 
@@ -35,16 +39,16 @@ class FeatureCache:
     """The features of a calibration's cloud, computed again only once they may have changed by more
     than settings.refresh_above_m [m] (moved_m) since they were: the outer loop, the weak-direction
     analyses and the final fit share them (each computation is a neighbourhood search and an
-    eigen-decomposition at every return)."""
+    eigen-decomposition at every return), tile by tile with a tiling."""
 
-    def __init__(self, settings: FeatureSettings):
-        self.settings, self.points_m, self.features = settings, None, None
+    def __init__(self, settings: FeatureSettings, tiling: Tiling | None = None):
+        self.settings, self.tiling, self.points_m, self.features = settings, tiling, None, None
 
     def at(self, points_m: np.ndarray) -> tuple[Features, bool]:
         """(features for the points [m], whether they were computed now)."""
         if moved_m(points_m, self.points_m, self.settings.radius_m) <= self.settings.refresh_above_m:
             return self.features, False
-        self.points_m, self.features = points_m, features_at(points_m, self.settings)
+        self.points_m, self.features = points_m, features_at(points_m, self.settings, self.tiling)
         return self.features, True
 
 
@@ -66,24 +70,28 @@ def moved_m(points_m: np.ndarray, before_m: np.ndarray | None, radius_m: float) 
 @dataclass(frozen=True)
 class Association:
     """The association of one phase: its gates, each fibre's neighbouring fibres, the candidate p's
-    (fixed across outer iterations) and the seed of its draws."""
+    (fixed across outer iterations), the seed of its draws and its tiling (None: the whole cloud at once)."""
 
     gates: PhaseGates
     neighbours: dict
     candidates: np.ndarray
     seed: int
+    tiling: Tiling | None = None
 
     @classmethod
-    def of(cls, data: ReturnData, gates: PhaseGates, neighbours: int, seed: int) -> Association:
+    def of(cls, data: ReturnData, gates: PhaseGates, neighbours: int, seed: int,
+           tiling: Tiling | None = None) -> Association:
         candidates = _candidates(data, CANDIDATES_PER_PAIR * gates.pairs_per_fibre_pair, np.random.default_rng(seed))
-        return cls(gates, neighbour_fibres(data.sensor.elevation_deg, neighbours), candidates, seed)
+        return cls(gates, neighbour_fibres(data.sensor.elevation_deg, neighbours), candidates, seed, tiling)
 
     def pairs(self, points_m: np.ndarray, fibre: np.ndarray, features: Features, gate_m: float,
               sight: Sight | None) -> Correspondences:
         """The same subsample of pairs for the same cloud (a fresh seeded draw each time); sight: the
         returns' lines of sight and stand-ins (returns.sight_at), or None for plain nearest returns."""
-        return associate(PairCloud(points_m, fibre, features, sight), self.neighbours,
-                         PairGates.of(self.gates, gate_m), np.random.default_rng(self.seed), self.candidates)
+        cloud, gates = PairCloud(points_m, fibre, features, sight), PairGates.of(self.gates, gate_m)
+        if self.tiling is not None:
+            return self.tiling.associate(cloud, self.neighbours, gates, self.seed, self.candidates)
+        return associate(cloud, self.neighbours, gates, np.random.default_rng(self.seed), self.candidates)
 
 
 def _candidates(data: ReturnData, per_fibre: int, rng: np.random.Generator) -> np.ndarray:

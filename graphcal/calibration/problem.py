@@ -32,7 +32,9 @@ from graphcal.calibration.pairing import Association, FeatureCache
 from graphcal.calibration.priors import HELD_SIGMA, Priors, control_prior_sigma
 from graphcal.calibration.returns import Estimate, ReturnData, pose_of, prepare, revisits, sight_at, world_at
 from graphcal.calibration.shared_returns import SharedReturnsCovariance
+from graphcal.calibration.tiles import Tiling
 from graphcal.calibration.weak_directions import Layout, WeakDirections, lock_factor
+from graphcal.common.cluster import IN_PROCESS, TaskMap
 from graphcal.common.errors import ConfigError
 from graphcal.common.progress import progress
 from graphcal.recording.directory import Recording
@@ -86,7 +88,8 @@ class Problem:
     recording (CalibrationConfig.for_sensor); estimated: (intrinsics, extrinsic, trajectory); nominal:
     the nominal T_body_lidar; held: parameters held at nominal by the settings or the static checks;
     fixed_pairs: pairs made once and kept (a static sensor); lock: the factor holding the weak directions;
-    effects: candidate effects modelled in every block (graphcal.diagnosis's EffectModel; None: none)."""
+    effects: candidate effects modelled in every block (graphcal.diagnosis's EffectModel; None: none);
+    tiling: features and pairs tile by tile of space (graphcal.calibration.tiles; None: the whole cloud)."""
 
     full: ReturnData
     settings: CalibrationConfig
@@ -100,18 +103,20 @@ class Problem:
     lock: gtsam.CustomFactor | None = None
     effects: object | None = None
     cache: FeatureCache | None = None
+    tiling: Tiling | None = None
 
     def __post_init__(self):
         if self.data is None:
             object.__setattr__(self, "data", self.full)
         if self.cache is None:
-            object.__setattr__(self, "cache", FeatureCache(self.settings.features))
+            object.__setattr__(self, "cache", FeatureCache(self.settings.features, self.tiling))
 
     # --- what it is ------------------------------------------------------------------------------
     @classmethod
-    def of(cls, recording: Recording, config: CalibrationConfig) -> Problem:
+    def of(cls, recording: Recording, config: CalibrationConfig, task_map: TaskMap = IN_PROCESS) -> Problem:
         """The returns of the recording (a seeded subset of config.max_points) and the settings resolved for
-        it; the parameters config.static.hold names held at nominal."""
+        it; the parameters config.static.hold names held at nominal; the tiles' work (association.tile_m) run
+        by task_map."""
         enough_returns(recording)
         data = prepare(recording, config.trajectory.control_interval_s, config.max_points,
                        np.random.default_rng(config.seed), range_noise_m=config.weighting.range_noise_m)
@@ -124,7 +129,8 @@ class Problem:
         stages = STAGES.get(config.mode, (config.mode,))
         estimated = tuple(any(ESTIMATES[stage][k] for stage in stages) for k in range(3))
         priors = Priors.of(config, data.sensor.n_fibres, len(data.control_times_s)).holding(held)
-        return cls(data, config, estimated, pose_of(recording.extrinsic), priors, tuple(held))
+        return cls(data, config, estimated, pose_of(recording.extrinsic), priors, tuple(held),
+                   tiling=Tiling.of(config.association, config.features, task_map))
 
     @property
     def config(self) -> CalibrationConfig:
@@ -177,7 +183,7 @@ class Problem:
 
     def association(self) -> Association:
         settings = self.settings
-        return Association.of(self.data, self.gates, settings.association.neighbours, settings.seed)
+        return Association.of(self.data, self.gates, settings.association.neighbours, settings.seed, self.tiling)
 
     def associate(self, estimate: Estimate, points_m: np.ndarray | None = None,
                   features: Features | None = None) -> Correspondences:

@@ -85,15 +85,13 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
             range_noise_m: float | None = None) -> ReturnData:
     """Read the returns (a random subset of max_points if given) and the INS pose at each one's
     time; control times control_interval_s apart from the trajectory's first pose span them,
-    unless given; the head's range noise [m] measured from all the returns (range_noise.measured_range_noise_m)
-    unless given; the trajectory's white noise measured from its poses (trajectory_noise.py)."""
-    columns = recording.points.read(["time", "fibre", "range", "azimuth"])
-    rows = np.arange(len(columns["time"]))
+    unless given; the head's range noise [m] measured from the first returns (range_noise.measured_range_noise_m)
+    unless given; the trajectory's white noise measured from its poses (trajectory_noise.py).
+    points.parquet is read row group by row group: only the subset is held, whatever the recording's length."""
+    columns = _read_rows(recording, max_points, rng or np.random.default_rng(0))
     if range_noise_m is None:
-        range_noise_m = measured_range_noise_m(columns["fibre"], columns["range"])
-    if max_points is not None and len(rows) > max_points:
-        rows = np.sort((rng or np.random.default_rng(0)).choice(len(rows), max_points, replace=False))
-    time = columns["time"][rows]
+        range_noise_m = columns.pop("range_noise_m")
+    time = columns["time"]
     position, rotation = recording.world.poses.interpolate(time)
     origin = np.round(position.mean(axis=0))
     if control_times_s is None:
@@ -102,10 +100,28 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
         control_times = np.asarray(control_times_s, dtype=np.float64)
     control = np.clip(np.searchsorted(control_times, time, side="right") - 1, 0, len(control_times) - 2)
     alpha = np.clip((time - control_times[control]) / (control_times[control + 1] - control_times[control]), 0, 1)
-    return ReturnData(recording.sensor, rows, columns["fibre"][rows].astype(np.int64),
-                      columns["range"][rows].astype(np.float64), columns["azimuth"][rows].astype(np.float64),
+    return ReturnData(recording.sensor, columns["rows"], columns["fibre"].astype(np.int64),
+                      columns["range"].astype(np.float64), columns["azimuth"].astype(np.float64),
                       time, rotation.as_matrix(), position - origin, control, alpha, control_times, origin, range_noise_m,
                       measured_pose_noise(recording.world.poses))
+
+
+def _read_rows(recording: Recording, max_points: int | None, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """The rows (a seeded random subset of max_points, sorted; all when there are no more) of time, fibre, range
+    and azimuth, read batch by batch, and the range noise [m] measured on the first batch (firing order)."""
+    n_rows = len(recording.points)
+    rows = np.arange(n_rows)
+    if max_points is not None and n_rows > max_points:
+        rows = np.sort(rng.choice(n_rows, max_points, replace=False))
+    parts, start, range_noise_m = [], 0, float("nan")
+    for batch in recording.points.iter_batches(["time", "fibre", "range", "azimuth"]):
+        if start == 0:
+            range_noise_m = measured_range_noise_m(batch["fibre"], batch["range"])
+        taken = rows[np.searchsorted(rows, start):np.searchsorted(rows, start + len(batch["time"]))]
+        parts.append({name: values[taken - start] for name, values in batch.items()})
+        start += len(batch["time"])
+    columns = {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
+    return columns | {"rows": rows, "range_noise_m": range_noise_m}
 
 
 def revisits(poses: PoseTrack) -> bool:

@@ -113,6 +113,9 @@ def calibrate(recording: Annotated[Path, typer.Argument(help="recording director
               config: Annotated[Path | None, typer.Option(help="YAML file of CalibrationConfig settings")] = None,
               out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-calibrate-<UTC time>)")] = None,
               evaluate: Annotated[bool, typer.Option(help="compare with truth/ when the recording has one")] = True,
+              dask: Annotated[str | None, typer.Option(help="compute the features and pairs tile by tile on Dask: "
+                                                            "local, local:N (N worker processes here) or a "
+                                                            "scheduler address tcp://HOST:PORT")] = None,
               spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, quiet: Quiet = False) -> None:
     """Self-calibrate a recording into a run folder: results, run.rrd, report.html.
 
@@ -125,7 +128,7 @@ def calibrate(recording: Annotated[Path, typer.Argument(help="recording director
     from graphcal.cli.runs import calibration_run
 
     run = calibration_run(recording, calibration_config(mode, config), out, spawn, evaluate, viewer_points,
-                          quiet=quiet)
+                          quiet=quiet, dask=dask)
     if not quiet:
         _print_calibration(run)
 
@@ -172,7 +175,8 @@ def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory
     fit improve (docs/howto/diagnose.md).
 
     The run folder gets diagnosis.json, the re-solved calibration in calibration/ (its effects
-    listed), run.rrd (the residual field) and run.yaml (seconds per stage).
+    listed), report.html (findings, discovered curves over the binned residuals), run.rrd (the
+    residual field) and run.yaml (seconds per stage).
 
     Example: graphcal diagnose out/concealed --mode joint
     """
@@ -182,7 +186,7 @@ def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory
     run = diagnosis_run(recording, calibration_config(mode, config), how, out, spawn, viewer_points, quiet)
     if not quiet:
         typer.echo(run.diagnosis.summary())
-        typer.echo(f"wrote {run.folder}: diagnosis.json, run.rrd in {run.diagnosis.seconds:.1f} s; "
+        typer.echo(f"wrote {run.folder}: diagnosis.json, report.html, run.rrd in {run.diagnosis.seconds:.1f} s; "
                    f"graphcal view {run.folder}")
 
 
@@ -251,11 +255,14 @@ def apply_command(calibration: Annotated[Path, typer.Argument(help="run folder o
 
 @app.command()
 @_clear_errors
-def report(run_folder: Annotated[Path, typer.Argument(help="calibration run folder")], quiet: Quiet = False) -> None:
-    """Write report.html (self-contained: figures inside) from a calibration run folder."""
+def report(run_folder: Annotated[Path, typer.Argument(help="calibration or diagnosis run folder")],
+           quiet: Quiet = False) -> None:
+    """Write report.html (self-contained: figures inside) from a calibration or a diagnosis run folder."""
+    from graphcal.report.diagnosis_html import DIAGNOSIS_FILE, write_diagnosis_report
     from graphcal.report.html import write_report
 
-    path = write_report(run_folder)
+    diagnosis = (run_folder / DIAGNOSIS_FILE).is_file() and not (run_folder / "calibration.yaml").is_file()
+    path = write_diagnosis_report(run_folder) if diagnosis else write_report(run_folder)
     if not quiet:
         typer.echo(f"wrote {path}")
 

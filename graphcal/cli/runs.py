@@ -37,9 +37,10 @@ class CalibrationRun:
 
 def calibration_run(recording_path: Path, config: CalibrationConfig, out: Path | None = None, spawn: bool = False,
                     evaluate: bool = True, viewer_points: int | None = None, evaluation_points: int = 500_000,
-                    command: str = "calibrate", quiet: bool = False) -> CalibrationRun:
-    """Calibrate, save the results, the residuals before/after, the evaluation against truth/ (when
-    the recording has one and evaluate), run.rrd and report.html into the run folder."""
+                    command: str = "calibrate", quiet: bool = False, dask: str | None = None) -> CalibrationRun:
+    """Calibrate (the tiles' work on the Dask cluster `dask` names, graphcal.common.cluster), save the results,
+    the residuals before/after, the evaluation against truth/ (when the recording has one and evaluate), run.rrd
+    and report.html into the run folder."""
     from graphcal.calibration.before_after import residuals_before_after
     from graphcal.calibration.calibrate import calibrate
     from graphcal.calibration.evaluate import evaluate as against_truth
@@ -120,8 +121,9 @@ def diagnosis_run(recording_path: Path, config: CalibrationConfig, how: Diagnose
                   out: Path | None = None, spawn: bool = False, viewer_points: int | None = None,
                   quiet: bool = False) -> DiagnosisRun:
     """Diagnose the recording as `how` says, the nominal model calibrated with config; save diagnosis.json
-    (and the re-solved calibration in calibration/) and run.rrd into the run folder."""
+    (and the re-solved calibration in calibration/), report.html and run.rrd into the run folder."""
     from graphcal.diagnosis.compare import compare
+    from graphcal.report.diagnosis_html import write_diagnosis_report
     from graphcal.viewer.diagnosis import log_diagnosis
     from graphcal.viewer.log import VIEWER_POINTS
 
@@ -156,6 +158,8 @@ def diagnosis_run(recording_path: Path, config: CalibrationConfig, how: Diagnose
                                  refit_iterations=how.refit_iterations, quiet=quiet, open_world=how.open_world)
     with run.stage("save results"):
         diagnosis.save(run.path, command=" ".join(["graphcal"] + sys.argv[1:]))
+    with run.stage("report"), status("writing report.html", quiet):
+        write_diagnosis_report(run.path)
     with (run.stage("viewer file"), status(f"writing {run.path / RRD}", quiet),
           recording_stream(run.path / RRD, recording.name, spawn) as rec):
         log_diagnosis(rec, recording, diagnosis, run.final, viewer_points or VIEWER_POINTS)

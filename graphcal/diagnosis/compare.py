@@ -184,9 +184,9 @@ def _linear_system(data, estimate, context: ReturnContext, names, rows, normal_w
 
 
 def _linearisation(r, J, columns, names, time_s, points_m) -> Linearisation:
-    block = np.floor(time_s / BLOCK_S).astype(np.int64)
+    block = np.floor((time_s - time_s.min()) / BLOCK_S).astype(np.int64)
     _, cluster = np.unique(np.column_stack([block, np.floor(points_m / VOXEL_M).astype(np.int64)]), axis=0,
                            return_inverse=True)
     labels = [n if len(columns[n]) == 1 else f"{n}[{j}]" for n in names for j in range(len(columns[n]))]
     labels += [f"common_translation_{axis}_m" for axis in "xyz"]
-    return linearisation_of_rows(r, J, labels, columns, cluster.ravel(), block % 2, SIGMA0_M)
+    return linearisation_of_rows(r, J, labels, columns, cluster.ravel(), block, SIGMA0_M)

@@ -32,7 +32,7 @@ from graphcal.diagnosis.hypothesis import (
     HypothesisTest,
     refit_at_known_size,
 )
-from graphcal.diagnosis.locate import locate
+from graphcal.diagnosis.locate import binned_against, locate
 from graphcal.diagnosis.score import (
     ALPHA,
     CandidateTest,
@@ -66,6 +66,9 @@ PHYSICAL_BOUND = {"time_offset": 0.5, "spin_rate": 0.3, "range_scale": 0.01, "in
                   "fibre_horizontal_offset": 0.2}
 # a discrepancy's largest physical size per channel (m, deg, deg, s): beyond, a degenerate fit
 CHANNEL_BOUND = {"range": 0.5, "azimuth": 2.0, "elevation": 2.0, "time": 0.5}
+# the sizes (parameters) of each generic discrepancy tried: a curve with 1-2 bends, and one with 3-4 (harmonics 1-2
+# and 1-4 for the azimuth's Fourier series); the held-out fit chooses
+DISCREPANCY_SIZES = (4, 8)
 # channel x regressor pairs not tried: a per-fibre constant of range or angle is an intrinsic offset
 ORDINARY = {("range", "fibre"), ("azimuth", "fibre"), ("elevation", "fibre")}
 # the channel and regressor of a named candidate's signature: it is named only when it explains the residuals at
@@ -208,7 +211,7 @@ def _row(test: CandidateTest, recording: Recording, n: int) -> dict:
             "unit": candidate(test.name).unit, "statistic": test.statistic, "dof": test.dof, "p_value": test.p_value,
             "bic_gain": test.bic_gain,
             "concealment_r2": test.concealment_r2, "absorbed_by": [a for a, _ in test.absorbed_by],
-            "held_out_cm2": list(test.held_out_cm2), "explained_rms_m": test.explained_rms_m,
+            "held_out_cm2": list(test.held_out_cm2), "held_out_se_cm2": test.held_out_se_cm2, "explained_rms_m": test.explained_rms_m,
             "significant": test.significant(n),
             "plausible": plausible(test, recording) if test.identifiable else False}
 
@@ -227,7 +230,8 @@ def candidate_names(fit: Fit, candidates: list[str] | None, generic: list[str] =
 
 def discrepancies(fit: Fit) -> list[str]:
     """A generic discrepancy (factors.discrepancy) of every channel against every regressor that varies over the
-    fit's returns, each over the regressor's range."""
+    fit's returns, each over the regressor's range, in each of DISCREPANCY_SIZES (the held-out fit chooses among
+    them: sized_by_held_out)."""
     context = fit.model.context
     everything = context.context(np.arange(len(context.data.time_s)))
     names = []
@@ -235,10 +239,26 @@ def discrepancies(fit: Fit) -> list[str]:
         x = regressor_values(everything, regressor)
         if x is None or not np.all(np.isfinite(x)) or np.ptp(x) <= 0:
             continue
-        models = [Discrepancy.over(channel, regressor, x, context.data.sensor.n_fibres) for channel in CHANNELS
-                  if (channel, regressor) not in ORDINARY]
+        models = [Discrepancy.over(channel, regressor, x, context.data.sensor.n_fibres, size)
+                  for channel in CHANNELS if (channel, regressor) not in ORDINARY for size in DISCREPANCY_SIZES]
         names += [model.name for model in models if model is not None]
-    return names
+    return list(dict.fromkeys(names))  # the fibre's model has one size
+
+
+def sized_by_held_out(tests: dict[str, CandidateTest]) -> dict[str, CandidateTest]:
+    """The tests with, of each channel and regressor's discrepancies, only the size whose held-out J is lowest:
+    the data choose how flexible the curve is (a larger basis fits the half it is fitted on better, and the other
+    half worse once it follows that half's noise)."""
+    best: dict[tuple[str, str], CandidateTest] = {}
+    for test in tests.values():
+        if is_discrepancy(test.name):
+            model = Discrepancy.parse(test.name)
+            key = (model.channel, model.regressor)
+            held_out = test.held_out_cm2[1] if np.isfinite(test.held_out_cm2[1]) else np.inf
+            if key not in best or held_out < best[key].held_out_cm2[1]:
+                best[key] = test
+    chosen = {t.name for t in best.values()}
+    return {name: t for name, t in tests.items() if not is_discrepancy(name) or name in chosen}
 
 
 def generic_if_better(winner: CandidateTest, eligible: list[CandidateTest]) -> CandidateTest:
@@ -255,9 +275,9 @@ def generic_if_better(winner: CandidateTest, eligible: list[CandidateTest]) -> C
 
 def score_all(fit: Fit, names: list[str]) -> tuple[dict, object]:
     """Every candidate's score test at a fit (the modelled effects in the base), and the linearisation."""
-    cluster, half = fit.clusters()
+    cluster, block = fit.clusters()
     lin = linearise(replace(fit.problem, effects=fit.with_candidates(names), lock=None), fit.estimate, fit.pairs,
-                    cluster, half)
+                    cluster, block)
     return {n: score_candidate(lin, n, names) for n in names}, lin
 
 
@@ -284,6 +304,7 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
     for _ in progress(iter(range(rounds)), f"diagnosing (rounds, at most {rounds})", quiet=quiet):
         names = candidate_names(fit, candidates, generic)
         tests, lin = score_all(fit, names)
+        tests = sized_by_held_out(tests)
         if added is not None:  # the effect added last, with its sigma at the refit
             winner, before, hypothesis = added
             at_refit = score_candidate(lin, winner.name, names + [winner.name])
@@ -294,7 +315,7 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
                 fit, names, tests, lin = previous
                 not_separable = [n for n in not_separable if n["named"] != winner.name]
             else:
-                findings.append(_finding(winner, fit, before, at_refit, hypothesis))
+                findings.append(_finding(winner, fit, before, at_refit, hypothesis, previous and previous[0]))
             added = None
         if first_round is None:
             first_round = [_row(t, recording, len(names)) for t in sorted(tests.values(), key=lambda t: t.log10_p)]
@@ -358,9 +379,9 @@ def unexplained(locations: list[dict]) -> list[dict]:
 
 
 def _finding(test: CandidateTest, fit: Fit, energy_before: float, at_refit: CandidateTest,
-             hypothesis: HypothesisTest | None = None) -> dict:
+             hypothesis: HypothesisTest | None = None, fit_before: Fit | None = None) -> dict:
     """The finding of an effect added: its size at the refit (fit) with its sigma there (at_refit), what
-    absorbed it (its score test at the fit before, test) and the evidence: the score test's, with its
+    absorbed it (its score test at the fit before it was added, fit_before) and the evidence: the score test's, with its
     held-out J, or for a candidate tested at its known size that test's (truncated cost, no held-out J).
     A discrepancy's is `discovered` (RECORDING.md "Discovered effects")."""
     sigma = at_refit.sigma
@@ -383,7 +404,7 @@ def _finding(test: CandidateTest, fit: Fit, energy_before: float, at_refit: Cand
         evidence = {"statistic": hypothesis.statistic, "dof": hypothesis.blocks - 1, "p_value": hypothesis.p_value,
                     "test": "refit at the known size, truncated cost per time block (graphcal.diagnosis.hypothesis)"}
     if is_discrepancy(test.name):
-        return _discovered(test, fit, energy_before, at_refit, gain) | {"evidence": evidence}
+        return _discovered(test, fit, fit_before, at_refit, gain) | {"evidence": evidence}
     statement = (f"the recording shows {candidate(test.name).physics} ({test.name}: {display(test.name, magnitude)} "
                  f"± {display(test.name, sigma)}), which the model left out; it was absorbed by {absorbed[0]} "
                  f"(correlation {absorbed[1]:+.2f}, concealment R² {test.concealment_r2:.2f}); adding it lowers "
@@ -396,9 +417,10 @@ def _finding(test: CandidateTest, fit: Fit, energy_before: float, at_refit: Cand
                            "held_out_after": held_after}}
 
 
-def _discovered(test: CandidateTest, fit: Fit, energy_before: float, at_refit: CandidateTest, gain: str) -> dict:
+def _discovered(test: CandidateTest, fit: Fit, fit_before: Fit, at_refit: CandidateTest, gain: str) -> dict:
     """A discrepancy's finding: its channel, regressor, curve with 1-sigma band (covariance at the refit),
-    peak-to-peak magnitude, what absorbed it at the fit before, and the physics that could produce it."""
+    peak-to-peak magnitude, what absorbed it at the fit before (fit_before), the physics that could produce
+    it, and the residuals binned against its regressor before and after it was added."""
     model = Discrepancy.parse(test.name)
     value, covariance = model.without_boresight(fit.model.values[test.name], at_refit.covariance)
     curve = model.curve(value, covariance)
@@ -417,8 +439,15 @@ def _discovered(test: CandidateTest, fit: Fit, energy_before: float, at_refit: C
             "curve": curve, "magnitude": magnitude, "sigma": sigma, "unit": model.unit, "hypotheses": physics,
             "parameters": np.asarray(value).tolist(), "statement": statement,
             "absorbed_by": [a for a, _ in test.absorbed_by], "mdb": test.mdb, "concealment_r2": test.concealment_r2,
-            "energy_cm2": {"before": energy_before, "after": fit.energy_cm2, "held_out_before": held_before,
+            "binned_residual_cm": {"before": _binned(fit_before, model.regressor),
+                                   "after": _binned(fit, model.regressor)},
+            "energy_cm2": {"before": fit_before.energy_cm2, "after": fit.energy_cm2, "held_out_before": held_before,
                            "held_out_after": held_after}}
+
+
+def _binned(fit: Fit, regressor: str) -> dict:
+    """A fit's residuals binned against a discrepancy's regressor (locate.binned_against), x in curve.x's unit."""
+    return binned_against(fit, regressor_values(fit.model.context.context(fit.pairs.index_p), regressor))
 
 
 def _withdrawn(test: CandidateTest, fit: Fit, sigma: float, statistic: float, p_value: float) -> dict:

@@ -51,12 +51,13 @@ class Fit:
         return energy_cm2(self.points_m[self.pairs.index_p], self.points_m[self.pairs.index_m], self.pairs)[0]
 
     def clusters(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per pair: cluster id (time block x voxel of p) and half (parity of the time block)."""
+        """Per pair: cluster id (time block x voxel of p) and time block (BLOCK_S long; its parity is the
+        pair's half of the drive in the held-out tests)."""
         p = self.pairs.index_p
         block = np.floor((self.data.time_s[p] - self.data.time_s[0]) / BLOCK_S).astype(np.int64)
         voxel = np.floor(self.points_m[p] / VOXEL_M).astype(np.int64)
         _, cluster = np.unique(np.column_stack([block, voxel]), axis=0, return_inverse=True)
-        return cluster.ravel(), block % 2
+        return cluster.ravel(), block
 
     def with_candidates(self, names: list[str]) -> EffectModel:
         """The model's effects plus candidates at zero, no priors (for linearising)."""

@@ -66,6 +66,17 @@ def bins(values: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
     return edges, np.digitize(values, edges) - 1
 
 
+def binned_against(fit, values: np.ndarray) -> dict:
+    """The centred oriented residuals [cm] of a fit's pairs binned against a regressor's values at p (K,): bin
+    centres (x, the regressor's unit), trimmed means (effect_cm) and pair counts, N_BINS quantile bins."""
+    edges, index = bins(values, "")
+    residual = centred_residual_cm(fit)
+    inside = [index == b for b in range(len(edges) - 1)]
+    return {"x": [float((edges[b] + edges[b + 1]) / 2) for b in range(len(edges) - 1)],
+            "effect_cm": [float(stats.trim_mean(residual[i], 0.1)) if np.any(i) else None for i in inside],
+            "n_pairs": [int(i.sum()) for i in inside]}
+
+
 def locate(fit, top: int = 10) -> list[dict]:
     """The significant bins (q < Q_LEVEL after BH, |effect| >= MIN_EFFECT_CM), largest |effect| first, then the whiteness
     tests; each a dict of diagnosis.json's `locations`."""

@@ -71,9 +71,9 @@ def noncentrality(dof: int, alpha: float = ALPHA, power: float = POWER) -> float
 class Linearisation:
     """The graph at a fit, in named coordinates: information (n,n) and vector (n,) of the whole graph
     (data and priors), the parameter name of each column, the columns of each effect, the data's rows
-    in blocks (cluster id (N,), Jacobian (N, w), whitened residual (N,), global columns (w,)), the
-    number of clusters, and per half of the drive (interleaved time blocks) the data's information,
-    vector, cost sum r^2 and weight sum."""
+    in blocks (cluster id (N,), time block (N,), Jacobian (N, w), whitened residual (N,), global columns
+    (w,)), the number of clusters, per half of the drive (time blocks of one parity) the data's
+    information, vector, cost sum r^2 and weight sum, and each time block's weight sum."""
 
     information: np.ndarray
     vector: np.ndarray
@@ -86,6 +86,7 @@ class Linearisation:
     half_cost: np.ndarray
     half_weight: np.ndarray
     sigma0_m: float
+    block_weight: np.ndarray
 
     @property
     def prior_information(self) -> np.ndarray:
@@ -102,18 +103,20 @@ class Linearisation:
 
 
 def linearisation_of_rows(r: np.ndarray, A: np.ndarray, names: list[str], effect_columns: dict,
-                          cluster: np.ndarray, half: np.ndarray, sigma0_m: float) -> Linearisation:
+                          cluster: np.ndarray, block: np.ndarray, sigma0_m: float) -> Linearisation:
     """The Linearisation of a stacked least-squares problem without priors: whitened residuals (K,),
-    their Jacobian (K, n), each column's name, the effects' columns, and per row its cluster and half
-    (0/1). Every row counts with weight 1 in J."""
+    their Jacobian (K, n), each column's name, the effects' columns, and per row its cluster and time
+    block (its half: the block's parity). Every row counts with weight 1 in J."""
+    block = block - block.min()
+    half = block % 2
     g = -A * r[:, None]
     info = np.stack([A[half == h].T @ A[half == h] for h in (0, 1)])
     vector = np.stack([g[half == h].sum(axis=0) for h in (0, 1)])
     cost = np.array([float(r[half == h] @ r[half == h]) for h in (0, 1)])
     weight = np.array([float(np.sum(half == h)) for h in (0, 1)])
     return Linearisation(info.sum(axis=0), vector.sum(axis=0), names, effect_columns,
-                         [(cluster, A, r, np.arange(A.shape[1]))], int(cluster.max()) + 1, info, vector, cost,
-                         weight, sigma0_m)
+                         [(cluster, block, A, r, np.arange(A.shape[1]))], int(cluster.max()) + 1, info, vector,
+                         cost, weight, sigma0_m, np.bincount(block).astype(np.float64))
 
 
 def _key_names(key: int, width: int, model: EffectModel, pose: bool) -> list[str]:
@@ -130,9 +133,11 @@ def _key_names(key: int, width: int, model: EffectModel, pose: bool) -> list[str
 
 
 def linearise(problem: Problem, estimate: Estimate, pairs: Correspondences, cluster: np.ndarray,
-              half: np.ndarray) -> Linearisation:
+              block: np.ndarray) -> Linearisation:
     """Linearise the undamped graph with the problem's effects (candidates at zero, no prior on them) at
-    the estimate; cluster (K,) and half (K,) label each pair."""
+    the estimate; cluster (K,) and time block (K,) label each pair (its half: the block's parity)."""
+    block = block - (block.min() if len(block) else 0)
+    half = block % 2
     graph, values = problem.graph(estimate, pairs, damped=False)
     model, config, data = problem.effects, problem.config, problem.data
     keys = list(values.keys())
@@ -152,12 +157,12 @@ def linearise(problem: Problem, estimate: Estimate, pairs: Correspondences, clus
     blocks = []
     half_information, half_vector = np.zeros((2, n, n)), np.zeros((2, n))
     half_cost, half_weight = np.zeros(2), np.zeros(2)
-    for rows, block in problem.blocks(estimate, pairs):
-        r, A = residuals(block, values)
+    for rows, factor_block in problem.blocks(estimate, pairs):
+        r, A = residuals(factor_block, values)
         cols = np.concatenate([np.arange(column[k], column[k] + J.shape[1])
-                               for k, J in jacobian_by_key(block, A).items()])
+                               for k, J in jacobian_by_key(factor_block, A).items()])
         A = A @ to_named[np.ix_(cols, cols)].T  # block-diagonal: the block's own columns stay its own
-        blocks.append((cluster[rows], A, r, cols))
+        blocks.append((cluster[rows], block[rows], A, r, cols))
         g = -A * r[:, None]  # each pair's contribution to eta
         for h in (0, 1):
             of = half[rows] == h
@@ -166,8 +171,10 @@ def linearise(problem: Problem, estimate: Estimate, pairs: Correspondences, clus
             half_cost[h] += float(r[of] @ r[of])
             half_weight[h] += float(pairs.weight[rows][of].sum())
     effect_columns = {name: np.arange(column[k], column[k] + model.dim(name)) for k, name in zip(model.keys, model.names)}
+    block_weight = np.bincount(block, weights=pairs.weight, minlength=int(block.max()) + 1 if len(block) else 0)
     return Linearisation(to_named @ information @ to_named.T, to_named @ vector, names, effect_columns, blocks,
-                         n_clusters, half_information, half_vector, half_cost, half_weight, config.weighting.sigma0_m)
+                         n_clusters, half_information, half_vector, half_cost, half_weight, config.weighting.sigma0_m,
+                         block_weight)
 
 
 def _solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -188,7 +195,8 @@ class CandidateTest:
     parameters; magnitude, sigma and mdb in its headline unit; statistic ~ chi2(dof) robust, with
     naive_statistic the textbook u^T S^-1 u (statistic x the variance factor); concealment R^2; absorbed_by: (parameter, correlation)
     of the base parameters most correlated with the estimate; held-out J [cm^2] without and with it
-    (fit on one half of the drive's time blocks, evaluated on the other, both ways, averaged)."""
+    (fit on one half of the drive's time blocks, evaluated on the other, both ways, averaged) and the
+    standard error of their difference across the held-out time blocks."""
 
     name: str
     dof: int
@@ -206,12 +214,15 @@ class CandidateTest:
     n_clusters: int = 0
     explained_rms_m: float = 0.0
     sigma0_m: float = 1.0
+    held_out_se_cm2: float = np.inf
 
     def significant(self, n_candidates: int, alpha: float = ALPHA) -> bool:
-        """Bonferroni over the candidates, a positive BIC gain, confirmed on held-out data (lower
-        held-out J), and large enough to matter: it explains at least floor_sigma0 of sigma0."""
+        """Bonferroni over the candidates, a positive BIC gain, confirmed on held-out data (held-out J
+        drops by more than the drop's standard error across the held-out time blocks: with millions of
+        returns a lower held-out J alone is found everywhere), and large enough to matter: it explains at
+        least floor_sigma0 of sigma0."""
         return bool(self.p_value < alpha / max(n_candidates, 1) and self.bic_gain > 0
-                    and self.held_out_cm2[1] < self.held_out_cm2[0]
+                    and self.held_out_cm2[0] - self.held_out_cm2[1] > self.held_out_se_cm2
                     and self.explained_rms_m >= self.floor_sigma0 * self.sigma0_m)
 
     @property
@@ -287,11 +298,12 @@ def score_candidate(lin: Linearisation, name: str, candidates: list[str]) -> Can
     covariance = S_inv * factor
     sigma, mdb = _headline_sigma(name, theta, covariance)
     # the fall of J (m^2, whitened cost x sigma0^2 over the weight sum) the projected candidate explains
+    held_out, held_out_se = _held_out(lin, base, k)
     explained_rms_m = lin.sigma0_m * float(np.sqrt(max(theta @ S @ theta, 0.0) / max(lin.half_weight.sum(), 1e-300)))
     return CandidateTest(name, len(k), statistic, float(stats.chi2.sf(statistic, len(k))), float(u @ S_inv @ u),
                          theta, covariance, candidate(name).magnitude_of(theta), sigma, mdb, r2,
-                         _absorbing(L, base, k, Xs, S_inv, theta, lin.names), _held_out(lin, base, k),
-                         lin.n_clusters, explained_rms_m, lin.sigma0_m)
+                         _absorbing(L, base, k, Xs, S_inv, theta, lin.names), held_out, lin.n_clusters,
+                         explained_rms_m, lin.sigma0_m, held_out_se)
 
 
 def _cluster_variance(lin: Linearisation, base: np.ndarray, k: np.ndarray, Xs: np.ndarray,
@@ -304,7 +316,7 @@ def _cluster_variance(lin: Linearisation, base: np.ndarray, k: np.ndarray, Xs: n
     position[base] = np.arange(len(base))
     where_k = {c: j for j, c in enumerate(k)}
     scores = np.zeros((lin.n_clusters, len(k)))
-    for cluster, A, r, cols in lin.rows:
+    for cluster, _, A, r, cols in lin.rows:
         in_base = position[cols] >= 0
         in_k = np.array([c in where_k for c in cols])
         order = np.array([where_k[c] for c in cols[in_k]])
@@ -328,19 +340,36 @@ def _absorbing(L, base, k, Xs, S_inv, theta, names, top: int = 3) -> list:
     return [(names[base[j]], float(correlation[j])) for j in order]
 
 
-def _held_out(lin: Linearisation, base: np.ndarray, k: np.ndarray) -> tuple[float, float]:
+def _held_out(lin: Linearisation, base: np.ndarray, k: np.ndarray) -> tuple[tuple[float, float], float]:
     """Held-out J [cm^2] of the base model and of base + candidate: fitted (one linear step) on one
-    half's pairs and the priors, evaluated on the other half; both ways, averaged."""
+    half's pairs and the priors, evaluated on the other half; both ways, averaged. And the standard
+    error [cm^2] of the drop between them across the held-out time blocks: each half's drop is a ratio
+    (cost difference over weight summed over its blocks), its variance the ratio estimator's over the
+    blocks (their residuals are independent where pairs within a block are not)."""
     both = np.r_[base, k]
-    out = np.zeros(2)
+    steps = np.zeros((2, 2, len(lin.names)))  # [fitted on half, base or both]
     for fit in (0, 1):
         L = lin.half_information[fit] + lin.prior_information
         eta = lin.half_vector[fit] + lin.prior_vector
         for m, columns in enumerate((base, both)):
-            step = np.zeros(len(lin.names))
-            step[columns] = _solve(L[np.ix_(columns, columns)], eta[columns])
-            out[m] += lin.energy_cm2(1 - fit, step) / 2
-    return float(out[0]), float(out[1])
+            steps[fit, m, columns] = _solve(L[np.ix_(columns, columns)], eta[columns])
+    out = [sum(lin.energy_cm2(1 - fit, steps[fit, m]) for fit in (0, 1)) / 2 for m in (0, 1)]
+    drop = np.zeros(len(lin.block_weight))  # whitened cost of base less that of base + candidate, per block
+    for _, block, A, r, cols in lin.rows:
+        fitted_on_0 = block % 2 == 1
+        base_residual, both_residual = (r + np.where(fitted_on_0, A @ steps[0, m, cols], A @ steps[1, m, cols])
+                                        for m in (0, 1))
+        drop += np.bincount(block, weights=base_residual ** 2 - both_residual ** 2, minlength=len(drop))
+    variance = 0.0
+    for h in (0, 1):
+        blocks = np.flatnonzero((np.arange(len(drop)) % 2 == h) & (lin.block_weight > 0))
+        if len(blocks) < 2:
+            return (float(out[0]), float(out[1])), np.inf
+        weight = lin.block_weight[blocks]
+        ratio = drop[blocks].sum() / weight.sum()
+        variance += (np.sum((drop[blocks] - ratio * weight) ** 2) / weight.sum() ** 2
+                     * len(blocks) / (len(blocks) - 1))
+    return (float(out[0]), float(out[1])), float(np.sqrt(variance) / 2 * lin.sigma0_m ** 2 * 1e4)
 
 
 def separation(lin: Linearisation, a: str, b: str, candidates: list[str]) -> float:

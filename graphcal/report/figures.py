@@ -158,3 +158,24 @@ def timings_png(timings_s: dict[str, float]) -> bytes:
     ax.invert_yaxis()
     ax.set(xlabel="seconds", title="Time per stage")
     return _png(figure)
+
+
+def discovered_png(channel: str, regressor: str, unit: str, curve: dict, binned: dict) -> bytes:
+    """A discovered effect: its curve with the 1-sigma band in its unit against the regressor (left), and the
+    fit's residuals binned against the same regressor before and after the effect was added [cm] (right)."""
+    figure, (left, right) = _figure(1, 2, height_in=3.6)
+    x, y = np.asarray(curve["x"], dtype=float), np.asarray(curve["y"], dtype=float)
+    sigma = np.asarray(curve["sigma"] if curve.get("sigma") is not None else np.zeros_like(y), dtype=float)
+    left.fill_between(x, y - sigma, y + sigma, color=SIGMA, alpha=0.25, label="1σ band")
+    left.plot(x, y, color=SIGMA, label="estimate")
+    left.set(xlabel=regressor, ylabel=f"{channel} error [{unit}]", title=f"{channel} against {regressor}")
+    left.legend(loc="best", fontsize=8)
+    for label, colour in (("before", BEFORE), ("after", AFTER)):
+        rows = binned[label]
+        effect = np.array([np.nan if v is None else v for v in rows["effect_cm"]], dtype=float)
+        right.plot(rows["x"], effect, "o-", ms=4, color=colour, label=f"{label} it was added")
+    right.axhline(0.0, color="#888", lw=0.8)
+    right.set(xlabel=f"{regressor} (bin centre)", ylabel="binned residual [cm]",
+              title="residuals less the field's trimmed mean, per quantile bin")
+    right.legend(loc="best", fontsize=8)
+    return _png(figure)

@@ -52,13 +52,18 @@ def write_report(folder: Path) -> Path:
     history = _read_history(folder / "history.csv")
     recording = _recording(manifest)
     sections = [_header(folder, calibration, manifest, history),
-                _section("Energy J per outer iteration", _image(figures.energy_png(history)),
+                section("Energy J per outer iteration", image(figures.energy_png(history)),
                          "J = Σ w (n·(p−m))² / Σ w over the pairs of each outer iteration (eq. 4.4); it is not "
                          "monotonic when the pairs change (the gate opens, the fine phase starts)."),
                 _residuals(folder), _truth(folder), _parameters(calibration, recording), _halves(folder),
                 _timings(manifest)]
-    page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>graphcal report: {html.escape(folder.name)}"
-            f"</title><style>{_STYLE}</style></head><body>{''.join(sections)}</body></html>")
+    return write_page(folder, "graphcal report", sections)
+
+
+def write_page(folder: Path, title: str, sections: list[str]) -> Path:
+    """folder/report.html, atomically: one self-contained page of the sections' HTML, titled title: folder name."""
+    page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}: "
+            f"{html.escape(folder.name)}</title><style>{_STYLE}</style></head><body>{''.join(sections)}</body></html>")
     with atomic_path(folder / REPORT) as tmp:
         tmp.write_text(page, encoding="utf-8")
     return folder / REPORT
@@ -86,15 +91,15 @@ def _recording(manifest: dict):
     return Recording.load(path, validate=False)
 
 
-def _image(png: bytes, alt: str = "figure") -> str:
+def image(png: bytes, alt: str = "figure") -> str:
     return f"<img alt='{alt}' src='data:image/png;base64,{base64.b64encode(png).decode('ascii')}'>"
 
 
-def _section(title: str, body: str, note: str = "") -> str:
+def section(title: str, body: str, note: str = "") -> str:
     return f"<h2>{html.escape(title)}</h2>" + (f"<p class='note'>{html.escape(note)}</p>" if note else "") + body
 
 
-def _table(header: list[str], rows: list[list[str]]) -> str:
+def table(header: list[str], rows: list[list[str]]) -> str:
     head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
     body = "".join("<tr>" + "".join(f"<td class='unobservable'>{html.escape(c)}</td>" if c == "unobservable"
                                     else f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in rows)
@@ -113,12 +118,12 @@ def _header(folder: Path, calibration: dict, manifest: dict, history: list[dict]
             ["outer iterations", str(len(history))],
             ["J before → after [cm²]", f"{energy.get('before', float('nan')):.4g} → {energy.get('after', float('nan')):.4g}"],
             ["unobservable", ", ".join(calibration.get("unobservable") or []) or "none"]]
-    return f"<h1>graphcal calibration report: {html.escape(folder.name)}</h1>" + _table(["", ""], rows)
+    return f"<h1>graphcal calibration report: {html.escape(folder.name)}</h1>" + table(["", ""], rows)
 
 
 def _residuals(folder: Path) -> str:
     if not all((folder / name).is_file() for name in PAIRS_FILES.values()):
-        return _section("Residuals before and after", "<p>not computed for this run (no pairs_*.parquet)</p>")
+        return section("Residuals before and after", "<p>not computed for this run (no pairs_*.parquet)</p>")
     residuals = BeforeAfter.load(folder)
     before, after = residuals.before, residuals.after
     settings = read_yaml(folder / "config.yaml") if (folder / "config.yaml").is_file() else {}
@@ -128,22 +133,22 @@ def _residuals(folder: Path) -> str:
            "perfect cloud")
     counts = (f"Before: {len(before.row_p):,} pairs, J {before.energy_cm2():.4g} cm²; after: {len(after.row_p):,} "
               f"pairs, J {after.energy_cm2():.4g} cm².")
-    return (_section("Residuals before and after", _image(figures.residuals_png(before.residual_m, after.residual_m)),
+    return (section("Residuals before and after", image(figures.residuals_png(before.residual_m, after.residual_m)),
                      "Signed point-to-plane residuals of the returns the calibration used, paired in the nominal "
                      "cloud (before) and again in the calibrated cloud (after) as the first outer iteration pairs "
                      f"them ({how}). {counts}")
-            + _section("The cloud before and after",
-                       _image(figures.cloud_png(before.p_m, before.residual_m, after.p_m, after.residual_m),
+            + section("The cloud before and after",
+                       image(figures.cloud_png(before.p_m, before.residual_m, after.p_m, after.residual_m),
                               "cloud before and after"),
                        "The paired returns of each cloud coloured by their residual, on one colour scale. " + counts))
 
 
 def _truth(folder: Path) -> str:
     if not (folder / EVALUATION).is_file():
-        return _section("Errors against truth", "<p>no truth for this recording (real data), or not evaluated: "
+        return section("Errors against truth", "<p>no truth for this recording (real data), or not evaluated: "
                                                 "<code>graphcal evaluate RUN_DIR RECORDING</code></p>")
     evaluation = read_yaml(folder / EVALUATION)
-    return _section("Errors against truth", f"<pre>{html.escape(evaluation['table'])}</pre>",
+    return section("Errors against truth", f"<pre>{html.escape(evaluation['table'])}</pre>",
                     "Intrinsics: RMS over the fibres but the reference of (estimate − truth), eq. 4.6. c2c: distance "
                     "from each calibrated return to the nearest true return; c2c mean* once the rigid motion that "
                     "no self-calibration observes (the trajectory's common translation/rotation) is removed.")
@@ -153,13 +158,13 @@ def _parameters(calibration: dict, recording) -> str:
     truth = recording.truth if recording is not None else None
     parts = []
     if intrinsics_estimated(calibration):
-        parts.append(_image(_intrinsics_figure(calibration, truth)))
+        parts.append(image(_intrinsics_figure(calibration, truth)))
     corrections = calibration.get("trajectory_corrections") or []
     if corrections:
-        parts.append(_image(_corrections_figure(corrections, recording)))
+        parts.append(image(_corrections_figure(corrections, recording)))
     for title, header, rows in parameter_rows(calibration):
-        parts.append(f"<h3>{html.escape(title)}</h3>" + _table(header, rows))
-    return _section("Parameters with 1-sigma", "".join(parts),
+        parts.append(f"<h3>{html.escape(title)}</h3>" + table(header, rows))
+    return section("Parameters with 1-sigma", "".join(parts),
                     "1-sigma from the marginal covariances of the final graph (σ0 the nominal point noise). "
                     "'(unobservable)': the data see it, alone or in combination with others, less than ten times "
                     "better than the nominal model's stated uncertainty; it is kept at its nominal value along what "
@@ -217,7 +222,7 @@ def _halves(folder: Path) -> str:
                check["passed"] else "failed: a half's fit raised J on the other half's pairs, so what it estimated "
                "fits the surfaces that half sees, not the sensor; every intrinsic left is held at nominal and named "
                "unobservable")
-    return _section("What this static recording determines: the azimuth-halves check", _table(header, rows),
+    return section("What this static recording determines: the azimuth-halves check", table(header, rows),
                     "A static head sees each surface from one viewpoint, so an offset can fit the shape of the "
                     "surfaces between its rings as well as the sensor. The intrinsics left after the soft ones are "
                     "held were fitted on the pairs of each azimuth half of the scene; those one half alone does not "
@@ -230,7 +235,7 @@ def _halves(folder: Path) -> str:
 def _timings(manifest: dict) -> str:
     timings = manifest.get("timings_s") or {}
     if not timings:
-        return _section("Time per stage", "<p>not recorded (no run.yaml)</p>")
+        return section("Time per stage", "<p>not recorded (no run.yaml)</p>")
     rows = [[name, f"{seconds:.2f}"] for name, seconds in timings.items()]
-    return _section("Time per stage", _image(figures.timings_png(timings)) + _table(["stage", "seconds"], rows),
+    return section("Time per stage", image(figures.timings_png(timings)) + table(["stage", "seconds"], rows),
                     "Wall-clock seconds of each stage of the run (the report itself is timed after it is written).")

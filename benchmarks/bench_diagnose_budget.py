@@ -1,0 +1,58 @@
+"""Benchmark: graphcal.diagnose(recording) as a new user runs it, no option given, on recordings of the
+independent simulator (tools/foreign_sim, box_street, tilted mount, 1 cm range noise) of about 4 M and 40 M
+returns. The budget: within 5 minutes on 2 cores for 4 M returns, within 15 for 40 M.
+
+Each case in its own process (its own peak memory): the seconds of the whole diagnosis, peak memory, the
+findings. Prints the figures and writes benchmarks/results/diagnose_budget.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+from common import peak_gib, report, run_in_process
+
+RESULTS = Path(__file__).resolve().parent / "results"
+FIRINGS_PER_S = 0.62e6  # returns a second of the foreign simulator's HDL-32E at size 1 (measured: 9.97 M in 16 s)
+
+
+def _case(folder: str, queue) -> None:
+    import graphcal
+
+    recording = graphcal.Recording.load(folder)
+    started = time.perf_counter()
+    diagnosis = graphcal.diagnose(recording, quiet=True)
+    queue.put({"returns": len(recording.points), "seconds": round(time.perf_counter() - started, 1),
+               "peak_gib": round(peak_gib(), 2),
+               "findings": [f["effect"] if f["effect"] != "discovered" else
+                            f"discovered {f['channel']} x {f['regressor']}" for f in diagnosis.findings],
+               "summary": diagnosis.summary()})
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--millions", type=float, nargs="+", default=[4.0, 40.0], help="returns of each case [M]")
+    args = parser.parse_args()
+    from tools.foreign_sim import simulate
+
+    figures = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()},
+               "date": datetime.date.today().isoformat(), "cases": {}}
+    for millions in args.millions:
+        duration_s = max(16.0, millions * 1e6 / FIRINGS_PER_S)
+        size = min(1.0, millions * 1e6 / (FIRINGS_PER_S * duration_s))
+        with tempfile.TemporaryDirectory() as folder:
+            simulate("box_street", Path(folder) / "r", duration_s=duration_s, size=size, seed=4, mount="tilted")
+            figures["cases"][f"{millions:g} M"] = {"duration_s": round(duration_s, 1), "size": round(size, 3),
+                                                   **run_in_process(_case, str(Path(folder) / "r"))}
+    RESULTS.mkdir(exist_ok=True)
+    report(figures, RESULTS / "diagnose_budget.json")
+
+
+if __name__ == "__main__":
+    main()

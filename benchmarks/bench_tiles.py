@@ -1,0 +1,73 @@
+"""Benchmark: the per-tile stage of a calibration (features and pairs of one outer iteration,
+graphcal.calibration.tiles) in one process, and on Dask LocalClusters of one and two worker processes.
+
+A recording of the independent simulator (tools/foreign_sim, relief_street, tilted mount) is calibrated's
+input: the returns a calibration uses (max_points), placed at the nominal calibration. Each configuration runs
+the stage `repeats` times (the first, which starts the workers and ships the code, is reported apart). Prints
+the figures and writes benchmarks/results/tiles.json. The speed-up target: two workers at least 1.7x one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+from common import peak_gib, report
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--duration", type=float, default=15.0)
+    parser.add_argument("--size", type=float, default=0.3)
+    parser.add_argument("--max-points", type=int, default=1_000_000)
+    parser.add_argument("--tile-m", type=float, default=50.0)
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+
+    import numpy as np
+
+    from graphcal.calibration.calibrate import CalibrationPipeline
+    from graphcal.calibration.config import CalibrationConfig
+    from graphcal.common.cluster import open_task_map
+    from graphcal.recording.directory import Recording
+    from tools.foreign_sim import simulate
+
+    figures = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()},
+               "date": datetime.date.today().isoformat(), "arguments": vars(args)}
+    with tempfile.TemporaryDirectory() as folder:
+        simulate("relief_street", Path(folder) / "r", duration_s=args.duration, size=args.size, seed=2, mount="tilted")
+        recording = Recording.load(Path(folder) / "r")
+        config = CalibrationConfig(mode="joint", max_points=args.max_points, association={"tile_m": args.tile_m})
+        figures["returns"] = len(recording.points)
+        for address in (None, "local:1", "local:2"):
+            with open_task_map(address) as task_map:
+                pipeline = CalibrationPipeline(recording, config, True, task_map)
+                problem = pipeline.problem
+                points = problem.points(pipeline.estimate)
+                seconds = []
+                for _ in range(args.repeats):
+                    started = time.perf_counter()
+                    features = problem.tiling.features(points, problem.settings.features)
+                    pairs = problem.association().pairs(points, problem.data.fibre, features,
+                                                        problem.gates.gate_start_m, problem.sight(pipeline.estimate,
+                                                                                                   points))
+                    seconds.append(time.perf_counter() - started)
+                figures[address or "in process"] = {
+                    "tiles": len(problem.tiling.tiles(points)), "returns used": len(points), "pairs": len(pairs),
+                    "first s": round(seconds[0], 2), "then s (median)": round(float(np.median(seconds[1:])), 2)}
+        one, two = figures["local:1"]["then s (median)"], figures["local:2"]["then s (median)"]
+        figures["speed-up, two workers over one"] = round(one / two, 2)
+        figures["peak GiB (driver)"] = round(peak_gib(), 2)
+    RESULTS.mkdir(exist_ok=True)
+    report(figures, RESULTS / "tiles.json")
+
+
+if __name__ == "__main__":
+    main()

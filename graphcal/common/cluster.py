@@ -1,0 +1,87 @@
+"""Where per-tile work runs: in this process, or on a Dask cluster (dask.distributed) while the factor graph
+stays on the driver.
+
+A TaskMap applies a top-level function to a list of jobs (plain arrays in, plain arrays out) and returns the
+results in the jobs' order, whichever worker ran each. open_task_map(address) gives one:
+
+- None: in this process, one job after the other;
+- "local" or "local:N": a LocalCluster of N worker processes (default: the machine's cores), one thread each,
+  started here and closed when the block ends;
+- "tcp://HOST:PORT" (or any scheduler address dask.distributed accepts): an existing cluster. The workers
+  need graphcal installed; the jobs carry their arrays, so the recording need not be on their disks.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from typing import Protocol
+
+from graphcal.common.errors import ConfigError
+
+
+class TaskMap(Protocol):
+    workers: int
+
+    def __call__(self, function: Callable, jobs: Sequence) -> list: ...
+
+
+class InProcess:
+    """Every job here, in order."""
+
+    workers = 1
+
+    def __call__(self, function: Callable, jobs: Sequence) -> list:
+        return [function(job) for job in jobs]
+
+
+class OnCluster:
+    """Every job on a dask.distributed cluster (client), results gathered in the jobs' order."""
+
+    def __init__(self, client):
+        self.client = client
+
+    @property
+    def workers(self) -> int:
+        return max(len(self.client.scheduler_info().get("workers", {})), 1)
+
+    def __call__(self, function: Callable, jobs: Sequence) -> list:
+        return self.client.gather(self.client.map(function, list(jobs), pure=False))
+
+
+IN_PROCESS = InProcess()
+
+
+def local_workers(address: str) -> int:
+    """The worker count of "local" (the cores) or "local:N"; ConfigError naming the option otherwise."""
+    _, _, count = address.partition(":")
+    if not count:
+        return os.cpu_count() or 1
+    if not count.isdigit() or int(count) < 1:
+        raise ConfigError(f"--dask {address!r}: expected local, local:N (N workers, N >= 1) or a scheduler address "
+                          "such as tcp://HOST:PORT")
+    return int(count)
+
+
+@contextmanager
+def open_task_map(address: str | None, quiet: bool = True) -> Iterator[TaskMap]:
+    """The TaskMap of an address (module docstring); a cluster started here is closed on leaving."""
+    if address is None:
+        yield IN_PROCESS
+        return
+    try:
+        from dask.distributed import Client, LocalCluster
+    except ImportError as error:  # pragma: no cover - dask is a dependency
+        raise ConfigError(f"--dask needs dask.distributed: {error}") from None
+    if address == "local" or address.startswith("local:"):
+        with (LocalCluster(n_workers=local_workers(address), threads_per_worker=1, processes=True,
+                           dashboard_address=None, silence_logs=50) as cluster, Client(cluster) as client):
+            yield OnCluster(client)
+        return
+    try:
+        client = Client(address, timeout="20s")
+    except (OSError, TimeoutError, ValueError) as error:
+        raise ConfigError(f"--dask {address!r}: no Dask scheduler answered there ({error})") from None
+    with client:
+        yield OnCluster(client)
