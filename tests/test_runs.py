@@ -260,6 +260,24 @@ def test_apply_of_a_nominal_calibration_with_a_batch_of_one_return(calibrated, t
                                atol=5.1e-5)
 
 
+def test_apply_says_which_effects_of_a_diagnosis_it_does_not_apply(calibrated, tmp_path, monkeypatch):
+    """A calibration.yaml with a diagnosis's effects: the cloud is the calibration's without them, and both the
+    command's output and run.yaml name them."""
+    recording_path, folder = calibrated
+    copy = tmp_path / "diagnosed"
+    shutil.copytree(folder, copy)
+    calibration = yaml.safe_load((copy / "calibration.yaml").read_text())
+    calibration["effects"] = [{"effect": "time_offset", "magnitude": 0.004, "sigma": 0.0005, "unit": "s",
+                               "parameters": [0.004], "statement": "a latency"}]
+    (copy / "calibration.yaml").write_text(yaml.safe_dump(calibration))
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(app, ["apply", str(copy), str(recording_path)])
+    assert result.exit_code == 0, result.output
+    assert "time_offset" in result.output and "not applied" in result.output
+    (run,) = (tmp_path / "runs").glob("*apply*")
+    assert yaml.safe_load((run / "run.yaml").read_text())["effects_not_applied"] == ["time_offset"]
+
+
 def test_apply_refuses_a_file_name_it_cannot_write(calibrated, tmp_path):
     recording = Recording.load(calibrated[0])
     with pytest.raises(ConfigError, match=r"cloud.xyz: expected a .las, .laz, .ply file name"):

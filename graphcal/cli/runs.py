@@ -181,6 +181,12 @@ def evaluation_run(calibration_path: Path, recording_path: Path, quiet: bool = F
         raise RecordingError(Path(recording_path) / "truth", "not found",
                              expected="a simulated recording's truth/ to evaluate against (real data has none)")
     calibration = Calibration.load(calibration_path, recording.sensor)
+    not_applied = [row["effect"] if isinstance(row, dict) else row
+                   for row in read_calibration_yaml(calibration_file(calibration_path)).get("effects") or []]
+    if not_applied and not quiet:
+        print(f"note: {calibration_file(calibration_path)} lists effects found by graphcal diagnose "
+              f"({', '.join(not_applied)}): the cloud is corrected by the offsets, the extrinsic and the trajectory "
+              "corrections only; these effects are not applied", file=sys.stderr)
     folder = calibration_file(calibration_path).parent
     with status("comparing with truth/", quiet):
         evaluation = evaluate(calibration, recording)
@@ -195,8 +201,9 @@ def evaluation_run(calibration_path: Path, recording_path: Path, quiet: bool = F
 
 def apply_run(calibration_path: Path, recording_path: Path, out: Path | None = None, quiet: bool = False) -> Path:
     """The corrected cloud (graphcal/calibration/corrected_cloud.py) at `out` (.las, .laz or .ply), or in a
-    run folder as cloud.laz; with the calibration's residuals when it was made from this recording."""
-    from graphcal.calibration.result import Calibration, calibration_file
+    run folder as cloud.laz; with the calibration's residuals when it was made from this recording. The effects
+    a diagnosis added to calibration.yaml are not applied: said on stderr (unless quiet) and in run.yaml."""
+    from graphcal.calibration.result import Calibration, calibration_file, read_calibration_yaml
     from graphcal.clouds.formats import STREAMED_SUFFIXES
     from graphcal.calibration.corrected_cloud import (
         RESIDUALS,
@@ -215,6 +222,12 @@ def apply_run(calibration_path: Path, recording_path: Path, out: Path | None = N
     else:
         run, recording = None, Recording.load(recording_path)
     calibration = Calibration.load(calibration_path, recording.sensor)
+    not_applied = [row["effect"] if isinstance(row, dict) else row
+                   for row in read_calibration_yaml(calibration_file(calibration_path)).get("effects") or []]
+    if not_applied and not quiet:
+        print(f"note: {calibration_file(calibration_path)} lists effects found by graphcal diagnose "
+              f"({', '.join(not_applied)}): the cloud is corrected by the offsets, the extrinsic and the trajectory "
+              "corrections only; these effects are not applied", file=sys.stderr)
     folder = calibration_file(calibration_path).parent
     made_from = (read_yaml(folder / MANIFEST) or {}).get("recording") if (folder / MANIFEST).is_file() else None
     residuals = None
@@ -227,7 +240,8 @@ def apply_run(calibration_path: Path, recording_path: Path, out: Path | None = N
         with run.stage("apply and write"):
             write_corrected_cloud(path, calibration, recording, residuals, quiet)
         run.finish(recording=str(Path(recording_path).resolve()), calibration=str(Path(calibration_path).resolve()),
-                       cloud=path.name, residuals="from the calibration's final fit" if residuals else "none (NaN)")
+                   cloud=path.name, residuals="from the calibration's final fit" if residuals else "none (NaN)",
+                   effects_not_applied=not_applied)
         path = run.publish() / path.name
     return path
 

@@ -1,0 +1,97 @@
+"""Benchmark: calibrating long drives (scenarios/city_loop.py: a district driven in loops, every street passed
+both ways about every 4 minutes, an INS drifting as a GNSS-aided one does) of 1, 2, 5 and 10 minutes.
+
+Each drive is simulated straight to disk (graphcal.simulation.simulator.simulate_to, flat memory) at a stated
+size (the fraction of firings kept: the machine's time, not graphcal's, limits the simulation) and calibrated
+with the defaults (mode auto: joint with trajectory corrections once the drive comes back) in its own process.
+Figures per drive: returns, seconds per stage, peak memory, returns read per second, RMS intrinsic errors
+before/after, extrinsic errors, trajectory error against the truth at the control times (the estimated
+corrections less the true INS error, the common translation no self-calibration sees removed) next to the INS
+error itself, and the cloud-to-cloud distance to the truth. Prints them and writes
+benchmarks/results/long_drive.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+from common import peak_gib, report, run_in_process
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def _trajectory_errors_cm(result, recording) -> dict:
+    import numpy as np
+
+    from graphcal.recording.geodesy import to_world
+
+    times = np.asarray(result.calibration.control_times_s)
+    recorded, true = recording.world.poses, to_world(recording.truth.trajectory, recording.crs).poses
+    inside = (times >= max(recorded.span[0], true.span[0])) & (times <= min(recorded.span[1], true.span[1]))
+    ins_error = true.interpolate(times[inside])[0] - recorded.interpolate(times[inside])[0]
+    corrections = np.array([c.translation() for c in result.calibration.estimate.corrections])[inside]
+    left = corrections - ins_error
+    left -= left.mean(axis=0)
+    drift = ins_error - ins_error.mean(axis=0)
+    return {"controls": int(inside.sum()),
+            "ins_error_rms_cm": round(float(np.sqrt(np.mean(np.sum(drift ** 2, axis=1)))) * 100, 2),
+            "after_rms_cm": round(float(np.sqrt(np.mean(np.sum(left ** 2, axis=1)))) * 100, 2)}
+
+
+def _case(folder: str, queue) -> None:
+    import graphcal
+    from graphcal.calibration.evaluate import evaluate
+
+    recording = graphcal.Recording.load(folder)
+    started = time.perf_counter()
+    result = graphcal.calibrate(recording, quiet=True)
+    seconds = time.perf_counter() - started
+    out = {"returns": len(recording.points), "mode": result.config.mode, "seconds": round(seconds, 1),
+           "returns_per_s": round(len(recording.points) / seconds),
+           "peak_gib": round(peak_gib(), 2), "outer_iterations": len(result.history),
+           "seconds_per_stage": {k: round(v, 1) for k, v in result.timings_s.items()},
+           "energy_cm2": [round(float(e), 5) for e in result.energy_cm2]}
+    evaluation = evaluate(result, recording)
+    out |= {"intrinsic_rms_before (m, deg, deg, m)": [round(float(v), 5) for v in evaluation.intrinsic_rms_before],
+            "intrinsic_rms_after (m, deg, deg, m)": [round(float(v), 5) for v in evaluation.intrinsic_rms_after],
+            "lever_arm_error_m (before, after)": [round(float(v), 4) for v in evaluation.lever_arm_error_m],
+            "rotation_error_deg (before, after)": [round(float(v), 4) for v in evaluation.rotation_error_deg],
+            "c2c_mean_cm (before, after, gauge-free)": [round(evaluation.cloud_before.mean * 100, 2),
+                                                        round(evaluation.cloud_after.mean * 100, 2),
+                                                        round(evaluation.cloud_after_gauge_free.mean * 100, 2)]}
+    if result.config.mode.endswith("trajectory"):
+        out["trajectory"] = _trajectory_errors_cm(result, recording)
+    queue.put(out)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--minutes", type=float, nargs="+", default=[1, 2, 5, 10])
+    parser.add_argument("--size", type=float, default=0.1, help="fraction of firings simulated")
+    args = parser.parse_args()
+    from graphcal.simulation.script import load_scenario_builder
+    from graphcal.simulation.simulator import simulate_to
+
+    city_loop = load_scenario_builder("city_loop")
+    figures = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()},
+               "date": datetime.date.today().isoformat(), "size": args.size, "drives": {}}
+    for minutes in args.minutes:
+        with tempfile.TemporaryDirectory() as folder:
+            started = time.perf_counter()
+            simulate_to(city_loop(duration_s=60.0 * minutes, size=args.size, seed=0, range_noise_m=0.005),
+                        Path(folder) / "city", quiet=True)
+            simulated_s = time.perf_counter() - started
+            figures["drives"][f"{minutes:g} min"] = {"simulated_s": round(simulated_s, 1),
+                                                     **run_in_process(_case, str(Path(folder) / "city"))}
+        RESULTS.mkdir(exist_ok=True)
+        report(figures, RESULTS / "long_drive.json")
+
+
+if __name__ == "__main__":
+    main()
