@@ -691,3 +691,21 @@ def test_trajectory_coordinate_no_vehicle_has(rec_dir, column, value, words):
     lines[12] = ",".join(cells)
     write_trajectory(rec_dir, lines)
     load_error(rec_dir, "trajectory.csv", f"field '{column}', row 12", words)
+
+
+def test_take_reads_rows_batch_by_batch_as_indexing_the_whole_column(tmp_path, monkeypatch):
+    monkeypatch.setattr(graphcal.recording.points, "BATCH_ROWS", 1000)
+    rng = np.random.default_rng(5)
+    n = 4500
+    table = PointTable.from_arrays(time=np.arange(n) * 1e-4, fibre=rng.integers(0, 32, n), range=rng.random(n),
+                                   azimuth=rng.random(n), intensity=rng.random(n))
+    table.save(tmp_path / "points.parquet")
+    on_disk = PointTable.open(tmp_path / "points.parquet")
+    assert on_disk._file.metadata.num_row_groups == 5
+    rows = np.sort(rng.choice(n, 700, replace=False))
+    whole = on_disk.read(["range", "fibre"])
+    taken = on_disk.take(["range", "fibre"], rows)
+    np.testing.assert_array_equal(taken["range"], whole["range"][rows])
+    np.testing.assert_array_equal(taken["fibre"], whole["fibre"][rows])
+    with pytest.raises(ValueError, match="sorted"):
+        on_disk.take(["range"], rows[::-1])

@@ -231,6 +231,7 @@ def test_apply_writes_the_corrected_cloud_georeferenced(calibrated, tmp_path, mo
     if suffix == ".laz":
         las = laspy.read(out)
         assert las.header.parse_crs() == recording.world.crs
+        assert las.header.generating_software == f"graphcal {graphcal.__version__}"
         np.testing.assert_allclose(np.column_stack([las.x, las.y, las.z]), expected, atol=5.1e-5)
         np.testing.assert_array_equal(las.gps_time, columns["time"])
         np.testing.assert_array_equal(las.fibre, columns["fibre"])
@@ -258,6 +259,24 @@ def test_apply_of_a_nominal_calibration_with_a_batch_of_one_return(calibrated, t
     las = laspy.read(write_corrected_cloud(tmp_path / "nominal.las", nominal, recording, quiet=True))
     np.testing.assert_allclose(np.column_stack([las.x, las.y, las.z]), graphcal.apply_calibration(nominal, recording),
                                atol=5.1e-5)
+
+
+def test_version_and_quiet_on_every_command(calibrated):
+    import typer
+
+    result = CliRunner().invoke(app, ["--version"])
+    assert result.exit_code == 0 and result.output.strip() == f"graphcal {graphcal.__version__}"
+
+    def leaves(group, prefix: list[str]):
+        for name, command in group.commands.items():
+            yield from leaves(command, prefix + [name]) if hasattr(command, "commands") else [prefix + [name]]
+
+    commands = list(leaves(typer.main.get_command(app), []))
+    assert len(commands) >= 14
+    for command in commands:
+        assert "--quiet" in CliRunner().invoke(app, command + ["--help"], terminal_width=80).output, command
+    result = CliRunner().invoke(app, ["info", str(calibrated[0]), "-q"])
+    assert result.exit_code == 0 and result.output == ""
 
 
 def test_apply_says_which_effects_of_a_diagnosis_it_does_not_apply(calibrated, tmp_path, monkeypatch):

@@ -113,15 +113,9 @@ def _read_rows(recording: Recording, max_points: int | None, rng: np.random.Gene
     rows = np.arange(n_rows)
     if max_points is not None and n_rows > max_points:
         rows = np.sort(rng.choice(n_rows, max_points, replace=False))
-    parts, start, range_noise_m = [], 0, float("nan")
-    for batch in recording.points.iter_batches(["time", "fibre", "range", "azimuth"]):
-        if start == 0:
-            range_noise_m = measured_range_noise_m(batch["fibre"], batch["range"])
-        taken = rows[np.searchsorted(rows, start):np.searchsorted(rows, start + len(batch["time"]))]
-        parts.append({name: values[taken - start] for name, values in batch.items()})
-        start += len(batch["time"])
-    columns = {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
-    return columns | {"rows": rows, "range_noise_m": range_noise_m}
+    first = next(recording.points.iter_batches(["fibre", "range"]))
+    columns = recording.points.take(["time", "fibre", "range", "azimuth"], rows)
+    return columns | {"rows": rows, "range_noise_m": measured_range_noise_m(first["fibre"], first["range"])}
 
 
 def revisits(poses: PoseTrack) -> bool:

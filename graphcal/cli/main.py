@@ -18,6 +18,20 @@ app = typer.Typer(help="Target-free lidar self-calibration with a GTSAM factor g
                        "what); 1 an unexpected failure (a bug: the traceback is printed).",
                   no_args_is_help=True, pretty_exceptions_enable=False)
 
+def _version(value: bool) -> None:
+    if value:
+        from graphcal import __version__
+
+        typer.echo(f"graphcal {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _options(version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True,
+                                                   help="print graphcal's version and exit")] = False) -> None:
+    """Target-free lidar self-calibration with a GTSAM factor graph."""
+
+
 def _clear_errors(command):
     """Turn graphcal's own errors into one line on stderr and exit code 2 (3 for a refused result)."""
     @functools.wraps(command)
@@ -63,12 +77,17 @@ def simulate(scenario: Annotated[str, typer.Argument(help="scenario name (sim6_t
 
 @app.command()
 @_clear_errors
-def info(recording: Annotated[Path, typer.Argument(help="recording directory")]) -> None:
+def info(recording: Annotated[Path, typer.Argument(help="recording directory")],
+         quiet: Annotated[bool, typer.Option("--quiet", "-q", help="validate only: no summary (the exit code "
+                                                                   "says whether the recording is valid)")] = False
+         ) -> None:
     """Validate a recording (every return, in batches) and summarise it."""
     from graphcal.recording.directory import Recording
 
     rec = Recording.load(recording, validate=False)
     summary = rec.validate()
+    if quiet:
+        return
     world = rec.world
     typer.echo(f"{rec.name}: {summary.n_points:,} returns from a {rec.sensor.model} "
                f"({rec.sensor.n_fibres} fibres, reference {rec.sensor.reference_fibre}) over "
@@ -167,8 +186,10 @@ def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory
              max_effects: Annotated[int, typer.Option(help="most effects added")] = 3,
              refit_iterations: Annotated[int, typer.Option(help="outer iterations of each re-solve with an effect "
                                                                 "added", min=1)] = 4,
-             open_world: Annotated[bool, typer.Option(help="also test a smooth error of every channel against every "
-                                                          "regressor, reported as discovered")] = False,
+             open_world: Annotated[bool, typer.Option("--open-world/--named-only",
+                                                      help="also test a smooth error of every channel against every "
+                                                           "regressor, reported as discovered (default), or only the "
+                                                           "named candidates")] = True,
              out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-diagnose-<UTC time>)")] = None,
              spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, quiet: Quiet = False) -> None:
     """Find where the model and the recording disagree, name the physics left out, model it, show the
@@ -182,8 +203,12 @@ def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory
     """
     from graphcal.cli.runs import DiagnoseOptions, diagnosis_run
 
+    from graphcal.diagnosis.diagnose import DIAGNOSE_MAX_POINTS
+
     how = DiagnoseOptions(simulation, rescan, max_effects, refit_iterations, open_world)
-    run = diagnosis_run(recording, calibration_config(mode, config), how, out, spawn, viewer_points, quiet)
+    # a settings file says how many returns; else the diagnosis's default subset
+    settings = calibration_config(mode, config, None if config is not None else {"max_points": DIAGNOSE_MAX_POINTS})
+    run = diagnosis_run(recording, settings, how, out, spawn, viewer_points, quiet)
     if not quiet:
         typer.echo(run.diagnosis.summary())
         typer.echo(f"wrote {run.folder}: diagnosis.json, report.html, run.rrd in {run.diagnosis.seconds:.1f} s; "
@@ -271,7 +296,8 @@ def report(run_folder: Annotated[Path, typer.Argument(help="calibration or diagn
 @_clear_errors
 def view(run: Annotated[Path, typer.Argument(help="run folder (its run.rrd) or an .rrd file")],
          web: Annotated[bool, typer.Option(help="serve the web viewer over HTTP instead (no display needed)")] = False,
-         port: Annotated[int, typer.Option(help="--web: HTTP port of the web viewer")] = 9090) -> None:
+         port: Annotated[int, typer.Option(help="--web: HTTP port of the web viewer")] = 9090,
+         quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no message")] = False) -> None:
     """Open a run in the rerun viewer (its layout is in the file)."""
     import subprocess
 
@@ -284,14 +310,16 @@ def view(run: Annotated[Path, typer.Argument(help="run folder (its run.rrd) or a
     if web:
         if viewer_executable() is None:
             raise ConfigError("the rerun viewer executable is not installed (pip install rerun-sdk)")
-        typer.echo(f"serving {path} at http://localhost:{port} (Ctrl-C stops)")
+        if not quiet:
+            typer.echo(f"serving {path} at http://localhost:{port} (Ctrl-C stops)")
         sys.exit(subprocess.call([viewer_executable(), "--web-viewer", "--web-viewer-port", str(port), str(path)]))
     reason = no_viewer_reason()
     if reason is not None:
         raise ConfigError(f"cannot open the viewer here: {reason}; use graphcal view {run} --web, or open {path} "
                           "with `rerun` on a machine with a screen")
     subprocess.Popen([viewer_executable(), str(path)], start_new_session=True)
-    typer.echo(f"opened {path} in the rerun viewer")
+    if not quiet:
+        typer.echo(f"opened {path} in the rerun viewer")
 
 
 @app.command()

@@ -114,7 +114,7 @@ class DiagnoseOptions:
     rescan: bool = False
     max_effects: int = 3
     refit_iterations: int = 4
-    open_world: bool = False
+    open_world: bool = True
 
 
 def diagnosis_run(recording_path: Path, config: CalibrationConfig, how: DiagnoseOptions = DiagnoseOptions(),

@@ -97,7 +97,10 @@ def las_writer(path: str | Path, offset_m: np.ndarray, *, crs=None) -> Iterator[
     import laspy
 
     path = Path(path)
+    from graphcal import __version__
+
     header = laspy.LasHeader(point_format=6, version="1.4")
+    header.generating_software = f"graphcal {__version__}"
     header.offsets, header.scales = np.asarray(offset_m, dtype=np.float64), np.full(3, LAS_SCALE_M)
     if crs is not None:
         header.add_crs(crs)

@@ -77,6 +77,10 @@ ORDINARY = {("range", "fibre"), ("azimuth", "fibre"), ("elevation", "fibre")}
 NAMED_SIGNATURE = {"range_scale": ("range", "range"), "incidence_range_bias": ("range", "incidence"),
                    "azimuth_eccentricity": ("azimuth", "azimuth"), "spin_rate": ("time", "azimuth"),
                    "intra_sweep_motion": ("time", "azimuth")}
+# the returns a diagnosis uses by default: the score tests' cluster-robust variances and the held-out fits need
+# pairs over the whole drive, not all its returns; a recording of any length is diagnosed in minutes
+# (benchmarks/results/diagnose_budget.json)
+DIAGNOSE_MAX_POINTS = 300_000
 UNEXPLAINED_CM = 0.5
 UNEXPLAINED_Q = 1e-6
 DEFAULT_SEPARATING_DATA = "a turn, a speed change, or a second pass in the opposite direction"
@@ -283,14 +287,15 @@ def score_all(fit: Fit, names: list[str]) -> tuple[dict, object]:
 
 def diagnose(recording: Recording, config: CalibrationConfig | None = None, candidates: list[str] | None = None,
              max_effects: int = 3, refit_iterations: int = 4, quiet: bool = False,
-             open_world: bool = False) -> Diagnosis:
-    """Diagnose a recording against graphcal's model calibrated with config (default: joint
-    intrinsics + extrinsic). candidates: effect names to test (default: every one of
+             open_world: bool = True) -> Diagnosis:
+    """Diagnose a recording against graphcal's model calibrated with config (default: joint intrinsics +
+    extrinsic on DIAGNOSE_MAX_POINTS returns). candidates: effect names to test (default: every one of
     factors.effects.CANDIDATES); open_world: also a generic discrepancy of every channel against every
-    regressor, reported as `discovered` when it explains the residuals better than every named effect. At most
+    regressor, reported as `discovered` when it explains the residuals better than every named effect (False:
+    the named candidates only). At most
     max_effects are added, each re-solved with refit_iterations outer iterations."""
     started = time.perf_counter()
-    config = config or CalibrationConfig(mode="joint")
+    config = config or CalibrationConfig(mode="joint", max_points=DIAGNOSE_MAX_POINTS)
     if config.weighting.pair_noise is None:  # the tests read the whitened costs back in cm2 with sigma0 (score.Linearisation)
         config = config.with_settings(weighting={"pair_noise": "uniform"})
     fit, result = baseline(recording, config, quiet=quiet)

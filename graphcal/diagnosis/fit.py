@@ -87,9 +87,9 @@ def _associated(recording: Recording, problem: Problem, estimate: Estimate, mode
 
 
 def recorded_intensity(recording: Recording, rows: np.ndarray) -> np.ndarray | None:
-    """The intensity of the returns at rows of points.parquet, or None when the recording has none (all zero)."""
-    intensity = recording.points.read(["intensity"])["intensity"]
-    return None if not np.any(intensity) else np.asarray(intensity[rows], dtype=np.float64)
+    """The intensity of the returns at rows (sorted) of points.parquet, or None when they have none (all zero)."""
+    intensity = recording.points.take(["intensity"], rows)["intensity"]
+    return None if not np.any(intensity) else np.asarray(intensity, dtype=np.float64)
 
 
 def refit(fit: Fit, names: tuple[str, ...], prior_sigma: dict, iterations: int = 4) -> Fit:

@@ -28,7 +28,7 @@ def regressors(fit) -> dict[str, np.ndarray]:
     context = fit.model.context
     speed = np.linalg.norm(context.velocity[p], axis=1)
     distance = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(data.X_nav, axis=0), axis=1))]
-    intensity = fit.recording.points.read(["intensity"])["intensity"][data.rows].astype(np.float64)
+    intensity = fit.recording.points.take(["intensity"], data.rows)["intensity"].astype(np.float64)
     return {"fibre": data.fibre[p].astype(np.float64),
             "azimuth_deg": np.degrees(data.azimuth_rad[p]),
             "sweep_fraction": context.sweep_s[p] * data.sensor.rotation_hz,

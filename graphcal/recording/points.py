@@ -112,6 +112,19 @@ class PointTable:
             table = self._file.read(columns=columns)
         return {name: table.column(name).to_numpy() for name in columns}
 
+    def take(self, columns: Sequence[str], rows: np.ndarray) -> dict[str, np.ndarray]:
+        """The given columns at the given rows (sorted indices), read batch by batch: only those rows are held."""
+        rows = np.asarray(rows, dtype=np.int64)
+        if np.any(np.diff(rows) < 0):
+            raise ValueError("PointTable.take needs sorted rows")
+        parts, start = [], 0
+        for batch in self.iter_batches(columns):
+            n = len(batch[columns[0]])
+            taken = rows[np.searchsorted(rows, start):np.searchsorted(rows, start + n)]
+            parts.append({name: values[taken - start] for name, values in batch.items()})
+            start += n
+        return {name: np.concatenate([part[name] for part in parts]) for name in columns}
+
     def iter_batches(self, columns: Sequence[str], batch_rows: int | None = None) -> Iterator[dict[str, np.ndarray]]:
         """Row batches of the given columns, so that no more than batch_rows rows are in memory
         (BATCH_ROWS, read at call time, when not given)."""
