@@ -12,6 +12,7 @@ import argparse
 import datetime
 import os
 import platform
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -19,6 +20,7 @@ from pathlib import Path
 from common import peak_gib, report, run_in_process
 
 RESULTS = Path(__file__).resolve().parent / "results"
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools.foreign_sim, from the checkout
 FIRINGS_PER_S = 0.62e6  # returns a second of the foreign simulator's HDL-32E at size 1 (measured: 9.97 M in 16 s)
 
 

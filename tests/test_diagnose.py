@@ -52,10 +52,10 @@ def clean(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def two_effects(tmp_path_factory):
-    """The two-effect recording diagnosed as `graphcal diagnose` does (the generic discrepancies on), into a run
-    folder."""
+    """The two-effect recording diagnosed as `graphcal diagnose --named-only` does, into a run folder (the
+    generic discrepancies: the clean recording's test below and tests/test_open_world.py)."""
     rec = recording(tmp_path_factory, "two", effect="time_offset", effects=("azimuth_eccentricity",))
-    run = diagnosis_run(rec.path, config(), DiagnoseOptions(max_effects=2, refit_iterations=2),
+    run = diagnosis_run(rec.path, config(), DiagnoseOptions(max_effects=2, refit_iterations=2, open_world=False),
                         out=tmp_path_factory.mktemp("runs") / "run", viewer_points=VIEWER_POINTS, quiet=True)
     return rec, run
 

@@ -33,7 +33,7 @@ def _fit(rng):
     cluster = (time_s / 0.05).astype(int)
     return SimpleNamespace(data=data, pairs=pairs, points_m=points, model=SimpleNamespace(context=context),
                            recording=SimpleNamespace(points=SimpleNamespace(
-                               read=lambda columns: {"intensity": rng.uniform(0, 255, 2 * N)})),
+                               take=lambda columns, rows: {"intensity": rng.uniform(0, 255, len(rows))})),
                            clusters=lambda: (cluster, cluster % 2))
 
 

@@ -42,8 +42,11 @@ def test_estimate_sigma_concealment_and_absorbing_parameter():
 
 
 def test_held_out_drop_and_its_standard_error_match_a_fit_on_each_half():
-    """Independent least squares on each half's rows (the linear problem has no prior), evaluated block by block
-    on the other half: the held-out J of both models and the ratio estimator's standard error of their drop."""
+    """Independent least squares on each half's rows (the linear problem has no prior), evaluated fold by fold
+    (time blocks modulo FOLDS) on the other half: the held-out J of both models and the ratio estimator's standard
+    error of their drop."""
+    from graphcal.diagnosis.score import FOLDS
+
     rng = np.random.default_rng(3)
     lin, A, r = _problem(rng, theta_true=0.05, shared_sigma=0.5)
     test = score_candidate(lin, "range_scale", ["range_scale"])
@@ -56,8 +59,9 @@ def test_held_out_drop_and_its_standard_error_match_a_fit_on_each_half():
             step, *_ = np.linalg.lstsq(A[fit][:, columns], -r[fit], rcond=None)
             cost.append((r[out] + A[out][:, columns] @ step) ** 2)
         held += [c.sum() / out.sum() * 0.01 ** 2 * 1e4 / 2 for c in cost]
-        drop = np.bincount(cluster[out], weights=cost[0] - cost[1])[cluster[out].min()::2]
-        weight = np.full(len(drop), K_ROWS // CLUSTERS)
+        fold = cluster[out] % FOLDS
+        drop = np.bincount(fold, weights=cost[0] - cost[1], minlength=FOLDS)[fold.min()::2]
+        weight = np.bincount(fold, minlength=FOLDS)[fold.min()::2].astype(float)
         ratio = drop.sum() / weight.sum()
         variance += np.sum((drop - ratio * weight) ** 2) / weight.sum() ** 2 * len(drop) / (len(drop) - 1)
     assert test.held_out_cm2 == pytest.approx(tuple(held), rel=1e-9)
@@ -123,3 +127,14 @@ def test_twins_are_named_by_the_cost_they_explain_not_by_their_robust_factor():
     assert max([leader, twin], key=lambda t: name_preference(t, leader, None)) is twin
     assert max([leader, twin, sized], key=lambda t: name_preference(t, leader, None)) is sized
     assert name_preference(twin, leader, None)[1] == pytest.approx(220.0 / 2.0 - np.log(CLUSTERS))
+
+
+def test_a_diagnosis_too_short_for_the_held_out_check_says_nothing_can_be_confirmed():
+    from graphcal.diagnosis.diagnose import Diagnosis
+
+    rows = [{"effect": "range_scale", "mdb": 1e-6, "magnitude": 1.0, "significant": False, "plausible": False,
+             "held_out_se_cm2": float("inf")}]
+    diagnosis = Diagnosis([], [], [], [], rows, [], {"before": 1.0}, 1.0)
+    assert diagnosis.summary().startswith("nothing can be confirmed") and "ppm" not in diagnosis.summary()
+    rows[0]["held_out_se_cm2"] = 0.01
+    assert "MDB" in Diagnosis([], [], [], [], rows, [], {"before": 1.0}, 1.0).summary()

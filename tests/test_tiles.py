@@ -63,8 +63,8 @@ def test_two_dask_workers_give_the_calibration_of_one_process(tmp_path):
     from graphcal.simulation.script import load_scenario_builder
 
     recording = graphcal.simulate(load_scenario_builder("sim2_street")(size=0.05, seed=1), quiet=True)
-    config = CalibrationConfig(mode="intrinsic", max_points=60_000, association={"tile_m": 20.0},
-                               stopping={"max_outer_iterations": 3, "refuse_unconverged": False})
+    config = CalibrationConfig(mode="intrinsic", max_points=30_000, association={"tile_m": 20.0},
+                               stopping={"max_outer_iterations": 2, "refuse_unconverged": False})
     here = graphcal.calibrate(recording, config, quiet=True)
     with open_task_map("local:2") as task_map:
         assert task_map.workers == 2

@@ -181,12 +181,7 @@ def evaluation_run(calibration_path: Path, recording_path: Path, quiet: bool = F
         raise RecordingError(Path(recording_path) / "truth", "not found",
                              expected="a simulated recording's truth/ to evaluate against (real data has none)")
     calibration = Calibration.load(calibration_path, recording.sensor)
-    not_applied = [row["effect"] if isinstance(row, dict) else row
-                   for row in read_calibration_yaml(calibration_file(calibration_path)).get("effects") or []]
-    if not_applied and not quiet:
-        print(f"note: {calibration_file(calibration_path)} lists effects found by graphcal diagnose "
-              f"({', '.join(not_applied)}): the cloud is corrected by the offsets, the extrinsic and the trajectory "
-              "corrections only; these effects are not applied", file=sys.stderr)
+    effects_not_applied(calibration_path, quiet)
     folder = calibration_file(calibration_path).parent
     with status("comparing with truth/", quiet):
         evaluation = evaluate(calibration, recording)
@@ -203,7 +198,7 @@ def apply_run(calibration_path: Path, recording_path: Path, out: Path | None = N
     """The corrected cloud (graphcal/calibration/corrected_cloud.py) at `out` (.las, .laz or .ply), or in a
     run folder as cloud.laz; with the calibration's residuals when it was made from this recording. The effects
     a diagnosis added to calibration.yaml are not applied: said on stderr (unless quiet) and in run.yaml."""
-    from graphcal.calibration.result import Calibration, calibration_file, read_calibration_yaml
+    from graphcal.calibration.result import Calibration, calibration_file
     from graphcal.clouds.formats import STREAMED_SUFFIXES
     from graphcal.calibration.corrected_cloud import (
         RESIDUALS,
@@ -222,12 +217,7 @@ def apply_run(calibration_path: Path, recording_path: Path, out: Path | None = N
     else:
         run, recording = None, Recording.load(recording_path)
     calibration = Calibration.load(calibration_path, recording.sensor)
-    not_applied = [row["effect"] if isinstance(row, dict) else row
-                   for row in read_calibration_yaml(calibration_file(calibration_path)).get("effects") or []]
-    if not_applied and not quiet:
-        print(f"note: {calibration_file(calibration_path)} lists effects found by graphcal diagnose "
-              f"({', '.join(not_applied)}): the cloud is corrected by the offsets, the extrinsic and the trajectory "
-              "corrections only; these effects are not applied", file=sys.stderr)
+    not_applied = effects_not_applied(calibration_path, quiet)
     folder = calibration_file(calibration_path).parent
     made_from = (read_yaml(folder / MANIFEST) or {}).get("recording") if (folder / MANIFEST).is_file() else None
     residuals = None
@@ -244,6 +234,20 @@ def apply_run(calibration_path: Path, recording_path: Path, out: Path | None = N
                    effects_not_applied=not_applied)
         path = run.publish() / path.name
     return path
+
+
+def effects_not_applied(calibration_path: Path, quiet: bool) -> list[str]:
+    """The effects a diagnosis listed in calibration.yaml, which apply and evaluate leave out (said on stderr
+    unless quiet): the cloud is corrected by the offsets, the extrinsic and the trajectory corrections only."""
+    from graphcal.calibration.result import calibration_file, read_calibration_yaml
+
+    path = calibration_file(calibration_path)
+    names = [row["effect"] if isinstance(row, dict) else row for row in read_calibration_yaml(path).get("effects") or []]
+    if names and not quiet:
+        print(f"note: {path} lists effects found by graphcal diagnose ({', '.join(names)}): the cloud is corrected "
+              "by the offsets, the extrinsic and the trajectory corrections only; these effects are not applied",
+              file=sys.stderr)
+    return names
 
 
 def start_run(recording_path: Path, out: Path | None, command: str, quiet: bool,

@@ -25,7 +25,7 @@ from factors.effects import CANDIDATES, candidate
 from graphcal.common.atomic import atomic_path
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.result import Calibration, CalibrationResult
-from graphcal.diagnosis.fit import Fit, baseline, refit
+from graphcal.diagnosis.fit import BLOCK_S, Fit, baseline, refit
 from graphcal.diagnosis.hypotheses import hypotheses
 from graphcal.diagnosis.hypothesis import (
     TESTED_AT_KNOWN_SIZE,
@@ -173,6 +173,9 @@ class Diagnosis:
             return "\n".join([f["statement"] for f in self.findings] + [w["statement"] for w in self.withdrawn])
         generic = [c for c in self.candidates if is_discrepancy(c["effect"])]
         named = [c for c in self.candidates if not is_discrepancy(c["effect"])]
+        if self.candidates and not any(np.isfinite(c.get("held_out_se_cm2", np.inf)) for c in self.candidates):
+            return ("nothing can be confirmed: the recording spans too few time blocks for the held-out check (it "
+                    f"needs two {BLOCK_S:g} s time blocks in each half of the drive: returns over four blocks)")
         rejected = [c for c in named if c["significant"] and not c["plausible"]]
         tested = [c for c in named if np.isfinite(c["mdb"]) and not _blind(c) and c not in rejected]
         blind = [c["effect"] for c in named if not np.isfinite(c["mdb"]) or _blind(c)]

@@ -57,6 +57,9 @@ PRACTICAL_FLOOR_SIGMA0 = 0.01
 # pipeline's own misfits (on a clean 300 k-return recording, 1 cm noise, an elevation-against-range curve explained
 # 5.5 % of sigma0 and lowered held-out J by 0.4 %); a tenth of the noise is what moves a cloud visibly
 DISCOVERY_FLOOR_SIGMA0 = 0.1
+# the drive's time blocks fall in this many folds (block index modulo FOLDS, an even number: a fold keeps the
+# parity that makes the held-out halves); the held-out drop's standard error is taken across them
+FOLDS = 32
 
 
 @functools.lru_cache(maxsize=64)
@@ -71,9 +74,10 @@ def noncentrality(dof: int, alpha: float = ALPHA, power: float = POWER) -> float
 class Linearisation:
     """The graph at a fit, in named coordinates: information (n,n) and vector (n,) of the whole graph
     (data and priors), the parameter name of each column, the columns of each effect, the data's rows
-    in blocks (cluster id (N,), time block (N,), Jacobian (N, w), whitened residual (N,), global columns
-    (w,)), the number of clusters, per half of the drive (time blocks of one parity) the data's
-    information, vector, cost sum r^2 and weight sum, and each time block's weight sum."""
+    in blocks (cluster id (N,), Jacobian (N, w), whitened residual (N,), global columns (w,)), the
+    number of clusters, and per fold of the drive's time blocks (block index modulo FOLDS: a fold's blocks
+    share the parity that makes the halves of the held-out tests) the data's information, vector, cost sum r^2
+    and weight sum."""
 
     information: np.ndarray
     vector: np.ndarray
@@ -81,12 +85,27 @@ class Linearisation:
     effect_columns: dict
     rows: list
     n_clusters: int
-    half_information: np.ndarray
-    half_vector: np.ndarray
-    half_cost: np.ndarray
-    half_weight: np.ndarray
+    fold_information: np.ndarray
+    fold_vector: np.ndarray
+    fold_cost: np.ndarray
+    fold_weight: np.ndarray
     sigma0_m: float
-    block_weight: np.ndarray
+
+    @functools.cached_property
+    def half_information(self) -> np.ndarray:
+        return np.stack([self.fold_information[h::2].sum(axis=0) for h in (0, 1)])
+
+    @functools.cached_property
+    def half_vector(self) -> np.ndarray:
+        return np.stack([self.fold_vector[h::2].sum(axis=0) for h in (0, 1)])
+
+    @property
+    def half_cost(self) -> np.ndarray:
+        return np.array([self.fold_cost[h::2].sum() for h in (0, 1)])
+
+    @property
+    def half_weight(self) -> np.ndarray:
+        return np.array([self.fold_weight[h::2].sum() for h in (0, 1)])
 
     @property
     def prior_information(self) -> np.ndarray:
@@ -97,7 +116,9 @@ class Linearisation:
         return self.vector - self.half_vector.sum(axis=0)
 
     def energy_cm2(self, half: int, step: np.ndarray) -> float:
-        """J [cm^2] of a half's pairs after the linear step (named coordinates)."""
+        """J [cm^2] of a half's pairs after the linear step (named coordinates); NaN for a half without pairs."""
+        if self.half_weight[half] <= 0:
+            return float("nan")
         cost = self.half_cost[half] - 2 * self.half_vector[half] @ step + step @ self.half_information[half] @ step
         return float(cost * self.sigma0_m ** 2 / self.half_weight[half] * 1e4)
 
@@ -106,17 +127,16 @@ def linearisation_of_rows(r: np.ndarray, A: np.ndarray, names: list[str], effect
                           cluster: np.ndarray, block: np.ndarray, sigma0_m: float) -> Linearisation:
     """The Linearisation of a stacked least-squares problem without priors: whitened residuals (K,),
     their Jacobian (K, n), each column's name, the effects' columns, and per row its cluster and time
-    block (its half: the block's parity). Every row counts with weight 1 in J."""
-    block = block - block.min()
-    half = block % 2
+    block. Every row counts with weight 1 in J."""
+    fold = (block - block.min()) % FOLDS
     g = -A * r[:, None]
-    info = np.stack([A[half == h].T @ A[half == h] for h in (0, 1)])
-    vector = np.stack([g[half == h].sum(axis=0) for h in (0, 1)])
-    cost = np.array([float(r[half == h] @ r[half == h]) for h in (0, 1)])
-    weight = np.array([float(np.sum(half == h)) for h in (0, 1)])
+    info = np.stack([A[fold == f].T @ A[fold == f] for f in range(FOLDS)])
+    vector = np.stack([g[fold == f].sum(axis=0) for f in range(FOLDS)])
+    cost = np.bincount(fold, weights=r * r, minlength=FOLDS)
+    weight = np.bincount(fold, minlength=FOLDS).astype(np.float64)
     return Linearisation(info.sum(axis=0), vector.sum(axis=0), names, effect_columns,
-                         [(cluster, block, A, r, np.arange(A.shape[1]))], int(cluster.max()) + 1, info, vector,
-                         cost, weight, sigma0_m, np.bincount(block).astype(np.float64))
+                         [(cluster, A, r, np.arange(A.shape[1]))], int(cluster.max()) + 1, info, vector, cost,
+                         weight, sigma0_m)
 
 
 def _key_names(key: int, width: int, model: EffectModel, pose: bool) -> list[str]:
@@ -135,9 +155,8 @@ def _key_names(key: int, width: int, model: EffectModel, pose: bool) -> list[str
 def linearise(problem: Problem, estimate: Estimate, pairs: Correspondences, cluster: np.ndarray,
               block: np.ndarray) -> Linearisation:
     """Linearise the undamped graph with the problem's effects (candidates at zero, no prior on them) at
-    the estimate; cluster (K,) and time block (K,) label each pair (its half: the block's parity)."""
-    block = block - (block.min() if len(block) else 0)
-    half = block % 2
+    the estimate; cluster (K,) and time block (K,) label each pair (its fold: the block modulo FOLDS)."""
+    fold = (block - (block.min() if len(block) else 0)) % FOLDS
     graph, values = problem.graph(estimate, pairs, damped=False)
     model, config, data = problem.effects, problem.config, problem.data
     keys = list(values.keys())
@@ -155,26 +174,24 @@ def linearise(problem: Problem, estimate: Estimate, pairs: Correspondences, clus
     names = [name for k, w in zip(keys, widths) for name in _key_names(k, w, model, config.trajectory.pose_corrections)]
     n_clusters = int(cluster.max()) + 1 if len(cluster) else 0
     blocks = []
-    half_information, half_vector = np.zeros((2, n, n)), np.zeros((2, n))
-    half_cost, half_weight = np.zeros(2), np.zeros(2)
+    fold_information, fold_vector = np.zeros((FOLDS, n, n)), np.zeros((FOLDS, n))
+    fold_cost, fold_weight = np.zeros(FOLDS), np.zeros(FOLDS)
     for rows, factor_block in problem.blocks(estimate, pairs):
         r, A = residuals(factor_block, values)
         cols = np.concatenate([np.arange(column[k], column[k] + J.shape[1])
                                for k, J in jacobian_by_key(factor_block, A).items()])
         A = A @ to_named[np.ix_(cols, cols)].T  # block-diagonal: the block's own columns stay its own
-        blocks.append((cluster[rows], block[rows], A, r, cols))
+        blocks.append((cluster[rows], A, r, cols))
         g = -A * r[:, None]  # each pair's contribution to eta
-        for h in (0, 1):
-            of = half[rows] == h
-            half_information[h][np.ix_(cols, cols)] += A[of].T @ A[of]
-            half_vector[h, cols] += g[of].sum(axis=0)
-            half_cost[h] += float(r[of] @ r[of])
-            half_weight[h] += float(pairs.weight[rows][of].sum())
+        for f in np.unique(fold[rows]):
+            of = fold[rows] == f
+            fold_information[f][np.ix_(cols, cols)] += A[of].T @ A[of]
+            fold_vector[f, cols] += g[of].sum(axis=0)
+        fold_cost += np.bincount(fold[rows], weights=r * r, minlength=FOLDS)
+        fold_weight += np.bincount(fold[rows], weights=pairs.weight[rows], minlength=FOLDS)
     effect_columns = {name: np.arange(column[k], column[k] + model.dim(name)) for k, name in zip(model.keys, model.names)}
-    block_weight = np.bincount(block, weights=pairs.weight, minlength=int(block.max()) + 1 if len(block) else 0)
     return Linearisation(to_named @ information @ to_named.T, to_named @ vector, names, effect_columns, blocks,
-                         n_clusters, half_information, half_vector, half_cost, half_weight, config.weighting.sigma0_m,
-                         block_weight)
+                         n_clusters, fold_information, fold_vector, fold_cost, fold_weight, config.weighting.sigma0_m)
 
 
 def _solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -316,7 +333,7 @@ def _cluster_variance(lin: Linearisation, base: np.ndarray, k: np.ndarray, Xs: n
     position[base] = np.arange(len(base))
     where_k = {c: j for j, c in enumerate(k)}
     scores = np.zeros((lin.n_clusters, len(k)))
-    for cluster, _, A, r, cols in lin.rows:
+    for cluster, A, r, cols in lin.rows:
         in_base = position[cols] >= 0
         in_k = np.array([c in where_k for c in cols])
         order = np.array([where_k[c] for c in cols[in_k]])
@@ -343,33 +360,32 @@ def _absorbing(L, base, k, Xs, S_inv, theta, names, top: int = 3) -> list:
 def _held_out(lin: Linearisation, base: np.ndarray, k: np.ndarray) -> tuple[tuple[float, float], float]:
     """Held-out J [cm^2] of the base model and of base + candidate: fitted (one linear step) on one
     half's pairs and the priors, evaluated on the other half; both ways, averaged. And the standard
-    error [cm^2] of the drop between them across the held-out time blocks: each half's drop is a ratio
-    (cost difference over weight summed over its blocks), its variance the ratio estimator's over the
-    blocks (their residuals are independent where pairs within a block are not)."""
+    error [cm^2] of the drop between them across the held-out folds of time blocks: each half's drop is a
+    ratio (cost difference over weight summed over its folds), its variance the ratio estimator's over the
+    folds (residuals within a time block share surfaces and noise; blocks do not)."""
     both = np.r_[base, k]
-    steps = np.zeros((2, 2, len(lin.names)))  # [fitted on half, base or both]
+    costs = np.zeros((2, FOLDS))  # whitened cost of each fold after the step fitted on the other half
     for fit in (0, 1):
         L = lin.half_information[fit] + lin.prior_information
         eta = lin.half_vector[fit] + lin.prior_vector
+        held = np.arange(1 - fit, FOLDS, 2)
         for m, columns in enumerate((base, both)):
-            steps[fit, m, columns] = _solve(L[np.ix_(columns, columns)], eta[columns])
-    out = [sum(lin.energy_cm2(1 - fit, steps[fit, m]) for fit in (0, 1)) / 2 for m in (0, 1)]
-    drop = np.zeros(len(lin.block_weight))  # whitened cost of base less that of base + candidate, per block
-    for _, block, A, r, cols in lin.rows:
-        fitted_on_0 = block % 2 == 1
-        base_residual, both_residual = (r + np.where(fitted_on_0, A @ steps[0, m, cols], A @ steps[1, m, cols])
-                                        for m in (0, 1))
-        drop += np.bincount(block, weights=base_residual ** 2 - both_residual ** 2, minlength=len(drop))
-    variance = 0.0
+            step = np.zeros(len(lin.names))
+            step[columns] = _solve(L[np.ix_(columns, columns)], eta[columns])
+            costs[m, held] = (lin.fold_cost[held] - 2 * lin.fold_vector[held] @ step
+                              + np.einsum("i,fij,j->f", step, lin.fold_information[held], step))
+    to_cm2 = lin.sigma0_m ** 2 * 1e4
+    out = [sum(costs[m, h::2].sum() / lin.half_weight[h] for h in (0, 1)) / 2 * to_cm2 for m in (0, 1)]
+    drop, variance = costs[0] - costs[1], 0.0
     for h in (0, 1):
-        blocks = np.flatnonzero((np.arange(len(drop)) % 2 == h) & (lin.block_weight > 0))
-        if len(blocks) < 2:
+        folds = np.flatnonzero((np.arange(FOLDS) % 2 == h) & (lin.fold_weight > 0))
+        if len(folds) < 2:
             return (float(out[0]), float(out[1])), np.inf
-        weight = lin.block_weight[blocks]
-        ratio = drop[blocks].sum() / weight.sum()
-        variance += (np.sum((drop[blocks] - ratio * weight) ** 2) / weight.sum() ** 2
-                     * len(blocks) / (len(blocks) - 1))
-    return (float(out[0]), float(out[1])), float(np.sqrt(variance) / 2 * lin.sigma0_m ** 2 * 1e4)
+        weight = lin.fold_weight[folds]
+        ratio = drop[folds].sum() / weight.sum()
+        variance += (np.sum((drop[folds] - ratio * weight) ** 2) / weight.sum() ** 2
+                     * len(folds) / (len(folds) - 1))
+    return (float(out[0]), float(out[1])), float(np.sqrt(variance) / 2 * to_cm2)
 
 
 def separation(lin: Linearisation, a: str, b: str, candidates: list[str]) -> float:
