@@ -48,6 +48,25 @@ def test_features_and_pairs_tile_by_tile_equal_those_of_the_whole_cloud():
         zip(at_once.index_p.tolist(), at_once.index_m.tolist()))
 
 
+def test_a_tile_that_pairs_nothing_leaves_the_others_pairs_unchanged():
+    """A lone return 500 m away makes a tile of its own with no pair; with lines of sight (Sight) as well."""
+    from graphcal.calibration.association import Sight
+
+    points, fibre = _street(np.random.default_rng(1))
+    lone_points, lone_fibre = np.vstack([points, [[500.0, 500.0, 0.0]]]), np.r_[fibre, 0]
+    tiling = Tiling(20.0, 2.5)
+    settings = CalibrationConfig().features.model_copy(update={"radius_m": 0.5, "neighbours": 20, "voxel_m": 0.0})
+    gates, neighbours = PairGates(1.0, 0.3, 0.0, np.inf, None), neighbour_fibres(np.arange(8.0), 2)
+    pairs = []
+    for xyz, fibres in ((points, fibre), (lone_points, lone_fibre)):
+        rays = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
+        sight = Sight.of(xyz, rays, fibres)
+        cloud = PairCloud(xyz, fibres, tiling.features(xyz, settings), sight)
+        pairs.append(tiling.associate(cloud, neighbours, gates, 0, np.arange(0, len(xyz), 7)))
+    np.testing.assert_array_equal(pairs[1].index_p, pairs[0].index_p)
+    np.testing.assert_array_equal(pairs[1].shift_m_m, pairs[0].shift_m_m)
+
+
 def test_a_margin_wider_than_the_tile_is_refused():
     with pytest.raises(ValueError, match="margin"):
         Tiling(10.0, 12.0)

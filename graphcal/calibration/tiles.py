@@ -111,14 +111,16 @@ class Tiling:
                                    gates.max_plane_distance_m, most),
                          [seed, *(k & 0xFFFFFFFF for k in tile.key)], local))
         parts = self.task_map(pairs_of_core, jobs)
+        found = [(tile, part) for tile, part in zip(tiles, parts) if len(part)]  # a tile may pair nothing
+        if not found:
+            return parts[0] if parts else pairs_of_core((cloud, neighbours, gates, [seed], candidates[:0]))
         shifted = cloud.sight is not None
         return Correspondences(
-            np.concatenate([t.halo[p.index_p] for t, p in zip(tiles, parts)]),
-            np.concatenate([t.halo[p.index_m] for t, p in zip(tiles, parts)]),
-            np.concatenate([p.normal for p in parts]).reshape(-1, 3), np.concatenate([p.weight for p in parts]),
-            np.concatenate([p.shift_p_m for p in parts]) if shifted else None,
-            np.concatenate([p.shift_m_m for p in parts]) if shifted else None,
-            np.concatenate([p.out_of_plane_m for p in parts]))
+            np.concatenate([t.halo[p.index_p] for t, p in found]), np.concatenate([t.halo[p.index_m] for t, p in found]),
+            np.concatenate([p.normal for _, p in found]), np.concatenate([p.weight for _, p in found]),
+            np.concatenate([p.shift_p_m for _, p in found]) if shifted else None,
+            np.concatenate([p.shift_m_m for _, p in found]) if shifted else None,
+            np.concatenate([p.out_of_plane_m for _, p in found]))
 
 
 def features_of_core(job: tuple) -> Features:
