@@ -7,8 +7,8 @@ with the defaults (mode auto: joint with trajectory corrections once the drive c
 Figures per drive: returns, seconds per stage, peak memory, returns read per second, RMS intrinsic errors
 before/after, extrinsic errors, trajectory error against the truth at the control times (the estimated
 corrections less the true INS error, the common translation no self-calibration sees removed) next to the INS
-error itself, and the cloud-to-cloud distance to the truth. Prints them and writes
-benchmarks/results/long_drive.json.
+error itself, and the cloud-to-cloud distance to the truth (or the refusal, when calibrate refuses its
+result). Prints them and writes benchmarks/results/long_drive.json (--result).
 """
 
 from __future__ import annotations
@@ -80,6 +80,7 @@ def main() -> None:
     parser.add_argument("--minutes", type=float, nargs="+", default=[1, 2, 5, 10])
     parser.add_argument("--size", type=float, default=0.1, help="fraction of firings simulated")
     parser.add_argument("--max-points", type=int, default=1_000_000, help="returns calibrate uses (its default)")
+    parser.add_argument("--result", default="long_drive.json", help="file name in benchmarks/results/")
     args = parser.parse_args()
     from graphcal.simulation.script import load_scenario_builder
     from graphcal.simulation.simulator import simulate_to
@@ -97,7 +98,7 @@ def main() -> None:
             figures["drives"][f"{minutes:g} min"] = {"simulated_s": round(simulated_s, 1),
                                                      **run_in_process(_case, str(Path(folder) / "city"), args.max_points)}
         RESULTS.mkdir(exist_ok=True)
-        report(figures, RESULTS / "long_drive.json")
+        report(figures, RESULTS / args.result)
 
 
 if __name__ == "__main__":
