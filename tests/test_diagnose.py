@@ -163,11 +163,12 @@ def test_a_large_effect_against_a_simulation_is_sized_by_re_pairing():
 def test_revolution_stamps_named_alone_once_a_linear_stand_in_is_re_solved(tmp_path_factory):
     """Returns stamped with their revolution's start (bench_diagnose's settings): intra_sweep_motion is
     named at its size; time_offset, significant by its linear step once it is modelled (chi2 21 for
-    1.97 ms), is re-solved to a size within its sigma and withdrawn, not named."""
+    1.97 ms), is re-solved to a size within its sigma and withdrawn, not named. Named candidates only: with
+    the generic discrepancies on it leaves the same finding (measured), at twice the cost."""
     rec = graphcal.simulate(CONCEALED_SCENARIO(size=0.04, seed=1, effect="intra_sweep_motion"), quiet=True)
     settings = CalibrationConfig(mode="joint", max_points=80_000, stopping={
         "max_outer_iterations": 6, "tolerance_m": 1e-4, "refuse_unconverged": False})
-    diagnosis = graphcal.diagnose(rec, settings, max_effects=2, quiet=True)
+    diagnosis = graphcal.diagnose(rec, settings, max_effects=2, quiet=True, open_world=False)
     assert [f["effect"] for f in diagnosis.findings] == ["intra_sweep_motion"], diagnosis.summary()
     assert diagnosis.findings[0]["magnitude"] == pytest.approx(CONCEALED["intra_sweep_motion"].magnitude, rel=0.2)
     for row in diagnosis.withdrawn:
