@@ -89,8 +89,9 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
     unless given; the trajectory's white noise measured from its poses (trajectory_noise.py).
     points.parquet is read row group by row group: only the subset is held, whatever the recording's length."""
     columns = _read_rows(recording, max_points, rng or np.random.default_rng(0))
-    if range_noise_m is None:
-        range_noise_m = columns.pop("range_noise_m")
+    if range_noise_m is None:  # firing order: the first row group's returns
+        first = next(recording.points.iter_batches(["fibre", "range"]))
+        range_noise_m = measured_range_noise_m(first["fibre"], first["range"])
     time = columns["time"]
     position, rotation = recording.world.poses.interpolate(time)
     origin = np.round(position.mean(axis=0))
@@ -108,14 +109,12 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
 
 def _read_rows(recording: Recording, max_points: int | None, rng: np.random.Generator) -> dict[str, np.ndarray]:
     """The rows (a seeded random subset of max_points, sorted; all when there are no more) of time, fibre, range
-    and azimuth, read batch by batch, and the range noise [m] measured on the first batch (firing order)."""
+    and azimuth, read batch by batch."""
     n_rows = len(recording.points)
     rows = np.arange(n_rows)
     if max_points is not None and n_rows > max_points:
         rows = np.sort(rng.choice(n_rows, max_points, replace=False))
-    first = next(recording.points.iter_batches(["fibre", "range"]))
-    columns = recording.points.take(["time", "fibre", "range", "azimuth"], rows)
-    return columns | {"rows": rows, "range_noise_m": measured_range_noise_m(first["fibre"], first["range"])}
+    return recording.points.take(["time", "fibre", "range", "azimuth"], rows) | {"rows": rows}
 
 
 def revisits(poses: PoseTrack) -> bool:
