@@ -60,6 +60,20 @@ def two_effects(tmp_path_factory):
     return rec, run
 
 
+def test_clean_recording_gets_no_discovery_with_the_generic_models_on(clean):
+    """open_world: a generic discrepancy of every channel against every regressor is tested too, and on a clean
+    recording none is reported; every discrepancy was tested (a row each) and none is significant."""
+    diagnosis = graphcal.diagnose(clean, config(), max_effects=1, quiet=True, open_world=True)
+    assert diagnosis.findings == []
+    tried = [c for c in diagnosis.candidates if "~" in c["effect"]]
+    channels = {c["effect"].split("~")[0] for c in tried}
+    regressors = {c["effect"].split("~")[1].split("/")[0] for c in tried}
+    assert channels == {"range", "azimuth", "elevation", "time"}
+    assert {"range", "intensity", "azimuth", "time", "incidence", "fibre"} <= regressors
+    assert not any(c["significant"] for c in tried)
+    assert f"{len(tried)} generic discrepancies" in diagnosis.summary() and "~" not in diagnosis.summary()
+
+
 def test_clean_recording_gets_no_false_alarm_from_the_named_candidates(clean):
     diagnosis = graphcal.diagnose(clean, config(), max_effects=1, quiet=True, open_world=False)
     assert diagnosis.findings == []
