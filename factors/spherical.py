@@ -16,6 +16,16 @@ when they are zero:
 
 With alpha = r0 = V = H = 0 this is exactly eq. 4.2. The estimated offsets are the four of
 eq. 4.2: (d_rho [m], d_theta [rad], d_phi [rad], Hz [m]), in that order everywhere.
+
+Heads whose beams leave from a point on the spinning arm (Ouster: lidar_origin_to_beam_origin_mm)
+add a beam-origin term B_i [m]: the beam starts B_i from the spin axis along the *encoder*
+direction theta (not along a), and the measured range counts from the spin axis, so B_i comes
+off the range (Ouster sensor docs, "Lidar Range to XYZ"):
+
+    r = rho + d_rho + r0_i - B_i
+    p = (eq. above with this r) + B_i (cos theta, -sin theta, 0)
+
+The added vector does not depend on the offsets, so the Jacobian keeps its form with this r.
 """
 
 from __future__ import annotations
@@ -32,7 +42,8 @@ class FactoryTerms:
     """Per-return factory model terms (arrays broadcastable to the returns).
 
     elevation_rad: phi_i; azimuth_offset_rad: alpha_i; range_offset_m: r0_i;
-    vertical_offset_m: V_i; horizontal_offset_m: H_i; height_offset_m: Z_i.
+    vertical_offset_m: V_i; horizontal_offset_m: H_i; height_offset_m: Z_i;
+    beam_origin_m: B_i, the beam origin's distance from the spin axis along the encoder direction.
     """
 
     elevation_rad: np.ndarray
@@ -41,14 +52,22 @@ class FactoryTerms:
     vertical_offset_m: np.ndarray | float = 0.0
     horizontal_offset_m: np.ndarray | float = 0.0
     height_offset_m: np.ndarray | float = 0.0
+    beam_origin_m: np.ndarray | float = 0.0
 
 
 def _angles(range_m, azimuth_rad, factory: FactoryTerms, offsets):
     d_rho, d_theta, d_phi, _ = (offsets[..., k] for k in range(4))
     a = azimuth_rad + d_theta + factory.azimuth_offset_rad
     e = factory.elevation_rad + d_phi
-    r = range_m + d_rho + factory.range_offset_m
+    r = range_m + d_rho + factory.range_offset_m - factory.beam_origin_m
     return a, e, r
+
+
+def _beam_origin(azimuth_rad, factory: FactoryTerms) -> np.ndarray:
+    """B_i (cos theta, -sin theta, 0): where the beam leaves the spinning arm, (..., 3) [m]."""
+    B = factory.beam_origin_m
+    return np.stack(np.broadcast_arrays(B * np.cos(azimuth_rad), -B * np.sin(azimuth_rad), 0.0 * azimuth_rad),
+                    axis=-1)
 
 
 def to_xyz(range_m, azimuth_rad, factory: FactoryTerms, offsets) -> np.ndarray:
@@ -75,6 +94,8 @@ def to_xyz_with_jacobian(range_m, azimuth_rad, factory: FactoryTerms, offsets, j
     h = r * ce - V * se
     xyz = np.stack([h * ca + H * sa, -h * sa + H * ca, r * se + V * ce + factory.height_offset_m + offsets[..., 3]],
                    axis=-1)
+    if np.any(factory.beam_origin_m):
+        xyz = xyz + _beam_origin(azimuth_rad, factory)
     if not jacobian:
         return xyz, None
     J = np.zeros(xyz.shape + (4,))
@@ -97,7 +118,7 @@ def beam_rays(azimuth_rad, factory: FactoryTerms, offsets) -> tuple[np.ndarray, 
     """
     azimuth_rad = np.asarray(azimuth_rad, dtype=np.float64)
     offsets = np.broadcast_to(np.asarray(offsets, dtype=np.float64), azimuth_rad.shape + (4,))
-    range_at_origin = -(offsets[..., 0] + factory.range_offset_m)  # raw range giving r = 0
+    range_at_origin = factory.beam_origin_m - (offsets[..., 0] + factory.range_offset_m)  # raw range giving r = 0
     origin = to_xyz(range_at_origin, azimuth_rad, factory, offsets)
     return origin, to_xyz(range_at_origin + 1.0, azimuth_rad, factory, offsets) - origin
 
@@ -111,13 +132,18 @@ def from_xyz(xyz, factory: FactoryTerms, offsets) -> tuple[np.ndarray, np.ndarra
     xyz = np.asarray(xyz, dtype=np.float64)
     offsets = np.asarray(offsets, dtype=np.float64)
     x, y, z = xyz[..., 0], xyz[..., 1], xyz[..., 2] - offsets[..., 3] - factory.height_offset_m
-    V, H = factory.vertical_offset_m, factory.horizontal_offset_m
+    V, B = factory.vertical_offset_m, factory.beam_origin_m
     e = factory.elevation_rad + offsets[..., 2]
+    # the beam origin B (cos theta, -sin theta) with theta = a - delta is B cos(delta) along the beam's
+    # horizontal direction plus B sin(delta) along the horizontal offset's: fold it into h and H
+    delta = offsets[..., 1] + factory.azimuth_offset_rad
+    along, H = B * np.cos(delta), factory.horizontal_offset_m + B * np.sin(delta)
     # x - i y = (h - i H) exp(-i a)... written with psi = atan2(-y, x): a = psi + atan2(H, h)
     h = np.sqrt(np.maximum(x * x + y * y - np.square(H), 0.0))
     a = np.arctan2(-y, x) + np.arctan2(H, h)
+    h = h - along
     r = h * np.cos(e) + z * np.sin(e)
     off_cone = z * np.cos(e) - h * np.sin(e) - V
-    range_m = r - offsets[..., 0] - factory.range_offset_m
+    range_m = r - offsets[..., 0] - factory.range_offset_m + B
     azimuth = np.mod(a - offsets[..., 1] - factory.azimuth_offset_rad, 2 * np.pi)
     return range_m, azimuth, off_cone

@@ -30,6 +30,8 @@ class SensorModel:
     """Nominal multi-beam model. Angles in degrees, lengths in metres, fibre id = row index.
 
     elevation_deg: phi_i of eq. 4.1; the optional factory terms default to zero.
+    beam_origin_m: B, every beam's origin distance from the spin axis along the encoder direction
+    (Ouster's lidar_origin_to_beam_origin_mm / 1000; 0 for Velodyne heads).
     """
 
     model: str
@@ -42,6 +44,7 @@ class SensorModel:
     horizontal_offset_m: np.ndarray
     height_offset_m: np.ndarray
     timing: FiringTiming | None = field(default=None, compare=False)
+    beam_origin_m: float = 0.0
 
     @property
     def n_fibres(self) -> int:
@@ -56,6 +59,7 @@ class SensorModel:
             vertical_offset_m=self.vertical_offset_m[fibre],
             horizontal_offset_m=self.horizontal_offset_m[fibre],
             height_offset_m=self.height_offset_m[fibre],
+            beam_origin_m=self.beam_origin_m,
         )
 
     def to_xyz(self, fibre, range_m, azimuth_rad, offsets=None) -> np.ndarray:
@@ -106,8 +110,11 @@ class SensorModel:
                 if value != 0.0:
                     row[name] = value
             rows.append(row)
-        return {"model": self.model, "rotation_hz": float(self.rotation_hz),
-                "reference_fibre": int(self.reference_fibre), "fibres": rows}
+        head = {"model": self.model, "rotation_hz": float(self.rotation_hz),
+                "reference_fibre": int(self.reference_fibre)}
+        if self.beam_origin_m != 0.0:
+            head["beam_origin_m"] = float(self.beam_origin_m)
+        return head | {"fibres": rows}
 
     @classmethod
     def from_dict(cls, data: dict, path: str | Path = "sensor.yaml") -> SensorModel:
@@ -119,10 +126,11 @@ class SensorModel:
         for key, what in expected.items():
             if key not in data:
                 raise RecordingError(path, "missing field", field=key, expected=what)
-        unknown = sorted(set(data) - set(expected))
+        unknown = sorted(set(data) - set(expected) - {"beam_origin_m"})
         if unknown:
             raise RecordingError(path, f"unknown field(s) {unknown}", field=unknown[0],
-                                 expected=f"only {', '.join(expected)}")
+                                 expected=f"only {', '.join(expected)}, beam_origin_m")
+        beam_origin_m = finite_number(data.get("beam_origin_m", 0.0), path, "beam_origin_m")
         if not isinstance(data["model"], str) or not data["model"]:
             raise RecordingError(path, f"model is {data['model']!r}", field="model", expected="the sensor model name")
         rotation_hz = finite_number(data["rotation_hz"], path, "rotation_hz")
@@ -162,7 +170,7 @@ class SensorModel:
                                  expected=f"a fibre id in 0..{len(fibres) - 1}")
         timing = CATALOG[data["model"]].timing if data["model"] in CATALOG else None
         return cls(model=str(data["model"]), rotation_hz=rotation_hz, reference_fibre=reference,
-                   timing=timing, **columns)
+                   timing=timing, beam_origin_m=beam_origin_m, **columns)
 
 
 def _make(model, elevation_deg, reference, timing, rotation_hz=10.0, **optional) -> SensorModel:
