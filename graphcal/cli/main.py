@@ -437,6 +437,44 @@ def _read_trajectory(path: Path):
     return Trajectory.load_csv(path) if path.suffix.lower() == ".csv" else import_sbet(path)
 
 
+@import_app.command("ouster")
+@_clear_errors
+def import_ouster_command(
+        pcap: Annotated[Path, typer.Argument(help="Ouster capture (libpcap file; single-return lidar profile)")],
+        metadata: Annotated[Path, typer.Option(help="the unit's metadata JSON (beam intrinsics, data format)")],
+        out: Annotated[Path | None, typer.Option(help="recording directory (default out/<pcap name>)")] = None,
+        trajectory: Annotated[Path | None, typer.Option(help="SBET (.out) or trajectory.csv, GPS seconds of week")] = None,
+        crs: Annotated[str, typer.Option(help="world CRS (needed for a projected trajectory.csv)")] = "auto",
+        position: Annotated[str | None, typer.Option(help="static position LAT,LON,ALT (deg, deg, m)")] = None,
+        attitude: Annotated[str, typer.Option(help="static attitude ROLL,PITCH,YAW (deg, ENU)")] = "0,0,0",
+        lever_arm: Annotated[str | None, typer.Option(help="Ouster sensor frame -> body lever arm X,Y,Z (m)")] = None,
+        boresight: Annotated[str | None, typer.Option(help="Ouster sensor frame -> body ROLL,PITCH,YAW (deg)")] = None,
+        quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+    """Ouster pcap + metadata JSON -> recording (docs/howto/import-ouster.md). Without --trajectory the
+    sensor is taken as STATIC at --position.
+
+    Example: graphcal import ouster drive.pcap --metadata drive.json --trajectory sbet.out --lever-arm 0.8,0,1.9
+    """
+    from graphcal.importers.ouster_metadata import read_ouster_metadata
+    from graphcal.importers.ouster_pcap import import_ouster
+    from graphcal.recording.extrinsic import Extrinsic
+
+    if out is not None:  # before the import's work
+        _not_taken(out)
+    mount = None
+    if lever_arm is not None or boresight is not None:
+        mount = Extrinsic(lever_arm_m=_numbers(lever_arm, "--lever-arm") or (0.0, 0.0, 0.0),
+                          boresight_deg=_numbers(boresight, "--boresight") or (0.0, 0.0, 0.0))
+    recording = import_ouster(pcap, read_ouster_metadata(metadata),
+                              trajectory=_read_trajectory(trajectory) if trajectory else None,
+                              position=_numbers(position, "--position"), attitude_deg=_numbers(attitude, "--attitude"),
+                              mount=mount)
+    recording.crs = crs
+    out = _imported_recording_folder(out, recording.name)
+    recording.save(out)
+    _print_notes(recording, out, quiet)
+
+
 @import_app.command("kitti")
 @_clear_errors
 def import_kitti_command(
