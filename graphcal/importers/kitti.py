@@ -34,6 +34,7 @@ from scipy.spatial.transform import Rotation
 
 from graphcal.common.errors import RecordingError
 from graphcal.recording.extrinsic import Extrinsic
+from graphcal.importers.beam_fit import fit_beam_line
 from graphcal.importers.gpstime import seconds_of_week
 from graphcal.importers.velodyne_calibration import VelodyneCalibration
 from graphcal.recording.points import PointTable
@@ -116,16 +117,7 @@ def fit_fibres(h_m: np.ndarray, z_m: np.ndarray, elevation_deg: np.ndarray, vert
             mine = fibre == k
             if mine.sum() < 3:
                 continue
-            points = np.column_stack([h_m[mine], z_m[mine]])
-            e = np.radians(elevation_deg[k])
-            residual = np.abs(points[:, 1] * np.cos(e) - points[:, 0] * np.sin(e) - vertical_m[k])
-            points = points[residual <= 5.0 * np.median(residual) + 1e-4]  # drop returns taken from crossing lines
-            centre = points.mean(axis=0)
-            direction = np.linalg.svd(points - centre, full_matrices=False)[2][0]
-            direction *= np.sign(direction[0])  # along +h, away from the sensor
-            elevation_deg[k] = np.degrees(np.arctan2(direction[1], direction[0]))
-            e = np.radians(elevation_deg[k])
-            vertical_m[k] = centre[1] * np.cos(e) - centre[0] * np.sin(e)
+            elevation_deg[k], vertical_m[k] = fit_beam_line(h_m[mine], z_m[mine], elevation_deg[k], vertical_m[k])
     return elevation_deg, vertical_m
 
 
