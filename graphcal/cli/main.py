@@ -547,5 +547,52 @@ def import_csv_command(
         typer.echo(f"{len(trajectory.time):,} poses written to {out}")
 
 
+@import_app.command("pcd")
+@_clear_errors
+def import_pcd_command(
+        folder: Annotated[Path, typer.Argument(help="folder of per-scan PCD files (x y z intensity ring time)")],
+        poses: Annotated[Path, typer.Option(help="3x4 row-major pose per frame (KITTI poses.txt or OpenCalib "
+                                                 "'name r00 ... t2' lines)")],
+        out: Annotated[Path | None, typer.Option(help="recording directory (default out/<folder name>)")] = None,
+        calibration: Annotated[Path | None, typer.Option(help="db.xml or ROS velodyne YAML the driver used")] = None,
+        crs: Annotated[str | None, typer.Option(help="projected CRS of the poses (default: a local frame)")] = None,
+        origin: Annotated[str, typer.Option(help="local frame: its centre LAT,LON (deg)")] = "0,0",
+        lever_arm: Annotated[str | None, typer.Option(help="poses of a body, not the lidar: lever arm X,Y,Z (m)")]
+        = None,
+        boresight: Annotated[str | None, typer.Option(help="poses of a body, not the lidar: ROLL,PITCH,YAW (deg)")]
+        = None,
+        pose_at: Annotated[str, typer.Option(help="a frame's pose is at its scan's first (start) or last (end) "
+                                                  "return")] = "end",
+        quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+    """PCD scans with ring and per-point time + per-frame poses -> recording (docs/howto/import-pcd.md).
+
+    Example: graphcal import pcd top_center_lidar --poses top_center_lidar-enu.txt
+    """
+    from graphcal.common.errors import ConfigError
+    from graphcal.importers.pcd_folder import import_pcd_folder
+    from graphcal.importers.velodyne_calibration import read_velodyne_calibration
+
+    if out is not None:  # before the import's work
+        _not_taken(out)
+    if pose_at not in ("start", "end"):
+        raise ConfigError(f"--pose-at {pose_at!r}: expected start or end")
+    recording = import_pcd_folder(folder, poses, calibration=read_velodyne_calibration(calibration) if calibration
+                                  else None, crs=crs, origin=_numbers(origin, "--origin", 2),
+                                  extrinsic=_extrinsic(lever_arm, boresight), pose_at=pose_at, quiet=quiet)
+    out = _imported_recording_folder(out, recording.name)
+    recording.save(out)
+    _print_notes(recording, out, quiet)
+
+
+def _extrinsic(lever_arm: str | None, boresight: str | None):
+    """Extrinsic of --lever-arm / --boresight, or None when neither is given."""
+    from graphcal.recording.extrinsic import Extrinsic
+
+    if lever_arm is None and boresight is None:
+        return None
+    return Extrinsic(lever_arm_m=_numbers(lever_arm, "--lever-arm") or (0.0, 0.0, 0.0),
+                     boresight_deg=_numbers(boresight, "--boresight") or (0.0, 0.0, 0.0))
+
+
 def main() -> None:  # pragma: no cover - console entry
     sys.exit(app())
