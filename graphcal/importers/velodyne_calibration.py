@@ -27,7 +27,7 @@ from graphcal.common.errors import RecordingError, finite_number
 from graphcal.recording.sensor import CATALOG, OPTIONAL_FIBRE_FIELDS, SensorModel
 from graphcal.common.yamlfile import read_yaml
 
-MODEL_BY_LASERS = {16: "VLP-16", 64: "HDL-64E"}  # 32 lasers: HDL-32E or VLP-32C, name it (model=...)
+MODEL_BY_LASERS = {16: "VLP-16", 64: "HDL-64E", 128: "VLS-128"}  # 32 lasers: HDL-32E or VLP-32C (model=...)
 # (db.xml tag, ROS YAML key, sensor.yaml column, factor to graphcal units from db.xml / from YAML)
 _TERMS = (("vertCorrection_", "vert_correction", "elevation_deg", 1.0, np.degrees(1.0)),
           ("rotCorrection_", "rot_correction", "azimuth_offset_deg", -1.0, -np.degrees(1.0)),

@@ -22,13 +22,13 @@ from graphcal.importers.nmea import RmcFix, find_rmc
 from graphcal.importers.pcap import read_udp_payloads
 from graphcal.importers.velodyne_calibration import VelodyneCalibration
 from graphcal.importers.velodyne_packets import (
+    BANK_FLAGS,
     DUAL_RETURN_MODE,
     LAYOUTS,
     LOWER_BLOCK,
     PACKET,
     PACKET_BYTES,
     PRODUCT_IDS,
-    UPPER_BLOCK,
     PacketLayout,
     decode_returns,
     packet_rates,
@@ -48,6 +48,8 @@ _POSITION_STAMP_AT = 198  # uint32 us past the hour in a position packet (HDL-32
 _CHUNK_PACKETS = 8192
 _SYNC_TOLERANCE_S = 3.0  # an RMC sentence arrives up to about 2 s after the second it names
 _MARGIN_S = 1e-3  # a static trajectory starts and ends this far beyond the returns (CSV rounding)
+_GENERIC_CALIBRATION = {"VLP-32C": "VLP32.yaml", "VLS-128": "VLS128.yaml"}  # the drivers' model files
+_VLS128_PACKET_US = (150.0, 180.0)  # packet periods of VLS-128 firmware versions (160 to 173.3 us)
 
 
 @dataclass(frozen=True)
@@ -72,11 +74,13 @@ class VelodyneReturns:
     n_data_packets: int = 0
     n_other_packets: int = 0
     cut_bytes: int = 0
+    distance_m: float = 0.002
 
 
-def decode_pcap(path: str | Path, model: str | None = None, distance_resolution_m: float = 0.002,
+def decode_pcap(path: str | Path, model: str | None = None, distance_resolution_m: float | None = None,
                 interpolate_azimuth: bool = True, quiet: bool = False) -> VelodyneReturns:
-    """Raw returns of a Velodyne capture. model forces 'HDL-32E', 'VLP-16' or 'HDL-64E' (else detected)."""
+    """Raw returns of a Velodyne capture. model forces one of velodyne_packets.LAYOUTS (else detected);
+    distance_resolution_m: an HDL-64E's packet distance unit from its calibration (see decode_packets)."""
     path = Path(path)
     udp = read_udp_payloads(path)
     is_data = udp.length == PACKET_BYTES
@@ -98,20 +102,23 @@ def decode_pcap(path: str | Path, model: str | None = None, distance_resolution_
 
 
 def decode_packets(source: Path, packets: np.ndarray, host_time_s: np.ndarray, records: np.ndarray,
-                   model: str | None = None, distance_resolution_m: float = 0.002, interpolate_azimuth: bool = True,
+                   model: str | None = None, distance_resolution_m: float | None = None, interpolate_azimuth: bool = True,
                    quiet: bool = False) -> VelodyneReturns:
     """Raw returns of data packets (structured PACKET array) from any container (pcap, rosbag).
 
     host_time_s: each packet's host clock time (s since 1970 UTC), for the hour of the timestamps;
-    records: each packet's index in `source`, for error messages."""
+    records: each packet's index in `source`, for error messages. The distance unit is the model's
+    (2 or 4 mm, velodyne_packets.LAYOUTS); an HDL-64E's calibration file states its own
+    (db.xml distLSB_), which distance_resolution_m passes on."""
     time_us = unwrap_hour_us(packets["stamp_us"])
     layout, dual = _layout(source, packets, time_us, records, model)
-    returns = _decode_all(source, packets, layout, dual, time_us, distance_resolution_m, interpolate_azimuth, quiet)
+    unit_m = distance_resolution_m if layout.model == "HDL-64E" and distance_resolution_m else layout.distance_m
+    returns = _decode_all(source, packets, layout, dual, time_us, unit_m, interpolate_azimuth, quiet)
     host_hour = 3600.0 * np.round((host_time_s[0] - time_us[0] * 1e-6) / 3600.0)
     return VelodyneReturns(path=source, model=layout.model, dual_return=dual,
                            rotation_hz=_rotation_hz(packets, layout, dual), returns=returns,
                            interpolated_azimuth=interpolate_azimuth, host_hour_utc_s=float(host_hour),
-                           n_data_packets=len(packets))
+                           n_data_packets=len(packets), distance_m=unit_m)
 
 
 def import_pcap(path: str | Path, *, model: str | None = None, calibration: VelodyneCalibration | None = None,
@@ -120,7 +127,8 @@ def import_pcap(path: str | Path, *, model: str | None = None, calibration: Velo
                 interpolate_azimuth: bool = True, name: str | None = None, quiet: bool = False) -> Recording:
     """A Velodyne capture as a recording, times in GPS seconds of week.
 
-    calibration: the unit's db.xml/YAML (required for an HDL-64E), else the catalogue model.
+    calibration: the unit's db.xml/YAML (required for an HDL-64E, a VLP-32C and a VLS-128), else the
+    catalogue model.
     trajectory: poses on the same clock (e.g. from an SBET), cut to the returns' span +- 1 s; else a
     static trajectory at
     `position` (lat, lon deg, ellipsoidal height m) or at the mean GPRMC fix (height 0 m), with
@@ -128,7 +136,7 @@ def import_pcap(path: str | Path, *, model: str | None = None, calibration: Velo
     What was assumed is listed in `recording.source['notes']`.
     """
     path = Path(path)
-    decoded = decode_pcap(path, model, calibration.distance_resolution_m if calibration else 0.002,
+    decoded = decode_pcap(path, model, calibration.distance_resolution_m if calibration else None,
                           interpolate_azimuth, quiet)
     return recording_from_returns(decoded, "velodyne-pcap", calibration=calibration, trajectory=trajectory,
                                   position=position, attitude_deg=attitude_deg, extrinsic=extrinsic, name=name)
@@ -194,11 +202,14 @@ def _decode_all(path: Path, packets: np.ndarray, layout: PacketLayout, dual: boo
     """Every return, decoded chunk by chunk into arrays allocated once, sorted by time."""
     scan = revolution_counter(packets)
     total = int(np.count_nonzero(returned(packets, layout, dual)))
+    next_us = np.append(time_us[1:], np.nan)
+    next_azimuth = np.append(packets["blocks"]["azimuth"][1:, 0].astype(np.float64), np.nan)
     returns, at = None, 0
     chunks = range(0, len(packets), _CHUNK_PACKETS)
     for s in progress(chunks, f"decoding {path.name}", total=len(chunks), quiet=quiet):
         part = decode_returns(packets[s:s + _CHUNK_PACKETS], layout, dual, time_us[s:s + _CHUNK_PACKETS],
-                              scan[s:s + _CHUNK_PACKETS], distance_m, interpolate_azimuth)
+                              scan[s:s + _CHUNK_PACKETS], distance_m, interpolate_azimuth,
+                              (next_us[s:s + _CHUNK_PACKETS], next_azimuth[s:s + _CHUNK_PACKETS]))
         returns = returns or {name: np.empty(total, dtype=values.dtype) for name, values in part.items()}
         size = len(part["time_s"])
         for name, values in part.items():
@@ -215,39 +226,47 @@ def _layout(path: Path, packets: np.ndarray, time_us: np.ndarray, records: np.nd
             forced: str | None) -> tuple[PacketLayout, bool]:
     """The model (forced or from the packets) and the return mode, checked against the packet rate."""
     flags = packets["blocks"]["flag"]
-    bad = (flags != UPPER_BLOCK) & (flags != LOWER_BLOCK)
+    bad = ~np.isin(flags, BANK_FLAGS)
     if bad.any():
         packet, block = (int(v) for v in np.argwhere(bad)[0])
         raise RecordingError(path, f"data packet {packet} (record {records[packet]}), block {block}: flag "
                                    f"0x{int(flags[packet, block]):04X}",
-                             expected="Velodyne block flags 0xEEFF or 0xDDFF")
-    has_lower = bool((flags == LOWER_BLOCK).any())
+                             expected="Velodyne block flags 0xEEFF, 0xDDFF, 0xCCFF or 0xBBFF")
+    banks = 4 if np.isin(flags, BANK_FLAGS[2:]).any() else 2 if (flags == LOWER_BLOCK).any() else 1
     product = int(np.bincount(packets["product"]).argmax())
     if forced is not None and forced not in LAYOUTS:
         raise ConfigError(f"unknown Velodyne model {forced!r}; known: {', '.join(LAYOUTS)}")
-    detected = "HDL-64E" if has_lower else PRODUCT_IDS.get(product)
+    detected = {2: "HDL-64E", 4: "VLS-128"}.get(banks, PRODUCT_IDS.get(product))
     name = forced or detected
     if name is None:
         raise RecordingError(path, f"factory byte 0x{product:02X}", field="product",
-                             expected="0x21 (HDL-32E), 0x22 (VLP-16) or HDL-64E packets; force the model "
-                                      "(--model) if the sensor is one of these")
-    if (name == "HDL-64E") != has_lower:
-        raise RecordingError(path, f"model {name} forced, but the packets {'have' if has_lower else 'have no'} "
-                                   "HDL-64E lower-block flags (0xDDFF)",
-                             expected=f"{detected or 'another model'} packets")
+                             expected=", ".join(f"0x{k:02X} ({m})" for k, m in PRODUCT_IDS.items())
+                             + " or HDL-64E packets; force the model (--model) if the sensor is one of these")
     layout = LAYOUTS[name]
-    if has_lower:
+    if layout.blocks_per_column != banks:
+        wanted = max(layout.blocks_per_column, banks)
+        what = {2: "HDL-64E lower-block flags (0xDDFF)", 4: "VLS-128 bank flags (0xCCFF, 0xBBFF)"}[wanted]
+        raise RecordingError(path, f"model {name} forced, but the packets {'have' if banks == wanted else 'have no'} "
+                                   f"{what}", expected=f"{detected or 'another model'} packets")
+    if banks == 2:
         azimuth = packets["blocks"]["azimuth"]
         dual = bool(np.median(azimuth[:, 0] == azimuth[:, 2]) > 0.5)
     else:
         dual = bool(np.median(packets["return_mode"] == DUAL_RETURN_MODE) > 0.5)
+    if dual and name == "VLS-128":
+        raise RecordingError(path, "VLS-128 dual-return packets", field="return_mode",
+                             expected="single-return (strongest or last) VLS-128 data; dual return is not supported")
     gaps = np.diff(time_us)
     gaps = gaps[gaps > 0]
+    if len(gaps) and name == "VLS-128" and _VLS128_PACKET_US[0] <= np.median(gaps) <= _VLS128_PACKET_US[1]:
+        # three firing sequences per packet; their period depends on the firmware (53.3 us in the
+        # drivers, 2.89 us firing groups since firmware 5.2.3): taken from the packet rate
+        layout = replace(layout, column_us=float(np.median(gaps)) / 3)
     if len(gaps):
         spacing, expected = float(np.median(gaps)), layout.packet_us(dual)
         if abs(spacing / expected - 1.0) > 0.05:
             fits = [m for m, other in LAYOUTS.items() if abs(spacing / other.packet_us(dual) - 1.0) <= 0.05]
-            why = f"the factory byte says 0x{product:02X}, " if forced is None and not has_lower else ""
+            why = f"the factory byte says 0x{product:02X}, " if forced is None and banks == 1 else ""
             raise RecordingError(path, f"{why}data packets come every {spacing:.1f} us, where a {name} "
                                        f"sends one every {expected:.1f} us",
                                  expected=(f"{fits[0]} data (old VLP-16 firmware writes 0x21, the HDL-32E byte): "
@@ -263,9 +282,12 @@ def _rotation_hz(packets: np.ndarray, layout: PacketLayout, dual: bool) -> float
 
 def _sensor(path, decoded: VelodyneReturns, calibration: VelodyneCalibration | None, notes: list[str]):
     if calibration is None:
-        if decoded.model == "HDL-64E":
-            raise RecordingError(path, "HDL-64E packets and no calibration file",
-                                 expected="the unit's db.xml or ROS calibration YAML (--calibration)")
+        if decoded.model == "HDL-64E" or decoded.model not in CATALOG:  # per-unit or per-model tables only
+            generic = _GENERIC_CALIBRATION.get(decoded.model)
+            raise RecordingError(path, f"{decoded.model} packets and no calibration file",
+                                 expected="the unit's db.xml or ROS calibration YAML (--calibration)"
+                                          + (f", or the model's generic {generic} of the ROS velodyne driver or "
+                                             "nebula" if generic else ""))
         notes.append(f"nominal sensor model: graphcal's {decoded.model} catalogue")
         return sensor_from_catalog(decoded.model, decoded.rotation_hz)
     sensor = calibration.sensor
@@ -275,8 +297,12 @@ def _sensor(path, decoded: VelodyneReturns, calibration: VelodyneCalibration | N
                                                                                      f"data of {path.name}")
     notes.append(f"nominal sensor model: {calibration.path.name}")
     notes.extend(calibration.notes())
+    if abs(calibration.distance_resolution_m - decoded.distance_m) > 1e-9:
+        notes.append(f"{calibration.path.name} states a distance resolution of {calibration.distance_resolution_m} m; "
+                     f"the {decoded.model} packets count in {decoded.distance_m} m units (its manual), which are used")
+    timing = CATALOG[decoded.model].timing if decoded.model in CATALOG else None
     return type(sensor)(**{**sensor.__dict__, "model": decoded.model, "rotation_hz": decoded.rotation_hz,
-                            "timing": CATALOG[decoded.model].timing})
+                            "timing": timing})
 
 
 def _hour(decoded: VelodyneReturns, notes: list[str]) -> float:

@@ -1,6 +1,7 @@
 """Velodyne packets in a ROS bag (velodyne_msgs/VelodyneScan, ROS 1 or ROS 2) -> a recording.
 
-The bag is read with rosbags (optional: `pip install "graphcal[rosbag]"`); the 1206-byte
+The bag is read with rosbags (optional: `pip install "graphcal[rosbag]"`), also an early ROS 2
+bag whose metadata leaves the serialization format empty (read as CDR); the 1206-byte
 packets go through the same decoder as pcap captures (velodyne_pcap.decode_packets), and the
 packets' ROS stamps stand for the capture host clock (the hour of the sensor timestamps). A bag
 carries no $GPRMC: give a position or a trajectory. docs/howto/import.md has the details.
@@ -8,11 +9,14 @@ carries no $GPRMC: give a position or a trajectory. docs/howto/import.md has the
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 import numpy as np
 
 from graphcal.common.errors import ConfigError, GraphcalError, RecordingError
+from graphcal.common.yamlfile import read_yaml
 from graphcal.importers.velodyne_calibration import VelodyneCalibration
 from graphcal.importers.velodyne_packets import PACKET, PACKET_BYTES
 from graphcal.importers.velodyne_pcap import (
@@ -31,7 +35,6 @@ _DEFINITIONS = {"velodyne_msgs/msg/VelodynePacket": "builtin_interfaces/Time sta
 def read_velodyne_packets(bag: str | Path, topic: str | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(packets as a PACKET array, their ROS stamps in s since 1970) of the VelodyneScan messages."""
     try:
-        from rosbags.highlevel import AnyReader
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore
     except ImportError:
         raise ConfigError('reading ROS bags needs rosbags: pip install "graphcal[rosbag]"') from None
@@ -43,16 +46,16 @@ def read_velodyne_packets(bag: str | Path, topic: str | None = None) -> tuple[np
         store.register(get_types_from_msg(definition, name))
     data, stamps = [], []
     try:
-        with AnyReader([bag], default_typestore=store) as reader:
+        with _open_bag(bag, store) as (connections, messages, deserialize):
             wanted = SCAN_TYPE.replace("/msg/", "/")
-            scans = [c for c in reader.connections if c.msgtype.replace("/msg/", "/") == wanted
+            scans = [c for c in connections if c.msgtype.replace("/msg/", "/") == wanted
                      and (topic is None or c.topic == topic)]
             if not scans:
-                found = ", ".join(sorted(f"{c.topic} ({c.msgtype})" for c in reader.connections)) or "none"
+                found = ", ".join(sorted(f"{c.topic} ({c.msgtype})" for c in connections)) or "none"
                 raise RecordingError(bag, f"no {SCAN_TYPE} topic{f' named {topic}' if topic else ''}; topics: {found}",
                                      field="topic", expected="Velodyne packets (velodyne_driver output)")
-            for connection, _, raw in reader.messages(connections=scans):
-                for packet in reader.deserialize(raw, connection.msgtype).packets:
+            for connection, raw in messages(scans):
+                for packet in deserialize(raw, connection.msgtype).packets:
                     if len(packet.data) != PACKET_BYTES:
                         raise RecordingError(bag, f"packet of {len(packet.data)} bytes on {connection.topic}",
                                              expected=f"{PACKET_BYTES}-byte Velodyne data packets")
@@ -68,8 +71,49 @@ def read_velodyne_packets(bag: str | Path, topic: str | None = None) -> tuple[np
     return np.stack(data).view(PACKET).ravel(), np.asarray(stamps)
 
 
+@contextmanager
+def _open_bag(bag: Path, store) -> Iterator[tuple[list, Callable, Callable]]:
+    """(connections, messages(connections) -> iterator of (connection, raw bytes), deserialize(raw, msgtype))
+    of a bag: rosbags' AnyReader, or for a rosbag2 sqlite3 folder whose metadata.yaml leaves the
+    serialization format empty (early ROS 2 recorders), its storage files read as CDR, the only
+    format rosbag2 records."""
+    if not _unnamed_cdr(bag):
+        from rosbags.highlevel import AnyReader
+
+        with AnyReader([bag], default_typestore=store) as reader:
+            yield (reader.connections, lambda wanted: ((c, raw) for c, _, raw in reader.messages(connections=wanted)),
+                   reader.deserialize)
+        return
+    from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
+
+    with ExitStack() as stack:
+        storages = []
+        for path in sorted(bag.glob("*.db3")):
+            storages.append(Sqlite3Reader(path))
+            storages[-1].open()
+            stack.callback(storages[-1].close)
+
+        def messages(wanted):
+            for storage in storages:
+                mine = [c for c in wanted if c.owner is storage]
+                if mine:
+                    yield from ((c, raw) for c, _, raw in storage.messages(mine))
+
+        yield [c for storage in storages for c in storage.connections], messages, store.deserialize_cdr
+
+
+def _unnamed_cdr(bag: Path) -> bool:
+    """A rosbag2 sqlite3 folder whose metadata.yaml gives a topic an empty serialization format."""
+    try:
+        info = read_yaml(bag / "metadata.yaml")["rosbag2_bagfile_information"]
+        return info["storage_identifier"] == "sqlite3" and any(
+            t["topic_metadata"]["serialization_format"] == "" for t in info["topics_with_message_count"])
+    except (GraphcalError, OSError, KeyError, TypeError):
+        return False
+
+
 def decode_rosbag(bag: str | Path, topic: str | None = None, model: str | None = None,
-                  distance_resolution_m: float = 0.002, interpolate_azimuth: bool = True,
+                  distance_resolution_m: float | None = None, interpolate_azimuth: bool = True,
                   quiet: bool = False) -> VelodyneReturns:
     """Raw returns of the Velodyne packets of a bag (see velodyne_pcap.decode_packets)."""
     packets, stamps = read_velodyne_packets(bag, topic)
@@ -83,6 +127,6 @@ def import_rosbag(bag: str | Path, *, topic: str | None = None, model: str | Non
     """A bag's Velodyne packets as a recording; options as velodyne_pcap.import_pcap (trajectory,
     position, attitude_deg, extrinsic, interpolate_azimuth, name, quiet)."""
     quiet = options.pop("quiet", False)
-    decoded = decode_rosbag(bag, topic, model, calibration.distance_resolution_m if calibration else 0.002,
+    decoded = decode_rosbag(bag, topic, model, calibration.distance_resolution_m if calibration else None,
                             options.pop("interpolate_azimuth", True), quiet)
     return recording_from_returns(decoded, "velodyne-rosbag", calibration=calibration, **options)
