@@ -64,3 +64,9 @@ def kitti_poses(n: int, speed_m_s: float = 2.0) -> np.ndarray:
         poses[k, :, :3] = [[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]]
         poses[k, :, 3] = [speed_m_s * PERIOD_S * k, 0.1 * k, 0.0]
     return poses
+
+
+def nearest(sorted_times: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Index of the nearest of sorted_times for each of times (returns matched by their own time)."""
+    after = np.clip(np.searchsorted(sorted_times, times), 1, len(sorted_times) - 1)
+    return np.where(np.abs(sorted_times[after] - times) < np.abs(sorted_times[after - 1] - times), after, after - 1)

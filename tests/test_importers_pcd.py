@@ -72,9 +72,7 @@ def _matched(recording: Recording, truth: dict, model) -> tuple[dict, dict]:
 
     base = np.floor(truth["time"].min())
     true_time, _ = seconds_of_week(base, truth["time"] - base, recording.source["gps_week"])
-    after = np.clip(np.searchsorted(true_time, points["time"]), 1, len(true_time) - 1)
-    index = np.where(np.abs(true_time[after] - points["time"]) < np.abs(true_time[after - 1] - points["time"]),
-                     after, after - 1)
+    index = synth.nearest(true_time, points["time"])
     assert np.all(np.abs(true_time[index] - points["time"]) < 2e-6)
     return points, {key: values[index] for key, values in truth.items()}
 

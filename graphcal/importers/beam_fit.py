@@ -103,7 +103,8 @@ def ring_model(xyz: np.ndarray, ring: np.ndarray, model: str, rotation_hz: float
             f" (ring ids {rings.tolist()} renumbered 0..{len(rings) - 1})")
         notes = [f"nominal model FITTED to the points: one fibre per ring{renumbered}, its elevation and vertical "
                  "offset from a line through its points (no azimuth, range or horizontal offsets: a driver's "
-                 "corrected points cannot show them)"]
+                 "corrected points cannot show them, so a calibration estimates corrections to the driver's own "
+                 "model, not the factory values)"]
         return RingModel(sensor, fibre_of_ring, notes)
     sensor = calibration.sensor
     rising = np.corrcoef(rings, elevation)[0, 1] >= 0 if len(rings) > 2 else elevation[1] >= elevation[0]

@@ -29,7 +29,7 @@ from graphcal.common.progress import progress
 from graphcal.importers.frame_poses import FramePoses, frame_time, read_frame_poses
 from graphcal.importers.pcd import read_pcd
 from graphcal.importers.point_fields import ScanPoints, scan_points
-from graphcal.importers.scan_recording import ScanSource, recording_from_scans
+from graphcal.importers.scan_recording import ScanSource, local_crs, recording_from_scans
 from graphcal.importers.velodyne_calibration import VelodyneCalibration
 from graphcal.recording.directory import Recording
 from graphcal.recording.extrinsic import Extrinsic
@@ -37,11 +37,6 @@ from graphcal.recording.rotations import rpy_deg_from_rotation, unwrap_deg
 from graphcal.recording.trajectory import Trajectory
 
 _NAME_CLOCK_SPREAD_S = 0.05  # frame names on one clock: their offsets from the scans agree within this
-
-
-def local_crs(lat_deg: float = 0.0, lon_deg: float = 0.0) -> str:
-    """A local metric frame as a projected CRS: transverse Mercator centred at (lat, lon), scale 1 at the centre."""
-    return f"+proj=tmerc +lat_0={lat_deg:.9f} +lon_0={lon_deg:.9f} +k=1 +x_0=0 +y_0=0 +ellps=WGS84 +units=m +no_defs"
 
 
 def import_pcd_folder(folder: str | Path, poses: str | Path, *, calibration: VelodyneCalibration | None = None,

@@ -74,7 +74,7 @@ def scan_points(fields: np.ndarray, source: str | Path, stamp_s: float | None = 
 
 def _times(values: np.ndarray, name: str, source, stamp_s: float | None, stamp_what: str) -> tuple[np.ndarray, str]:
     """Per-point times -> (s since 1970 UTC, how they were read)."""
-    kind = values.dtype.kind
+    kind, stored = values.dtype.kind, values.dtype
     if kind not in "iuf":
         raise RecordingError(source, f"time field of type {values.dtype}", field=name, expected="numbers")
     values = values.astype(np.float64)
@@ -87,12 +87,12 @@ def _times(values: np.ndarray, name: str, source, stamp_s: float | None, stamp_w
     seconds = values * 1e-9 if in_ns else values
     unit = "ns" if in_ns else "s"
     if float(np.median(np.abs(seconds))) > _ABSOLUTE_S:
-        return seconds, f"per-point time {name!r} ({values.dtype}): absolute, {unit} since 1970 (UTC)"
+        return seconds, f"per-point time {name!r} ({stored}): absolute, {unit} since 1970 (UTC)"
     if stamp_s is None:
         raise RecordingError(source, f"per-point times up to {np.max(np.abs(seconds)):.3f} s are relative and the "
                                      "scan has no stamp", field=name,
                              expected="absolute times, or a stamp to count them from")
-    return stamp_s + seconds, f"per-point time {name!r} ({values.dtype}): {unit} relative to {stamp_what}"
+    return stamp_s + seconds, f"per-point time {name!r} ({stored}): {unit} relative to {stamp_what}"
 
 
 def intensity_0_255(intensity: np.ndarray) -> tuple[np.ndarray, str]:

@@ -103,6 +103,11 @@ def recording_from_scans(scans: list[ScanPoints], source: ScanSource, calibratio
                      trajectory=trajectory, points=points, source=recording_source)
 
 
+def local_crs(lat_deg: float = 0.0, lon_deg: float = 0.0) -> str:
+    """A local metric frame as a projected CRS: transverse Mercator centred at (lat, lon), scale 1 at the centre."""
+    return f"+proj=tmerc +lat_0={lat_deg:.9f} +lon_0={lon_deg:.9f} +k=1 +x_0=0 +y_0=0 +ellps=WGS84 +units=m +no_defs"
+
+
 def _rotation_hz(scans: list[ScanPoints]) -> float:
     """Spin rate [Hz]: 1 / the median spacing of the scans' first returns (1 / the span of a single scan)."""
     starts = np.array([scan.time_s.min() for scan in scans])

@@ -1,0 +1,83 @@
+"""ROS messages of a bag, whatever its container: rosbag1 (.bag), rosbag2 (a folder with metadata.yaml,
+sqlite3 or mcap storage) or a standalone storage file (.mcap, .db3), read with rosbags' AnyReader.
+
+Message definitions come from the bag when it carries them, else from the ROS 2 Humble type
+store. Message types are named the ROS 2 way (`sensor_msgs/msg/PointCloud2`) in every case; the
+messages are rosbags' dataclasses.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+from graphcal.common.errors import ConfigError, GraphcalError, RecordingError
+
+
+@dataclass(frozen=True)
+class Topic:
+    """A topic of the bag: its name and message type (ROS 2 spelling)."""
+
+    name: str
+    msgtype: str
+
+
+def msgtype_name(msgtype: str) -> str:
+    """'sensor_msgs/PointCloud2' (ROS 1) or 'sensor_msgs/msg/PointCloud2' -> 'sensor_msgs/msg/PointCloud2'."""
+    package, _, name = msgtype.rpartition("/")
+    return msgtype if package.endswith("/msg") else f"{package}/msg/{name}"
+
+
+class RosBag:
+    """An open bag: its topics, and its messages of some topics in log-time order."""
+
+    def __init__(self, path: Path, topics: list[Topic], messages):
+        self.path, self.topics, self._messages = path, topics, messages
+
+    def messages(self, topics: list[Topic]) -> Iterator[tuple[Topic, int, object]]:
+        """(topic, log time ns, deserialised message) of the given topics."""
+        yield from self._messages(topics)
+
+    def of_type(self, msgtype: str, topic: str | None = None) -> list[Topic]:
+        return [t for t in self.topics if t.msgtype == msgtype and (topic is None or t.name == topic)]
+
+    def listing(self) -> str:
+        return ", ".join(sorted(f"{t.name} ({t.msgtype})" for t in self.topics)) or "none"
+
+
+@contextmanager
+def open_bag(path: str | Path) -> Iterator[RosBag]:
+    """Open a bag of any container (see the module docstring); RecordingError for an unreadable one."""
+    path = Path(path)
+    if not path.exists():
+        raise RecordingError(path, "bag not found")
+    try:
+        from rosbags.highlevel import AnyReader
+        from rosbags.typesys import Stores, get_typestore
+    except ImportError:
+        raise ConfigError('reading ROS bags needs rosbags: pip install "graphcal[rosbag]"') from None
+    try:
+        with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
+            yield _bag(path, reader)
+    except GraphcalError:
+        raise
+    except Exception as error:  # rosbags' own (no metadata.yaml, a damaged file, a cut message)
+        raise RecordingError(path, f"not a readable ROS bag: {type(error).__name__}: {error}",
+                             expected="a rosbag1 file, a rosbag2 folder with its metadata.yaml, or an MCAP or "
+                                      "db3 file") from None
+
+
+def _bag(path: Path, reader) -> RosBag:
+    by_topic = {}
+    for connection in reader.connections:
+        by_topic.setdefault(Topic(connection.topic, msgtype_name(connection.msgtype)), []).append(connection)
+
+    def messages(topics: list[Topic]):
+        wanted = {c.id: topic for topic in topics for c in by_topic.get(topic, [])}
+        chosen = [c for c in reader.connections if c.id in wanted]
+        for connection, log_ns, raw in reader.messages(connections=chosen):
+            yield wanted[connection.id], log_ns, reader.deserialize(raw, connection.msgtype)
+
+    return RosBag(path, list(by_topic), messages)
