@@ -594,5 +594,42 @@ def _extrinsic(lever_arm: str | None, boresight: str | None):
                      boresight_deg=_numbers(boresight, "--boresight") or (0.0, 0.0, 0.0))
 
 
+@import_app.command("pointcloud2")
+@_clear_errors
+def import_pointcloud2_command(
+        bag: Annotated[Path, typer.Argument(help="rosbag1 (.bag), rosbag2 folder, or .mcap / .db3 file")],
+        topic: Annotated[str | None, typer.Option(help="the PointCloud2 topic (default: the only one)")] = None,
+        calibration: Annotated[Path | None, typer.Option(help="db.xml or ROS velodyne YAML the driver used")] = None,
+        trajectory: Annotated[Path | None, typer.Option(help="SBET (.out) or trajectory.csv, GPS seconds of week "
+                                                             "(default: the bag's NavSatFix + Imu or Odometry)")]
+        = None,
+        pose_topic: Annotated[str | None, typer.Option(help="the bag's NavSatFix or Odometry topic to use")] = None,
+        out: Annotated[Path | None, typer.Option(help="recording directory (default out/<bag name>)")] = None,
+        crs: Annotated[str, typer.Option(help="world CRS (needed for a projected trajectory.csv)")] = "auto",
+        origin: Annotated[str, typer.Option(help="Odometry's local frame: its centre LAT,LON (deg)")] = "0,0",
+        lever_arm: Annotated[str | None, typer.Option(help="lidar -> body lever arm X,Y,Z (m)")] = None,
+        boresight: Annotated[str | None, typer.Option(help="lidar -> body ROLL,PITCH,YAW (deg)")] = None,
+        quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+    """ROS PointCloud2 scans with ring and per-point time -> recording (docs/howto/import-pointcloud2.md).
+
+    Example: graphcal import pointcloud2 drive.bag --topic /velodyne_points --calibration VLP16db.yaml
+    """
+    from graphcal.importers.pointcloud2 import import_pointcloud2
+    from graphcal.importers.velodyne_calibration import read_velodyne_calibration
+
+    if out is not None:  # before the import's work
+        _not_taken(out)
+    recording = import_pointcloud2(bag, topic=topic, calibration=read_velodyne_calibration(calibration)
+                                   if calibration else None, trajectory=_read_trajectory(trajectory)
+                                   if trajectory else None, pose_topic=pose_topic,
+                                   extrinsic=_extrinsic(lever_arm, boresight), origin=_numbers(origin, "--origin", 2),
+                                   quiet=quiet)
+    if trajectory is not None:
+        recording.crs = crs
+    out = _imported_recording_folder(out, recording.name)
+    recording.save(out)
+    _print_notes(recording, out, quiet)
+
+
 def main() -> None:  # pragma: no cover - console entry
     sys.exit(app())
