@@ -368,11 +368,12 @@ def _print_notes(recording, out: Path, quiet: bool) -> None:
 @import_app.command("pcap")
 @_clear_errors
 def import_pcap_command(
-        pcap: Annotated[Path, typer.Argument(help="Velodyne capture (HDL-32E, VLP-16, HDL-64E): libpcap file or "
+        pcap: Annotated[Path, typer.Argument(help="Velodyne capture (HDL-32E, VLP-16, HDL-64E, VLP-32C, VLS-128): libpcap file or "
                                                    "ROS bag of velodyne_msgs/VelodyneScan")],
         out: Annotated[Path | None, typer.Option(help="recording directory (default out/<pcap name>)")] = None,
-        model: Annotated[str | None, typer.Option(help="force the model: HDL-32E, VLP-16 or HDL-64E")] = None,
-        calibration: Annotated[Path | None, typer.Option(help="db.xml or ROS velodyne YAML of the unit")] = None,
+        model: Annotated[str | None, typer.Option(help="force the model: HDL-32E, VLP-16, HDL-64E, VLP-32C or VLS-128")] = None,
+        calibration: Annotated[Path | None, typer.Option(help="db.xml or ROS velodyne YAML of the unit (needed for "
+                                                                    "HDL-64E, VLP-32C, VLS-128)")] = None,
         trajectory: Annotated[Path | None, typer.Option(help="SBET (.out) or trajectory.csv, GPS seconds of week")] = None,
         crs: Annotated[str, typer.Option(help="world CRS (needed for a projected trajectory.csv)")] = "auto",
         position: Annotated[str | None, typer.Option(help="static position LAT,LON,ALT (deg, deg, m)")] = None,
