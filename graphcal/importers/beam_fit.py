@@ -91,9 +91,8 @@ def ring_model(xyz: np.ndarray, ring: np.ndarray, model: str, rotation_hz: float
     source: the file named in errors."""
     ring = np.asarray(ring, dtype=np.int64)
     rings = np.unique(ring)
-    if len(rings) < 2:
-        raise RecordingError(source, f"{len(rings)} ring id(s) in the points", field="ring",
-                             expected="returns of at least 2 lasers (a multi-beam spinning lidar)")
+    if not len(rings):
+        raise RecordingError(source, "no point", field="ring", expected="returns with their laser")
     elevation, vertical = fit_ring_lines(xyz, ring, rings)
     fibre_of_ring = np.full(int(rings[-1]) + 1, -1, dtype=np.int64)
     if calibration is None:
@@ -107,7 +106,7 @@ def ring_model(xyz: np.ndarray, ring: np.ndarray, model: str, rotation_hz: float
                  "model, not the factory values)"]
         return RingModel(sensor, fibre_of_ring, notes)
     sensor = calibration.sensor
-    rising = np.corrcoef(rings, elevation)[0, 1] >= 0 if len(rings) > 2 else elevation[1] >= elevation[0]
+    rising = np.corrcoef(rings, elevation)[0, 1] >= 0 if len(rings) > 2 else elevation[-1] >= elevation[0]
     if rings[-1] >= sensor.n_fibres:
         raise RecordingError(source, f"ring id {int(rings[-1])}", field="ring",
                              expected=f"ring ids 0..{sensor.n_fibres - 1} for the {sensor.n_fibres} lasers of "
