@@ -632,5 +632,41 @@ def import_pointcloud2_command(
     _print_notes(recording, out, quiet)
 
 
+@import_app.command("las")
+@_clear_errors
+def import_las_command(
+        las: Annotated[Path, typer.Argument(help="georeferenced LAS or LAZ file with GPS time")],
+        trajectory: Annotated[Path, typer.Option(help="the SBET (.out) or trajectory.csv the cloud was made with, "
+                                                      "GPS seconds of week")],
+        out: Annotated[Path | None, typer.Option(help="recording directory (default out/<file name>)")] = None,
+        crs: Annotated[str | None, typer.Option(help="the file's projected CRS (default: from its header)")] = None,
+        lever_arm: Annotated[str | None, typer.Option(help="lidar -> body lever arm X,Y,Z (m) the cloud was made "
+                                                           "with")] = None,
+        boresight: Annotated[str | None, typer.Option(help="lidar -> body ROLL,PITCH,YAW (deg) the cloud was made "
+                                                           "with (default: fitted for a single beam)")] = None,
+        calibration: Annotated[Path | None, typer.Option(help="db.xml or ROS velodyne YAML the producer used")] = None,
+        ring_field: Annotated[str | None, typer.Option(help="dimension holding the laser (default: ring, channel, "
+                                                            "laser_id, laser, else point_source_id)")] = None,
+        quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+    """Georeferenced LAS/LAZ + its trajectory -> recording, raw values by undoing the georeferencing
+    (docs/howto/import-las.md).
+
+    Example: graphcal import las points.las --trajectory sbet.out
+    """
+    from graphcal.importers.las_cloud import import_las
+    from graphcal.importers.velodyne_calibration import read_velodyne_calibration
+
+    if out is not None:  # before the import's work
+        _not_taken(out)
+    recording = import_las(las, _read_trajectory(trajectory), crs=crs,
+                           lever_arm_m=_numbers(lever_arm, "--lever-arm") or (0.0, 0.0, 0.0),
+                           boresight_deg=_numbers(boresight, "--boresight"),
+                           calibration=read_velodyne_calibration(calibration) if calibration else None,
+                           ring_field=ring_field)
+    out = _imported_recording_folder(out, recording.name)
+    recording.save(out)
+    _print_notes(recording, out, quiet)
+
+
 def main() -> None:  # pragma: no cover - console entry
     sys.exit(app())
