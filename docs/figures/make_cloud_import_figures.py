@@ -64,6 +64,18 @@ def _top(ax, xyz, colour, label, extent=None, equal=True):
     plt.colorbar(shown, ax=ax, label=label, shrink=0.8)
 
 
+def _side(fig, side, x, y, labels: tuple[str, str, str], path: Path, style: str = ".", size: float = 2) -> Path:
+    """The right panel (y against x, labels: x label, y label, title), then the figure written to path."""
+    side.plot(x, y, style, ms=size)
+    side.set_xlabel(labels[0])
+    side.set_ylabel(labels[1])
+    side.set_title(labels[2])
+    side.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    return path
+
+
 def pcd_figure(real: Path, out: Path) -> Path:
     folder = real / "pjlab_lidar2imu_pcd_poses"
     recording = import_pcd_folder(folder / "top_center_lidar", folder / "top_center_lidar-enu.txt", quiet=True)
@@ -72,14 +84,9 @@ def pcd_figure(real: Path, out: Path) -> Path:
     fig, (top, side) = plt.subplots(1, 2, figsize=(12, 5.2), gridspec_kw={"width_ratios": [1.4, 1]})
     _top(top, xyz, points["fibre"], "fibre (ring)", extent=60)
     top.set_title(f"OpenCalib sample, imported: {len(recording.points):,} returns, 4 scans (every 4th drawn)")
-    side.plot(np.arange(recording.sensor.n_fibres), recording.sensor.elevation_deg, "o", ms=3)
-    side.set_xlabel("fibre (= ring id)")
-    side.set_ylabel("fitted elevation [deg]")
-    side.set_title("nominal model fitted per ring (misfit 0.1 mm median)")
-    side.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(out / "import_pcd.png", dpi=110)
-    return out / "import_pcd.png"
+    return _side(fig, side, np.arange(recording.sensor.n_fibres), recording.sensor.elevation_deg,
+                 ("fibre (= ring id)", "fitted elevation [deg]", "nominal model fitted per ring (misfit 0.1 mm median)"),
+                 out / "import_pcd.png", "o", 3)
 
 
 def _nebula_bag(real: Path, bag: Path) -> np.ndarray:
@@ -136,15 +143,11 @@ def pointcloud2_figure(real: Path, out: Path) -> Path:
     _top(top, xyz, imported["fibre"], "fibre (laser id)", extent=12)
     top.set_title(f"nebula VLP-16 scan as PointCloud2, imported: {len(xyz):,} returns")
     difference = 1000 * (imported["range"] - echo["distance"][order])
-    side.plot(echo["distance"][order], difference, ".", ms=1)
-    side.set_xlabel("nebula's distance field [m]")
-    side.set_ylabel("recovered range - nebula's distance [mm]")
-    side.set_title(f"raw range through VLP16.yaml: max |diff| {np.abs(difference).max():.4f} mm")
     side.set_ylim(-0.01, 0.01)
-    side.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(out / "import_pointcloud2.png", dpi=110)
-    return out / "import_pointcloud2.png"
+    return _side(fig, side, echo["distance"][order], difference,
+                 ("nebula's distance field [m]", "recovered range - nebula's distance [mm]",
+                  f"raw range through VLP16.yaml: max |diff| {np.abs(difference).max():.4f} mm"),
+                 out / "import_pointcloud2.png", size=1)
 
 
 def las_figure(real: Path, out: Path) -> Path:
@@ -154,14 +157,9 @@ def las_figure(real: Path, out: Path) -> Path:
     fig, (top, side) = plt.subplots(1, 2, figsize=(12, 5.2), gridspec_kw={"width_ratios": [1.4, 1]})
     _top(top, xyz, points["time"] - points["time"][0], "time [s]", equal=False)
     top.set_title(f"leeward airborne LAS + SBET, imported: {len(xyz):,} returns")
-    side.plot(np.degrees(points["azimuth"]), points["range"], ".", ms=2)
-    side.set_xlabel("azimuth about the fitted scanner axis [deg]")
-    side.set_ylabel("recovered range [m]")
-    side.set_title("one beam: range across the swath")
-    side.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(out / "import_las.png", dpi=110)
-    return out / "import_las.png"
+    return _side(fig, side, np.degrees(points["azimuth"]), points["range"],
+                 ("azimuth about the fitted scanner axis [deg]", "recovered range [m]", "one beam: range across the swath"),
+                 out / "import_las.png")
 
 
 if __name__ == "__main__":
