@@ -51,14 +51,14 @@ def import_pcd_folder(folder: str | Path, poses: str | Path, *, calibration: Vel
     if not files:
         raise RecordingError(folder, "no .pcd file" if folder.is_dir() else "folder not found",
                              expected="a folder of per-scan PCD files")
-    scans = []
+    scans, encodings = [], set()
     for path in progress(files, f"reading {folder.name}", quiet=quiet):
         header, fields = read_pcd(path)
+        encodings.add(header.encoding)
         scans.append(scan_points(fields, path, _numeric_stamp(path.stem), "the stamp in the file name"))
     frames = read_frame_poses(poses)
     trajectory, notes = _trajectory(Path(poses), frames, [p.stem for p in files], scans, pose_at)
-    encodings = sorted({read_pcd_encoding(p) for p in files[:1]})
-    notes = [f"{len(files)} PCD files ({', '.join(encodings)})", *notes,
+    notes = [f"{len(files)} PCD files ({', '.join(sorted(encodings))})", *notes,
              "points taken as the driver wrote them, in the sensor frame; raw range and azimuth are recovered through "
              "the nominal model (exact only when it is the driver's own)"]
     extrinsic_note = ("lidar -> body extrinsic as given" if extrinsic is not None else
@@ -71,10 +71,6 @@ def import_pcd_folder(folder: str | Path, poses: str | Path, *, calibration: Vel
         source.notes.append(f"pose frame taken as a local frame (x east, y north, z up) centred at lat {origin[0]:g}, "
                             f"lon {origin[1]:g}: a transverse Mercator CRS")
     return recording_from_scans(scans, source, calibration, name or folder.name, quiet)
-
-
-def read_pcd_encoding(path: Path) -> str:
-    return read_pcd(path)[0].encoding
 
 
 def _numeric_stamp(stem: str) -> float | None:
