@@ -1,0 +1,47 @@
+"""Shared fixtures, and the order in which `pytest -n 2 --dist loadfile --no-loadscope-reorder` hands the
+modules to its workers: the longest first, so that the two workers end together."""
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from tools.foreign_sim import simulate  # noqa: E402
+
+# Modules by their measured run time (--durations, 2 shared cores), the longest first; the others follow in
+# collection order. The list only orders the work: a module missing from it still runs.
+LONGEST_FIRST = ("test_foreign_calibration", "test_diagnose", "test_static_calibration", "test_foreign_from_truth",
+                 "test_calibration", "test_open_world", "test_static_halves", "test_shared_returns",
+                 "test_trajectory_calibration", "test_scenarios_cli", "test_runs", "test_fuzz")
+
+
+def pytest_collection_modifyitems(items):
+    rank = {name: place for place, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.module.__name__.rpartition(".")[2], len(rank)))
+
+
+MONTEREY = Path(__file__).resolve().parents[2] / "shared/data/real/veloview_hdl32e_vlp16_pcap/monterey-first-100-packets.pcap"
+# the pairs' draw of the static tests: the halves check passed on every seed tried (0 to 15) with the line-of-sight
+# choice of m; its failing branch is tested on the recording with one half's ground changed (test_static_halves.py)
+MONTEREY_SEED = 0
+# by default a static sensor's heights are held too; the halves check runs on them once they are freed
+HEIGHTS_FREE = ("fibre_*.d_elevation_deg", "fibre_*.d_range_m", "fibre_*.d_azimuth_deg")
+
+
+@pytest.fixture(scope="module")
+def monterey_recording():
+    """The real static HDL-32E recording (VeloView's monterey pcap, 100 packets), imported."""
+    from graphcal.importers.velodyne_pcap import import_pcap
+
+    if not MONTEREY.is_file():
+        pytest.skip("shared real data absent")
+    return import_pcap(MONTEREY, quiet=True)
+
+
+@pytest.fixture(scope="module")
+def foreign_box_street(tmp_path_factory) -> Path:
+    """A recording of tools/foreign_sim: a level head in a box street with cars and poles, 15 s, 1 cm range
+    noise, a 5 mm / 0.005 deg white INS (the ordinary mapping car)."""
+    return simulate("box_street", tmp_path_factory.mktemp("foreign") / "box", duration_s=15.0, size=0.03, seed=2,
+                    mount="level")
