@@ -128,10 +128,8 @@ def _ascii(path: Path, header: PcdHeader, body: bytes) -> np.ndarray:
 
 
 def _compressed(path: Path, header: PcdHeader, body: memoryview) -> np.ndarray:
-    try:
-        import lzf
-    except ImportError:
-        raise ConfigError("reading binary_compressed PCD files needs python-lzf: pip install python-lzf") from None
+    import pylzf
+
     if len(body) < 8:
         raise RecordingError(path, "no compressed block", field="DATA", expected="two uint32 sizes and LZF data")
     compressed, size = (int(v) for v in np.frombuffer(body[:8], dtype="<u4"))
@@ -140,7 +138,10 @@ def _compressed(path: Path, header: PcdHeader, body: memoryview) -> np.ndarray:
         raise RecordingError(path, f"compressed block of {compressed} bytes ({len(body) - 8} present) holding {size}",
                              field="DATA", expected=f"{need} bytes once decompressed ({header.points} points of "
                                                     f"{header.dtype.itemsize} bytes)")
-    data = lzf.decompress(bytes(body[8:8 + compressed]), size) if size else b""
+    try:
+        data = pylzf.decompress(bytes(body[8:8 + compressed]), size) if size else b""
+    except ValueError:  # liblzf's error: the block is corrupt
+        data = None
     if data is None or len(data) != size:
         raise RecordingError(path, "LZF block does not decompress", field="DATA", expected=f"{size} bytes")
     points, at = np.zeros(header.points, dtype=header.dtype), 0
