@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from graphcal.common.errors import ConfigError, RecordingError
+from graphcal.common.errors import RecordingError
 
 _KINDS = {"F": "f", "U": "u", "I": "i"}
 _ENCODINGS = ("ascii", "binary", "binary_compressed")
