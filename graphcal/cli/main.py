@@ -278,6 +278,29 @@ def apply_command(calibration: Annotated[Path, typer.Argument(help="run folder o
         typer.echo(f"wrote {path}")
 
 
+@app.command("export")
+@_clear_errors
+def export_command(run: Annotated[Path, typer.Argument(help="calibration run folder (or its calibration.yaml)")],
+                   export_format: Annotated[str, typer.Option("--format", help="velodyne-xml (db.xml), ros-yaml "
+                                                                               "(velodyne_pointcloud) or ouster-json")],
+                   out: Annotated[Path, typer.Option(help="file to write (not an existing one)")],
+                   original: Annotated[Path | None, typer.Option("--from", help="the unit's own calibration file: "
+                                                                                "only the calibrated fields change")]
+                   = None,
+                   quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+    """Write a calibration's intrinsics in the vendor's format (docs/howto/export-calibration.md).
+
+    Example: graphcal export runs/latest --format velodyne-xml --from db.xml --out db-calibrated.xml
+    """
+    from graphcal.cli.export import export_run
+
+    notes = export_run(run, export_format, out, original)
+    if not quiet:
+        for note in notes:
+            typer.echo(f"  {note}")
+        typer.echo(f"wrote {out}")
+
+
 @app.command()
 @_clear_errors
 def report(run_folder: Annotated[Path, typer.Argument(help="calibration or diagnosis run folder")],
