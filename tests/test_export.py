@@ -156,10 +156,25 @@ def test_a_real_file_with_offsets_decodes_as_the_model_moves(name, tmp_path):
 
 
 # --- (c) the command on a run folder ------------------------------------------------------------------
+def _write_run(run: Path, recording: Path, sensor, offsets: np.ndarray, held=(), unobservable=()) -> Path:
+    """A calibration run folder written directly: calibration.yaml with these offsets (h_z null for the
+    fibres in held) and run.yaml naming the recording."""
+    rows = [{"fibre": fibre, "d_range_m": float(d_range), "d_azimuth_deg": math.degrees(d_azimuth),
+             "d_elevation_deg": math.degrees(d_elevation), "h_z_m": None if fibre in held else float(h_z),
+             "sigma": None} for fibre, (d_range, d_azimuth, d_elevation, h_z) in enumerate(offsets)]
+    run.mkdir()
+    (run / "calibration.yaml").write_text(yaml.safe_dump({
+        "format": "graphcal-calibration/1", "sensor": {"model": sensor.model, "reference_fibre": sensor.reference_fibre},
+        "intrinsics": rows, "extrinsic": {"lever_arm_m": [0.8, 0.0, 1.9], "boresight_deg": [0.0, 0.0, 90.0]},
+        "trajectory_corrections": [], "effects": [], "unobservable": list(unobservable)}))
+    (run / "run.yaml").write_text(yaml.safe_dump({"format": "graphcal-run/1", "recording": str(recording.resolve())}))
+    return run
+
+
 @pytest.fixture(scope="module")
 def run_folder(tmp_path_factory):
-    """A simulated HDL-32E recording and a calibration run folder of it, written directly: known offsets,
-    fibre 3's h_z held (null) and fibre 5's d_range named unobservable."""
+    """A simulated HDL-32E recording and a calibration run folder of it: known offsets, fibre 3's h_z held
+    (null) and fibre 5's d_range named unobservable."""
     from graphcal.simulation.script import load_scenario_builder
 
     root = tmp_path_factory.mktemp("export")
@@ -168,18 +183,7 @@ def run_folder(tmp_path_factory):
     sensor = recording.sensor
     offsets = _offsets(sensor.n_fibres, seed=5)
     offsets[sensor.reference_fibre] = 0.0
-    rows = []
-    for fibre, (d_range, d_azimuth, d_elevation, h_z) in enumerate(offsets):
-        rows.append({"fibre": fibre, "d_range_m": float(d_range), "d_azimuth_deg": math.degrees(d_azimuth),
-                     "d_elevation_deg": math.degrees(d_elevation), "h_z_m": None if fibre == 3 else float(h_z),
-                     "sigma": None})
-    run = root / "run"
-    run.mkdir()
-    (run / "calibration.yaml").write_text(yaml.safe_dump({
-        "format": "graphcal-calibration/1", "sensor": {"model": sensor.model, "reference_fibre": sensor.reference_fibre},
-        "intrinsics": rows, "extrinsic": {"lever_arm_m": [0.8, 0.0, 1.9], "boresight_deg": [0.0, 0.0, 90.0]},
-        "trajectory_corrections": [], "effects": [], "unobservable": ["fibre_3.h_z_m", "fibre_5.d_range_m"]}))
-    (run / "run.yaml").write_text(yaml.safe_dump({"format": "graphcal-run/1", "recording": str(rec.resolve())}))
+    run = _write_run(root / "run", rec, sensor, offsets, held=(3,), unobservable=("fibre_3.h_z_m", "fibre_5.d_range_m"))
     expected = offsets.copy()
     expected[3, 3] = expected[5, 0] = 0.0  # held and unobservable: nominal
     return run, sensor, expected
@@ -248,3 +252,37 @@ def test_export_refuses_another_models_file(run_folder, name, words, tmp_path):
     out = tmp_path / "out.yaml"
     _refusal(_export(run, "--format", "ros-yaml", "--from", original, "--out", out), str(original), *words)
     assert not out.exists()
+
+
+OUSTER = FOLDER.parent / "ouster_sdk_pcaps"
+OUSTER_FILES = sorted(OUSTER.glob("*.json")) if OUSTER.is_dir() else []
+
+
+@pytest.mark.skipif(len(OUSTER_FILES) < 2, reason="shared real Ouster metadata absent")
+def test_export_command_ouster_json(run_folder, tmp_path):
+    """The same command writes Ouster metadata through write_ouster_json: only the beam angles change; another
+    unit's product line is refused."""
+    import json
+    import shutil
+
+    from graphcal.importers.ouster_metadata import read_ouster_metadata
+
+    run, _, _ = run_folder
+    original = OUSTER_FILES[-1]
+    sensor = read_ouster_metadata(original).sensor_model()
+    rec = tmp_path / "rec"
+    shutil.copytree(yaml.safe_load((run / "run.yaml").read_text())["recording"], rec)
+    (rec / "sensor.yaml").write_text(yaml.safe_dump(sensor.to_dict(), sort_keys=False))
+    offsets = _offsets(sensor.n_fibres, seed=8)
+    ouster_run = _write_run(tmp_path / "run", rec, sensor, offsets)
+    out = tmp_path / "calibrated.json"
+    result = _export(ouster_run, "--format", "ouster-json", "--from", original, "--out", out)
+    assert result.exit_code == 0, result.output
+    assert "d_range_m left out" in result.output and "h_z_m left out" in result.output
+    before, after = json.loads(original.read_text()), json.loads(out.read_text())
+    assert {name for name in before if before[name] != after[name]} == {"beam_altitude_angles", "beam_azimuth_angles"}
+    np.testing.assert_allclose(after["beam_azimuth_angles"], sensor.azimuth_offset_deg + np.degrees(offsets[:, 1]),
+                               atol=1e-6)
+    _refusal(_export(ouster_run, "--format", "ouster-json", "--from", OUSTER_FILES[0], "--out", tmp_path / "o.json"),
+             str(OUSTER_FILES[0]), "prod_line")
+    _refusal(_export(ouster_run, "--format", "velodyne-xml", "--out", tmp_path / "o.xml"), "beam origin")
