@@ -17,7 +17,7 @@ from graphcal.calibration.keys import I
 from graphcal.calibration.observability import INTRINSIC_NAMES, DenseMarginals
 from graphcal.calibration.priors import Priors
 from graphcal.calibration.problem import Problem
-from graphcal.calibration.result import SIGMA_SHARED
+from graphcal.calibration.result import SIGMA_SHARED, SIGMA_WIDENED
 from graphcal.calibration.returns import initial_estimate, prepare
 from graphcal.calibration.shared_returns import SharedReturnsCovariance
 from graphcal.simulation.script import load_scenario_builder
@@ -116,9 +116,10 @@ def test_it_is_the_spread_of_the_estimate_over_range_noise_draws(at_truth, monke
 
 
 def test_calibrate_reports_the_shared_returns_sigmas_for_a_noisy_head(tmp_path):
-    """A head with 1 cm range noise: calibrate keeps both covariances and calibration.yaml writes the
+    """A head with 1 cm range noise: calibrate keeps the three covariances and calibration.yaml writes the
     shared-returns sigmas (not the Marginals': the pairs share returns, and their own parts are smaller
-    than the Marginals assume) and says so in its provenance."""
+    than the Marginals assume), each widened to the cluster-robust one where that is larger, and says so in its
+    provenance."""
     recording = graphcal.simulate(load_scenario_builder("sim2_street")(size=0.05, seed=1, range_noise_m=0.01),
                                   quiet=True)
     result = graphcal.calibrate(recording, CalibrationConfig(mode="intrinsic", priors=FAR_START_PRIORS, stopping={
@@ -132,12 +133,14 @@ def test_calibrate_reports_the_shared_returns_sigmas_for_a_noisy_head(tmp_path):
     assert np.all(shared[free] > 0)
     assert np.median(np.abs(shared[free] / marginal[free] - 1)) > 0.01
     written = yaml.safe_load(result.save(tmp_path).read_text())
-    assert written["provenance"]["sigma"] == SIGMA_SHARED
+    robust = result.cluster_robust_uncertainty
+    reported = shared if robust is None else np.fmax(shared, robust.intrinsics)
+    assert written["provenance"]["sigma"] == SIGMA_SHARED + ("" if robust is None else SIGMA_WIDENED)
     for row in written["intrinsics"]:
         fibre = row["fibre"]
         for k, name in enumerate(INTRINSIC_NAMES):
             if free[fibre, k]:
-                assert row["sigma"][name] == pytest.approx(shared[fibre, k])
+                assert row["sigma"][name] == pytest.approx(reported[fibre, k])
 
 
 def test_without_pairs_the_estimate_carries_no_range_noise(at_truth):

@@ -21,13 +21,13 @@ from graphcal.calibration.problem import PHASES, FinalFit, History, Problem
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.calibration.returns import Estimate, initial_estimate
 from graphcal.calibration.static_sensor import halves_over_draws, pair_draws, soft_over_draws
+from graphcal.calibration.verdict import RIGID_REASON
 from graphcal.calibration.weak_directions import WeakDirections
 from graphcal.common.cluster import IN_PROCESS, TaskMap, open_task_map
 from graphcal.recording.directory import Recording
 
 TILE_M = 50.0  # the tiles of a calibration spread over a cluster when no size is set [m]
 HELD_REASON = "held at its nominal value (setting hold, or a static sensor's checks)"
-RIGID_REASON = "a static sensor: the whole cloud moves rigidly with it"
 
 
 def calibrate(recording: Recording, config: CalibrationConfig | None = None, quiet: bool = False,
@@ -153,7 +153,8 @@ class CalibrationPipeline:
                                  data.rows[final.pairs.index_p], final.residual_m, final.pairs.weight, config,
                                  time.perf_counter() - self.started, self.timings,
                                  halves=None if self.halves is None else self.halves.to_yaml_dict(),
-                                 shared_returns_uncertainty=final.shared_returns)
+                                 shared_returns_uncertainty=final.shared_returns,
+                                 cluster_robust_uncertainty=final.cluster_robust)
 
     def check(self, final: FinalFit, unobservable: list[str]) -> None:
         """Refuse a result that is not one (CalibrationError, exit code 3)."""

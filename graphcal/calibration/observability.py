@@ -7,7 +7,7 @@ least-squares fit with point noise sigma0 (Cramér-Rao bound when sigma0 is the 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import gtsam
 import numpy as np
@@ -35,6 +35,14 @@ class Uncertainty:
     controls: np.ndarray | None
     controls_prior: np.ndarray | None
 
+    def widest(self, other: Uncertainty) -> Uncertainty:
+        """Each posterior sigma the larger of this one's and other's (same parameters, same priors)."""
+        def wider(a, b):
+            return None if a is None else np.fmax(a, b)
+
+        return replace(self, intrinsics=wider(self.intrinsics, other.intrinsics),
+                       extrinsic=wider(self.extrinsic, other.extrinsic), controls=wider(self.controls, other.controls))
+
 
 class DenseMarginals:
     """Marginal covariances from the dense information matrix of the graph linearised at values,
@@ -54,6 +62,15 @@ class DenseMarginals:
 
     def marginalCovariance(self, key) -> np.ndarray:
         return self.jointCovariance(key, key)
+
+    @property
+    def width(self) -> int:
+        """Columns of the information matrix: every key's tangent space."""
+        return max(span.stop for span in self._span.values())
+
+    def columns(self) -> dict[int, int]:
+        """Each key's first column in the information matrix."""
+        return {key: span.start for key, span in self._span.items()}
 
     def jointCovariance(self, a, b) -> np.ndarray:
         """The covariance block of keys a (rows) and b (columns)."""

@@ -31,6 +31,7 @@ from graphcal.calibration.observability import (
 from graphcal.calibration.pairing import Association, FeatureCache
 from graphcal.calibration.priors import HELD_SIGMA, Priors, control_prior_sigma
 from graphcal.calibration.returns import Estimate, ReturnData, pose_of, prepare, revisits, sight_at, world_at
+from graphcal.calibration.cluster_robust import ClusterRobustCovariance
 from graphcal.calibration.shared_returns import SharedReturnsCovariance
 from graphcal.calibration.tiles import Tiling
 from graphcal.calibration.weak_directions import Layout, WeakDirections, lock_factor
@@ -71,13 +72,15 @@ class History:
 class FinalFit:
     """The strict pairs at the final estimate, their residuals [m], the sigmas of gtsam.Marginals
     (uncertainty) and, for pairs whitened by the range noise, those counting each return's noise once
-    over the pairs that share it (shared_returns; None otherwise), and the J [cm^2] the pairs' noise model
-    predicts when they are whitened by the measured noise (None otherwise)."""
+    over the pairs that share it (shared_returns; None otherwise), those of the pairs' own residuals clustered
+    by time (cluster_robust, cluster_robust.py; None when the drive is too short), and the J [cm^2] the pairs'
+    noise model predicts when they are whitened by the measured noise (None otherwise)."""
 
     pairs: Correspondences
     residual_m: np.ndarray
     uncertainty: Uncertainty
     shared_returns: Uncertainty | None
+    cluster_robust: Uncertainty | None
     expected_energy_cm2: float | None
 
 
@@ -414,8 +417,12 @@ class Problem:
                 weight = np.concatenate([block.weight for _, block in blocks])
                 sigma = np.concatenate([np.broadcast_to(block.sigma0_m, len(block.weight)) for _, block in blocks])
                 expected = float((weight * sigma ** 2).sum() / weight.sum() * 1e4)
+        time_s = problem.data.time_s[pairs.index_p]
+        robust = None
+        if blocks and ClusterRobustCovariance.determined(time_s):
+            robust = problem.uncertainty(ClusterRobustCovariance(graph, values, blocks, time_s), estimate, control_sigma)
         return FinalFit(pairs, residual, problem.uncertainty(Marginals(graph, values), estimate, control_sigma), shared,
-                        expected)
+                        robust, expected)
 
     def uncertainty(self, marginals, estimate: Estimate, control_sigma: float) -> Uncertainty:
         """Posterior and prior sigmas in file units (m, deg) for every estimated parameter."""

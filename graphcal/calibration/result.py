@@ -124,6 +124,7 @@ class Calibration:
 
 SIGMA_MARGINALS = "gtsam.Marginals at the final pairs, sigma0 the noise of one pair"
 SIGMA_SHARED = "range noise of each return counted once over the pairs that share it (sandwich, docs/reference/math.md)"
+SIGMA_WIDENED = ", each widened to the pairs' own residual spread over 0.5 s blocks where larger (cluster-robust sandwich)"
 
 
 @dataclass(frozen=True)
@@ -137,8 +138,9 @@ class CalibrationResult:
     halves: a static sensor's azimuth-halves check (static_sensor.HalvesCheck.to_yaml_dict), saved as
     halves.yaml; shared_returns_uncertainty: for pairs whitened by the range noise, the 1-sigmas with
     each return's noise counted once over all the pairs it serves in (shared_returns.py), which
-    calibration.yaml writes as `sigma`; uncertainty stays gtsam.Marginals' (pairs as independent),
-    which names the unobservable parameters."""
+    calibration.yaml writes as `sigma`; cluster_robust_uncertainty: the 1-sigmas from the pairs' own
+    residuals clustered by time (cluster_robust.py; None on a drive too short for it); uncertainty stays
+    gtsam.Marginals' (pairs as independent), which names the unobservable parameters."""
 
     calibration: Calibration
     uncertainty: Uncertainty
@@ -153,6 +155,7 @@ class CalibrationResult:
     effects: tuple[dict, ...] = ()
     halves: dict | None = None
     shared_returns_uncertainty: Uncertainty | None = None
+    cluster_robust_uncertainty: Uncertainty | None = None
 
     @property
     def energy_cm2(self) -> tuple[float, float]:
@@ -161,8 +164,10 @@ class CalibrationResult:
 
     @property
     def sigmas(self) -> Uncertainty:
-        """The 1-sigmas to report: with each return's noise counted once when computed, else the Marginals'."""
-        return self.uncertainty if self.shared_returns_uncertainty is None else self.shared_returns_uncertainty
+        """The 1-sigmas to report: with each return's noise counted once when computed, else the Marginals', each
+        widened to the cluster-robust sigma where that is larger (the residuals vary more than their model)."""
+        modelled = self.uncertainty if self.shared_returns_uncertainty is None else self.shared_returns_uncertainty
+        return modelled if self.cluster_robust_uncertainty is None else modelled.widest(self.cluster_robust_uncertainty)
 
     @property
     def unobservable(self) -> tuple[str, ...]:
@@ -220,7 +225,8 @@ class CalibrationResult:
                 "effects": list(self.effects), "unobservable": sorted(unobservable),
                 "unobservable_reasons": {name: cal.reasons[name] for name in sorted(cal.reasons)},
                 "energy_cm2": {"before": float(before), "after": float(after)},
-                "provenance": {"sigma": SIGMA_MARGINALS if self.shared_returns_uncertainty is None else SIGMA_SHARED,
+                "provenance": {"sigma": (SIGMA_MARGINALS if self.shared_returns_uncertainty is None else SIGMA_SHARED)
+                               + ("" if self.cluster_robust_uncertainty is None else SIGMA_WIDENED),
                                "command": command, "graphcal": __version__, "gtsam": _gtsam_version(),
                                "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
                                "seconds": round(self.seconds, 2)}}

@@ -40,8 +40,8 @@ class SharedReturnsCovariance(DenseMarginals):
                  blocks: list[tuple[np.ndarray, Block]], pairs: Correspondences, data: ReturnData,
                  estimate: Estimate, range_noise_m: float):
         super().__init__(graph, values)  # H^-1
-        width = max(span.stop for span in self._span.values())
-        A, scale = _jacobian(blocks, values, {key: span.start for key, span in self._span.items()}, len(pairs), width)
+        width = self.width
+        A, _, scale = whitened_jacobian(blocks, values, self.columns(), len(pairs), width)
         along_p = np.einsum("ni,ni->n", pairs.normal, rays_at(data, estimate, pairs.index_p))
         along_m = np.einsum("ni,ni->n", pairs.normal, rays_at(data, estimate, pairs.index_m))
         own = np.maximum(pairs.weight - (scale * range_noise_m) ** 2 * (along_p ** 2 + along_m ** 2), 0.0)
@@ -59,14 +59,14 @@ class SharedReturnsCovariance(DenseMarginals):
         self._covariance = self._covariance @ meat @ self._covariance
 
 
-def _jacobian(blocks: list[tuple[np.ndarray, Block]], values: gtsam.Values, column: dict[int, int], n_pairs: int,
-              width: int) -> tuple[sparse.csr_matrix, np.ndarray]:
-    """The whitened Jacobian of every pair's residual (pairs x the graph's columns, sparse) and each
-    pair's whitening s_k = sqrt(w_k) / sigma_k."""
+def whitened_jacobian(blocks: list[tuple[np.ndarray, Block]], values: gtsam.Values, column: dict[int, int],
+                      n_pairs: int, width: int) -> tuple[sparse.csr_matrix, np.ndarray, np.ndarray]:
+    """The whitened Jacobian of every pair's residual (pairs x the graph's columns, sparse), the whitened
+    residuals r_k (0 for a pair no estimated key moves) and each pair's whitening s_k = sqrt(w_k) / sigma_k."""
     rows, cols, vals = [], [], []
-    scale = np.zeros(n_pairs)
+    scale, whitened = np.zeros(n_pairs), np.zeros(n_pairs)
     for pair_rows, block in blocks:
-        _, J = residuals(block, values)
+        whitened[pair_rows], J = residuals(block, values)
         to_global = np.concatenate([column[key] + np.arange(block.widths[key]) for key in block.widths])
         r, c = np.nonzero(J)
         rows.append(pair_rows[r])
@@ -74,6 +74,6 @@ def _jacobian(blocks: list[tuple[np.ndarray, Block]], values: gtsam.Values, colu
         vals.append(J[r, c])
         scale[pair_rows] = np.sqrt(block.weight) / block.sigma0_m
     if not blocks:  # no pair moves with an estimated key
-        return sparse.csr_matrix((n_pairs, width)), scale
+        return sparse.csr_matrix((n_pairs, width)), whitened, scale
     A = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n_pairs, width))
-    return A, scale
+    return A, whitened, scale
