@@ -3,6 +3,7 @@ against the velodyne_pointcloud driver's own decoding (rawdata.cc, written out b
 command on a run folder, with its refusals."""
 
 import math
+import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -102,7 +103,7 @@ def test_each_real_file_written_back_with_zero_corrections_is_the_original(path,
     zero = np.zeros((sensor.n_fibres, 4))
     edited = tmp_path / f"edited{path.suffix}"
     assert WRITERS[_format(path)](edited, sensor, zero, original) == []
-    assert edited.read_text() == path.read_text()  # every field, its digits, order, DOCTYPE and comments
+    assert edited.read_bytes() == path.read_bytes()  # every field, its digits, order, DOCTYPE, comments, line ends
     fresh = tmp_path / f"fresh{path.suffix}"
     WRITERS[_format(path)](fresh, sensor, zero, None)
     again = read_velodyne_calibration(fresh, model=sensor.model).sensor
@@ -217,6 +218,17 @@ def test_export_command_from_the_units_file(run_folder, tmp_path):
     assert result.exit_code == 0 and result.output == ""
     assert out.read_text().splitlines()[0] == original.read_text().splitlines()[0]  # its comment kept
     laser, raw_m, rotation = _returns(sensor.n_fibres, seed=7)
+    np.testing.assert_allclose(_decode(out, laser, raw_m, rotation), sensor.to_xyz(laser, raw_m, rotation, offsets),
+                               rtol=0, atol=1e-3)
+    # its db.xml (CRLF line ends, 64 slots, 32 enabled): the same lines, only the calibrated tags' numbers changed
+    original = next(p for p in FILES if p.name == "32db.xml")
+    out = tmp_path / "32db-calibrated.xml"
+    result = _export(run, "--format", "velodyne-xml", "--from", original, "--out", out)
+    assert result.exit_code == 0 and "two-point" not in result.output  # 32db.xml's X and Y are unused (zero)
+    before, after = original.read_bytes().split(b"\r\n"), out.read_bytes().split(b"\r\n")
+    assert len(before) == len(after) and after[1] == b"<!DOCTYPE boost_serialization>"
+    changed = {re.match(rb"\s*<(\w+)>", line).group(1) for line, old in zip(after, before) if line != old}
+    assert changed == {b"vertCorrection_", b"rotCorrection_", b"distCorrection_", b"vertOffsetCorrection_"}
     np.testing.assert_allclose(_decode(out, laser, raw_m, rotation), sensor.to_xyz(laser, raw_m, rotation, offsets),
                                rtol=0, atol=1e-3)
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from graphcal.calibration.observability import INTRINSIC_NAMES  # calibration.yaml's names, in offset order
-from graphcal.common.errors import ConfigError
+from graphcal.common.errors import ConfigError, RecordingError
 from graphcal.exporters.velodyne_calibration import write_db_xml, write_ros_yaml
 from graphcal.importers.ouster_json import write_ouster_json
 from graphcal.recording.sensor import SensorModel
@@ -68,7 +68,11 @@ def read_original(export_format: str, path: Path, sensor: SensorModel) -> tuple[
         raise ConfigError(f"--from {path}: laser {int(apart.argmax())}'s elevation is {apart.max():.2f} deg from the "
                           f"run's {sensor.model} nominal model (expected the calibrated unit's file, not another "
                           "model's)")
-    return path.read_text(encoding="utf-8"), _differences(path, unit, sensor)
+    try:
+        text = path.read_bytes().decode("utf-8")  # its line endings as they are
+    except UnicodeDecodeError as error:
+        raise RecordingError(path, f"not a UTF-8 text file (byte {error.start})") from None
+    return text, _differences(path, unit, sensor)
 
 
 def _differences(path: Path, unit: SensorModel, sensor: SensorModel) -> list[str]:

@@ -9,7 +9,8 @@ in the velodyne_pointcloud driver's terms (rawdata.cc):
     dist_correction         = range_offset + d_rho + Z sin e  (Z = height_offset + h_z)
     vert_offset_correction  = vertical_offset + Z cos e
     horiz_offset_correction = horizontal_offset
-    dist_correction_x / _y  = the original's, moved by as much as dist_correction (the two-point shape kept)
+    dist_correction_x / _y  = the original's, moved by as much as dist_correction where the laser uses them
+                              (the two-point shape kept)
 
 The formats have no per-laser height. The driver computes xy = d cos e - V sin e and z = d sin e + V cos e
 (d the corrected distance, V vert_offset_correction); with d + Z sin e and V + Z cos e, xy is unchanged and z
@@ -125,9 +126,16 @@ class _XmlLasers:
                 self.spans[int(laser.group(1))] = match.span(1)
         _all_lasers(self.spans, n_fibres, "db.xml", "points_ <px> entries with <id_>")
 
+    mm = 10.0  # per file unit (cm)
+
     @staticmethod
     def field(body: str, tag: str) -> re.Match | None:
         return re.search(rf"<{tag}>\s*([^<\s]*)\s*</{tag}>", body)
+
+    def uses_two_point(self, body: str) -> bool:
+        """gen_calibration.py's rule: distCorrectionX_ and distCorrectionY_ both nonzero."""
+        values = [self.field(body, tag) for _, tag in TWO_POINT]
+        return all(v is not None and _float(v.group(1), "two-point", -1) != 0.0 for v in values)
 
     @staticmethod
     def insert(body: str, tag: str, value: str) -> str:
@@ -172,16 +180,24 @@ class _YamlLasers:
             end = len(entry.rstrip())
             self.spans[int(laser.group(1))] = (start, start + end)
 
+    mm = 1000.0  # per file unit (m)
+
     @staticmethod
     def field(body: str, key: str) -> re.Match | None:
         return re.search(rf"(?<![\w]){key}[ \t]*:[ \t]*([^,}}\s#]+)", body)
+
+    def uses_two_point(self, body: str) -> bool:
+        """velodyne_pointcloud's rule: two_pt_correction_available true."""
+        flag = self.field(body, "two_pt_correction_available")
+        return flag is not None and flag.group(1).lower() == "true"
 
     @staticmethod
     def insert(body: str, key: str, value: str) -> str:
         if body.endswith("}"):  # flow mapping: before its closing brace
             return f"{body[:-1].rstrip()}, {key}: {value}}}"
         dash = re.match(r"([ \t]*)-([ \t]*)", body)
-        return f"{body}\n{dash.group(1)} {dash.group(2)}{key}: {value}"
+        newline = "\r\n" if "\r\n" in body else "\n"
+        return f"{body}{newline}{dash.group(1)} {dash.group(2)}{key}: {value}"
 
 
 def _all_lasers(spans: dict, n_fibres: int, what: str, expected: str) -> None:
@@ -204,8 +220,8 @@ def _edited(text: str, lasers, fields: dict[str, np.ndarray], distance: str, two
         for key, values in list(fields.items()) + [(key, None) for key in two_point]:
             match = lasers.field(new_body, key)
             old = None if match is None else _float(match.group(1), key, laser)
-            if values is None:  # a two-point correction: the original's, moved with the distance correction
-                if match is None or shift == 0.0:
+            if values is None:  # a two-point correction in use: the original's, moved with the distance correction
+                if match is None or shift == 0.0 or not lasers.uses_two_point(body):
                     continue
                 value = old + shift
                 moved = max(moved, abs(shift))
@@ -224,7 +240,7 @@ def _edited(text: str, lasers, fields: dict[str, np.ndarray], distance: str, two
     for start, end, body in reversed(edits):
         text = text[:start] + body + text[end:]
     notes = [f"the two-point range corrections ({', '.join(two_point)}) moved with the distance correction (by up "
-             f"to {moved:.3g} in the file's unit)"] if moved > UNCHANGED else []
+             f"to {moved * lasers.mm:.1f} mm), keeping their shape"] if moved > UNCHANGED else []
     return text, notes
 
 
