@@ -298,3 +298,26 @@ def test_export_command_ouster_json(run_folder, tmp_path):
     _refusal(_export(ouster_run, "--format", "ouster-json", "--from", OUSTER_FILES[0], "--out", tmp_path / "o.json"),
              str(OUSTER_FILES[0]), "prod_line")
     _refusal(_export(ouster_run, "--format", "velodyne-xml", "--out", tmp_path / "o.xml"), "beam origin")
+
+
+@needs_real
+@pytest.mark.parametrize("name", ["64e_utexas.yaml", "VLS128.yaml"])
+def test_a_field_the_original_lacks_is_added_to_each_laser(name, tmp_path):
+    """64e_utexas.yaml (block style) and VLS128.yaml (flow style) have no horiz_offset_correction: a nominal
+    model with horizontal offsets adds it to each laser's entry, the rest of the text as it was."""
+    from dataclasses import replace
+
+    path = next(p for p in FILES if p.name == name)
+    sensor = read_velodyne_calibration(path).sensor
+    horizontal = np.where(np.arange(sensor.n_fibres) % 2 == 0, 0.026, -0.026)
+    shifted = replace(sensor, horizontal_offset_m=horizontal)
+    out = tmp_path / name
+    write_ros_yaml(out, shifted, np.zeros((sensor.n_fibres, 4)), path.read_text())
+    lasers = _lasers_of_yaml(out)
+    np.testing.assert_array_equal([lasers[i]["horiz_offset_correction"] for i in range(sensor.n_fibres)], horizontal)
+    added = r"(, |\n[ \t]*)horiz_offset_correction: -?[0-9.]+"  # in a flow mapping / as a block mapping's line
+    assert re.sub(added, "", out.read_text()) == path.read_text()
+    laser, raw_m, rotation = _returns(sensor.n_fibres, seed=9, farthest_m=25.0)  # utexas: two-point in use
+    moved = _decode(out, laser, raw_m, rotation) - _decode(path, laser, raw_m, rotation)
+    np.testing.assert_allclose(moved, shifted.to_xyz(laser, raw_m, rotation) - sensor.to_xyz(laser, raw_m, rotation),
+                               rtol=0, atol=1e-3)
