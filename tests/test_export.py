@@ -321,3 +321,15 @@ def test_a_field_the_original_lacks_is_added_to_each_laser(name, tmp_path):
     moved = _decode(out, laser, raw_m, rotation) - _decode(path, laser, raw_m, rotation)
     np.testing.assert_allclose(moved, shifted.to_xyz(laser, raw_m, rotation) - sensor.to_xyz(laser, raw_m, rotation),
                                rtol=0, atol=1e-3)
+
+
+@needs_real
+def test_export_refuses_an_original_it_cannot_edit_in_place(run_folder, tmp_path):
+    """32db.yaml rewritten with its lasers as one flow list: readable, but not editable field by field."""
+    run, _, _ = run_folder
+    lasers = yaml.safe_load(next(p for p in FILES if p.name == "32db.yaml").read_text())["lasers"]
+    original = tmp_path / "flow.yaml"
+    original.write_text(yaml.safe_dump({"lasers": lasers}, default_flow_style=True))
+    out = tmp_path / "out.yaml"
+    _refusal(_export(run, "--format", "ros-yaml", "--from", original, "--out", out), str(original), "block list")
+    assert not out.exists()

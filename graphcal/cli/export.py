@@ -36,4 +36,9 @@ def export_run(run: Path, export_format: str, out: Path, original: Path | None =
     if original is not None:
         unit, differences = read_original(export_format, original, sensor)
         notes += differences
-    return notes + WRITERS[export_format](out, sensor, offsets, unit)
+    try:
+        return notes + WRITERS[export_format](out, sensor, offsets, unit)
+    except ConfigError as error:  # the writers see the original's text: say which file it is
+        if original is None:
+            raise
+        raise ConfigError(f"--from {original}: {error}") from None

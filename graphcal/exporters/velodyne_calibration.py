@@ -132,10 +132,10 @@ class _XmlLasers:
     def field(body: str, tag: str) -> re.Match | None:
         return re.search(rf"<{tag}>\s*([^<\s]*)\s*</{tag}>", body)
 
-    def uses_two_point(self, body: str) -> bool:
+    def uses_two_point(self, body: str, laser: int) -> bool:
         """gen_calibration.py's rule: distCorrectionX_ and distCorrectionY_ both nonzero."""
-        values = [self.field(body, tag) for _, tag in TWO_POINT]
-        return all(v is not None and _float(v.group(1), "two-point", -1) != 0.0 for v in values)
+        values = [(tag, self.field(body, tag)) for _, tag in TWO_POINT]
+        return all(v is not None and _float(v.group(1), tag, laser) != 0.0 for tag, v in values)
 
     @staticmethod
     def insert(body: str, tag: str, value: str) -> str:
@@ -153,9 +153,10 @@ class _YamlLasers:
             raise ConfigError(f"the original ROS calibration is not valid YAML: {str(error).splitlines()[0]}") from None
         if not isinstance(data, dict) or not isinstance(data.get("lasers"), list):
             raise ConfigError("the original ROS calibration has no 'lasers' list")
-        head = re.search(r"^lasers[ \t]*:[ \t]*(#.*)?\n", text, re.M)
+        head = re.search(r"^lasers[ \t]*:[ \t]*(#.*)?\r?\n", text, re.M)
         if head is None:
-            raise ConfigError("the original ROS calibration's 'lasers:' key is not at the top level of a block mapping")
+            raise ConfigError("the original ROS calibration's lasers are not a block list ('lasers:' at the top, then "
+                              "one '- ' entry per laser): export without --from")
         lines = [(m.start(), m.group(1), m.group(2)) for m in re.finditer(r"^([ \t]*)(\S?.*)$", text[head.end():], re.M)]
         self.spans, dash, start = {}, None, None
         for offset, indent, rest in lines + [(len(text) - head.end(), "", "end")]:
@@ -186,7 +187,7 @@ class _YamlLasers:
     def field(body: str, key: str) -> re.Match | None:
         return re.search(rf"(?<![\w]){key}[ \t]*:[ \t]*([^,}}\s#]+)", body)
 
-    def uses_two_point(self, body: str) -> bool:
+    def uses_two_point(self, body: str, laser: int) -> bool:
         """velodyne_pointcloud's rule: two_pt_correction_available true."""
         flag = self.field(body, "two_pt_correction_available")
         return flag is not None and flag.group(1).lower() == "true"
@@ -221,7 +222,7 @@ def _edited(text: str, lasers, fields: dict[str, np.ndarray], distance: str, two
             match = lasers.field(new_body, key)
             old = None if match is None else _float(match.group(1), key, laser)
             if values is None:  # a two-point correction in use: the original's, moved with the distance correction
-                if match is None or shift == 0.0 or not lasers.uses_two_point(body):
+                if match is None or shift == 0.0 or not lasers.uses_two_point(body, laser):
                     continue
                 value = old + shift
                 moved = max(moved, abs(shift))
