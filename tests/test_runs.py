@@ -407,3 +407,23 @@ def test_a_re_run_into_an_existing_folder_replaces_it_whole_or_not_at_all(tmp_pa
     whole.publish()
     assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["calibration.yaml", "run.yaml"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+
+
+def test_a_re_run_into_an_existing_out_is_refused_unless_forced(calibrated, tmp_path):
+    """graphcal replaces nothing silently: a run folder or a cloud already at --out is refused (exit 2, one line
+    naming it and --force) before any work, and left as it was; with --force it is replaced."""
+    recording_path, folder = calibrated
+    before = {p.name: p.stat().st_mtime_ns for p in folder.iterdir()}
+    for command in (["calibrate", str(recording_path)], ["diagnose", str(recording_path)],
+                    ["deskew", str(recording_path)], ["simulate", "sim2_street"]):
+        result = CliRunner().invoke(app, command + ["--out", str(folder)])
+        assert result.exit_code == 2 and result.output.count("\n") == 1, (command, result.output)
+        assert str(folder) in result.output and "--force" in result.output
+    assert {p.name: p.stat().st_mtime_ns for p in folder.iterdir()} == before
+    cloud = tmp_path / "cloud.ply"
+    apply = ["apply", str(folder), str(recording_path), "--out", str(cloud), "-q"]
+    assert CliRunner().invoke(app, apply).exit_code == 0
+    cloud.write_bytes(b"old")
+    result = CliRunner().invoke(app, apply)
+    assert result.exit_code == 2 and "--force" in result.output and cloud.read_bytes() == b"old"
+    assert CliRunner().invoke(app, apply + ["--force"]).exit_code == 0 and cloud.read_bytes() != b"old"

@@ -55,21 +55,27 @@ def _clear_errors(command):
     return wrapper
 
 
+Force = Annotated[bool, typer.Option("--force", help="replace what --out names (once the new result is complete)")]
+
+
 @app.command()
 @_clear_errors
 def simulate(scenario: Annotated[str, typer.Argument(help="scenario name (sim6_turn, ...) or script path")],
              out: Annotated[Path | None, typer.Option(help="recording directory to write")] = None,
              size: Annotated[float, typer.Option(help="fraction of the sensor's firings kept")] = 1.0,
              seed: Annotated[int, typer.Option(help="seed of every random draw")] = 0,
+             force: Force = False,
              quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
     """Simulate a scenario and write its recording (with truth/)."""
     from graphcal.simulation.script import load_scenario_builder
     from graphcal.simulation.simulator import simulate as run
 
+    if out is not None:  # before the simulation's work
+        _not_taken(out, force)
     build = load_scenario_builder(scenario)
     started = time.perf_counter()
     recording = run(build(size=size, seed=seed), quiet=quiet)
-    out = out or Path("out") / recording.name
+    out = out or _not_taken(Path("out") / recording.name, force)
     recording.save(out)
     if not quiet:
         typer.echo(f"{len(recording.points):,} returns written to {out} in {time.perf_counter() - started:.1f} s")
@@ -135,7 +141,8 @@ def calibrate(recording: Annotated[Path, typer.Argument(help="recording director
               dask: Annotated[str | None, typer.Option(help="compute the features and pairs tile by tile on Dask: "
                                                             "local, local:N (N worker processes here) or a "
                                                             "scheduler address tcp://HOST:PORT")] = None,
-              spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, quiet: Quiet = False) -> None:
+              spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, force: Force = False,
+              quiet: Quiet = False) -> None:
     """Self-calibrate a recording into a run folder: results, run.rrd, report.html.
 
     The run folder gets calibration.yaml (estimates, 1-sigmas, unobservable parameters),
@@ -146,6 +153,8 @@ def calibrate(recording: Annotated[Path, typer.Argument(help="recording director
     """
     from graphcal.cli.runs import calibration_run
 
+    if out is not None:
+        _not_taken(out, force)
     run = calibration_run(recording, calibration_config(mode, config), out, spawn, evaluate, viewer_points,
                           quiet=quiet, dask=dask)
     if not quiet:
@@ -192,7 +201,8 @@ def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory
                                                            "regressor, reported as discovered (default), or only the "
                                                            "named candidates")] = True,
              out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-diagnose-<UTC time>)")] = None,
-             spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, quiet: Quiet = False) -> None:
+             spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, force: Force = False,
+             quiet: Quiet = False) -> None:
     """Find where the model and the recording disagree, name the physics left out, model it, show the
     fit improve (docs/howto/diagnose.md).
 
@@ -206,6 +216,8 @@ def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory
 
     from graphcal.diagnosis.diagnose import DIAGNOSE_MAX_POINTS
 
+    if out is not None:
+        _not_taken(out, force)
     how = DiagnoseOptions(simulation, rescan, max_effects, refit_iterations, open_world)
     # a settings file says how many returns; else the diagnosis's default subset
     settings = calibration_config(mode, config, None if config is not None else {"max_points": DIAGNOSE_MAX_POINTS})
@@ -224,7 +236,8 @@ def deskew(recording: Annotated[Path, typer.Argument(help="recording directory")
            out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-deskew-<source>-<UTC time>)")]
            = None,
            gyro: Annotated[bool, typer.Option(help="odometry: yaw from the gyro column when there is one")] = True,
-           spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, quiet: Quiet = False) -> None:
+           spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, force: Force = False,
+           quiet: Quiet = False) -> None:
     """Deskew every revolution into its end-of-scan lidar frame (seed 002).
 
     The run folder gets one cloud and one 3DTK pose per revolution, poses.csv, deskew.yaml,
@@ -238,6 +251,8 @@ def deskew(recording: Annotated[Path, typer.Argument(help="recording directory")
         raise ConfigError(f"--source {source!r}: expected one of {', '.join(SOURCES)}")
     if cloud_format not in FORMATS:
         raise ConfigError(f"--format {cloud_format!r}: expected one of {', '.join(FORMATS)}")
+    if out is not None:
+        _not_taken(out, force)
     started = time.perf_counter()
     folder, scans = deskew_run(recording, source, cloud_format, out, gyro, spawn, viewer_points, quiet)
     if not quiet:
@@ -267,13 +282,15 @@ def apply_command(calibration: Annotated[Path, typer.Argument(help="run folder o
                   recording: Annotated[Path, typer.Argument(help="recording directory")],
                   out: Annotated[Path | None, typer.Option(help=".las, .laz or .ply file (default: cloud.laz in a "
                                                                  "run folder runs/<name>-apply-<UTC time>)")] = None,
-                  quiet: Quiet = False) -> None:
+                  force: Force = False, quiet: Quiet = False) -> None:
     """Write the recording's cloud corrected by a calibration (LAS, LAZ or PLY).
 
     World CRS coordinates (the CRS in the LAS header), GPS time, intensity, and fibre and
     residual_m as extra dimensions."""
     from graphcal.cli.runs import apply_run
 
+    if out is not None:
+        _not_taken(out, force)
     path = apply_run(calibration, recording, out, quiet)
     if not quiet:
         typer.echo(f"wrote {path}")
@@ -446,12 +463,17 @@ def _imported_recording_folder(out: Path | None, name: str) -> Path:
     return _not_taken(out or Path("out") / folder_name(name))
 
 
-def _not_taken(path: Path) -> Path:
-    """path, or ConfigError when something is there already (an import does not replace a recording)."""
+def _not_taken(path: Path, force: bool | None = None) -> Path:
+    """path, or ConfigError when something is there already: graphcal replaces nothing silently. force: the
+    command's --force (True: replace it); None: the command has none (an import never replaces a recording)."""
     from graphcal.common.errors import ConfigError
 
-    if path.exists() and (not path.is_dir() or any(path.iterdir())):
-        raise ConfigError(f"{path}: already exists; an import does not replace it (remove it or choose another --out)")
+    if not force and path.exists() and (not path.is_dir() or any(path.iterdir())):
+        if force is None:
+            raise ConfigError(f"{path}: already exists; an import does not replace it (remove it or choose another "
+                              "--out)")
+        raise ConfigError(f"{path}: already exists; graphcal does not replace it without --force (remove it, choose "
+                          "another --out, or add --force)")
     return path
 
 
