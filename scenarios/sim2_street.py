@@ -10,6 +10,10 @@ mapping systems mount it: every fibre then sweeps the road and the facades over 
 ranges. Level, each fibre sees the flat road at one range only, and the azimuth offsets of the
 lowest fibres (which see nothing but road) are unobservable; graphcal reports them so.
 Facades carry pilasters and two ledges (3.5 m, 7 m) whose horizontal faces the upward fibres see.
+
+traffic=True adds moving traffic (graphcal/simulation/traffic.py, STREET_TRAFFIC): cars overtaking and
+oncoming 2 m either side of the street's axis, pedestrians on the sidewalks and crossing, drawn from the
+seed; about 15 % of the returns land on them (scenarios/street_traffic.py is this street with traffic).
 """
 
 from typing import Literal
@@ -19,11 +23,15 @@ from graphcal.simulation.scenario import Scenario
 from graphcal.simulation.scene import ParkedCar, Pole, street
 from graphcal.simulation.script import run_scenario_script
 from graphcal.simulation.starts import STARTS
+from graphcal.simulation.traffic import TrafficSpec
+
+STREET_TRAFFIC = TrafficSpec(vehicles=6, pedestrians=12, street_start_xy=(-25.0, 0.0), street_end_xy=(65.0, 0.0))
 
 
 def scenario(size: float = 1.0, seed: int = 0, range_noise_m: float = 0.0,
-             start: Literal["table_4_1", "section_4_5_2"] = "table_4_1") -> Scenario:
-    """A 6 s drive at 6 m/s down a 16 m wide street with pilastered facades, poles and cars."""
+             start: Literal["table_4_1", "section_4_5_2"] = "table_4_1", traffic: bool = False) -> Scenario:
+    """A 6 s drive at 6 m/s down a 16 m wide street with pilastered facades, poles and cars (and moving
+    traffic, drawn from the seed, with traffic=True)."""
     objects = street(length_m=90.0, width_m=16.0, height_m=12.0, relief_spacing_m=5.0, start_x_m=-25.0,
                      ledge_heights_m=(3.5, 7.0))
     objects += [Pole(xy=(x, side * 6.0)) for x in (-10.0, 5.0, 20.0, 35.0) for side in (-1, 1)]
@@ -33,7 +41,8 @@ def scenario(size: float = 1.0, seed: int = 0, range_noise_m: float = 0.0,
     extrinsic, intrinsic_errors = STARTS[start]
     return Scenario(name="sim2_street", sensor_model="HDL-32E", duration_s=6.0, size=size, seed=seed,
                     scene=objects, drive=Drive(segments=straight(60.0), speed_knots=[(0.0, 6.0)]),
-                    extrinsic=extrinsic, intrinsic_errors=intrinsic_errors, range_noise_m=range_noise_m)
+                    extrinsic=extrinsic, intrinsic_errors=intrinsic_errors, range_noise_m=range_noise_m,
+                    traffic=STREET_TRAFFIC.model_copy(update={"seed": seed}) if traffic else None)
 
 
 if __name__ == "__main__":

@@ -20,14 +20,22 @@ from graphcal.common.yamlfile import read_yaml, write_yaml
 
 WORLD_POINTS = "points.parquet"
 _WORLD_SCHEMA = pa.schema([(name, pa.float64()) for name in "xyz"])
+MOVING = "moving"  # truth/points.parquet's column: the return is on a moving object of the traffic (bool)
 
 
 @contextmanager
-def world_point_writer(path: Path) -> Iterator[Callable[[np.ndarray], None]]:
-    """truth/points.parquet written as it goes: each write(xyz (N,3) true world position [m, world frame])
-    appends its rows as row groups. Not atomic by itself: write into a temporary path."""
-    with row_group_writer(path, _WORLD_SCHEMA) as write:
-        yield lambda xyz: write({name: xyz[:, k] for k, name in enumerate("xyz")})
+def world_point_writer(path: Path, moving: bool = False) -> Iterator[Callable[..., None]]:
+    """truth/points.parquet written as it goes: each write(xyz (N,3) true world position [m, world frame],
+    moving (N,) bool, with moving=True) appends its rows as row groups. Not atomic by itself: write into a
+    temporary path."""
+    schema = _WORLD_SCHEMA.append(pa.field(MOVING, pa.bool_())) if moving else _WORLD_SCHEMA
+
+    def columns(xyz: np.ndarray, on_mover: np.ndarray | None = None) -> dict:
+        named = {name: xyz[:, k] for k, name in enumerate("xyz")}
+        return named | ({MOVING: on_mover} if moving else {})
+
+    with row_group_writer(path, schema) as write:
+        yield lambda xyz, on_mover=None: write(columns(xyz, on_mover))
 
 
 @dataclass
@@ -35,7 +43,8 @@ class Truth:
     """True intrinsic offsets (n,4; m, rad, rad, m), extrinsic, trajectory and switched-on effects.
 
     The true world position [m, world frame] of every return, row-aligned with points.parquet,
-    is read on demand by world_points() (it is as large as the recording).
+    is read on demand by world_points() (it is as large as the recording); which returns are on a moving
+    object of the traffic by moving().
     """
 
     intrinsics: np.ndarray
@@ -43,6 +52,7 @@ class Truth:
     trajectory: Trajectory
     effects: dict
     _world_points: np.ndarray | None = field(default=None, repr=False)
+    _moving: np.ndarray | None = field(default=None, repr=False)
     _directory: Path | None = field(default=None, repr=False)
 
     def world_points(self) -> np.ndarray:
@@ -52,10 +62,21 @@ class Truth:
             self._world_points = np.column_stack([table.column(n).to_numpy() for n in "xyz"])
         return self._world_points
 
+    def moving(self) -> np.ndarray:
+        """(N,) bool: the return is on a moving object of the traffic (all False for a scene without one)."""
+        if self._moving is None:
+            path = self._directory / WORLD_POINTS if self._directory is not None else None
+            if path is not None and MOVING in pq.read_schema(path).names:
+                self._moving = pq.read_table(path, columns=[MOVING]).column(MOVING).to_numpy()
+            else:
+                self._moving = np.zeros(len(self.world_points()), dtype=bool)
+        return self._moving
+
     def save_world_points(self, directory: Path) -> None:
-        """truth/points.parquet, atomically."""
-        with atomic_path(directory / WORLD_POINTS) as tmp, world_point_writer(tmp) as write:
-            write(self.world_points())
+        """truth/points.parquet, atomically (with the moving column when some return is on traffic)."""
+        moving = self._moving is not None and bool(self.moving().any())
+        with atomic_path(directory / WORLD_POINTS) as tmp, world_point_writer(tmp, moving) as write:
+            write(self.world_points(), self.moving() if moving else None)
 
     def save_beside_world_points(self, directory: Path) -> None:
         """Every file of truth/ but the world points (which a streaming simulation writes as it goes)."""

@@ -11,6 +11,7 @@ from graphcal.simulation.effects import build_effects
 from graphcal.recording.sensor import CATALOG
 from graphcal.simulation.drive import Drive
 from graphcal.simulation.scene import SceneObject
+from graphcal.simulation.traffic import TrafficSpec
 
 _FROZEN = ConfigDict(frozen=True, extra="forbid")
 
@@ -110,6 +111,7 @@ class Scenario(BaseModel):
     seed: int = 0
     scene: list[SceneObject]
     drive: Drive
+    traffic: TrafficSpec | None = Field(None, description="moving vehicles and pedestrians (None: none)")
     extrinsic: ExtrinsicSpec = ExtrinsicSpec()
     intrinsic_errors: IntrinsicErrors = IntrinsicErrors()
     range_noise_m: float = Field(0.0, ge=0)

@@ -34,6 +34,7 @@ from graphcal.simulation.ins import recorded_poses, to_trajectory, true_poses
 from graphcal.simulation.odometry import simulate_odometry
 from graphcal.simulation.scenario import Scenario, draw_offsets
 from graphcal.simulation.scene import RaycastScene
+from graphcal.simulation.traffic import Mover, cast_movers
 from graphcal.recording.truth import WORLD_POINTS, Truth, world_point_writer
 
 # the lidar records inside the trajectory span, this far from each end [s]
@@ -68,9 +69,10 @@ def simulate(scenario: Scenario, quiet: bool = False) -> Recording:
     """Simulate a recording (with truth/) from a scenario, in memory. Deterministic for a given seed."""
     rig, nominal, rng = _prepare(scenario)
     batches = list(_returns(scenario, rig, rng, CHUNK_S, quiet))
-    columns = {name: np.concatenate([batch[name] for batch, _ in batches]) for name in batches[0][0]}
-    world = np.concatenate([xyz for _, xyz in batches])
-    return _recording(scenario, rig, nominal, rng, PointTable.from_arrays(**columns), world)
+    columns = {name: np.concatenate([batch[name] for batch, _, _ in batches]) for name in batches[0][0]}
+    world = np.concatenate([xyz for _, xyz, _ in batches])
+    moving = np.concatenate([flag for _, _, flag in batches]) if scenario.traffic is not None else None
+    return _recording(scenario, rig, nominal, rng, PointTable.from_arrays(**columns), world, moving)
 
 
 def simulate_to(scenario: Scenario, directory: str | Path, chunk_s: float = CHUNK_S, quiet: bool = False) -> Path:
@@ -82,10 +84,10 @@ def simulate_to(scenario: Scenario, directory: str | Path, chunk_s: float = CHUN
     with atomic_directory(directory) as tmp:
         (tmp / "truth").mkdir()
         with (row_group_writer(tmp / "points.parquet", point_schema(list(SCHEMA))) as write_points,
-              world_point_writer(tmp / "truth" / WORLD_POINTS) as write_world):
-            for columns, world in _returns(scenario, rig, rng, chunk_s, quiet):
+              world_point_writer(tmp / "truth" / WORLD_POINTS, moving=scenario.traffic is not None) as write_world):
+            for columns, world, moving in _returns(scenario, rig, rng, chunk_s, quiet):
                 write_points(columns)
-                write_world(world)
+                write_world(world, moving)
         _recording(scenario, rig, nominal, rng, PointTable.open(tmp / "points.parquet")).save_beside_points(tmp)
     return directory
 
@@ -106,9 +108,9 @@ def _prepare(scenario: Scenario) -> tuple[_Rig, Extrinsic, np.random.Generator]:
 
 
 def _recording(scenario: Scenario, rig: _Rig, nominal: Extrinsic, rng: np.random.Generator, points: PointTable,
-               world_points: np.ndarray | None = None) -> Recording:
+               world_points: np.ndarray | None = None, moving: np.ndarray | None = None) -> Recording:
     """The recording around the cast returns: INS and odometry drawn (after the returns), truth (with the
-    true world points [m, grid frame] when given)."""
+    true world points [m, grid frame] and which returns are on moving traffic, when given)."""
     crs = CRS.from_user_input(scenario.crs)
     geodetic = scenario.trajectory_format == "geodetic"
     ins = recorded_poses(rig.poses, scenario.ins, rig.effects, rng)
@@ -116,7 +118,7 @@ def _recording(scenario: Scenario, rig: _Rig, nominal: Extrinsic, rng: np.random
                 simulate_odometry(scenario.drive, scenario.odometry, scenario.start_time_s, scenario.duration_s, rng))
     truth = Truth(intrinsics=rig.offsets, extrinsic=rig.extrinsic,
                   trajectory=to_trajectory(rig.poses, scenario.origin_m, crs, geodetic),
-                  effects=describe(rig.effects), _world_points=world_points)
+                  effects=describe(rig.effects), _world_points=world_points, _moving=moving)
     return Recording(name=scenario.name, crs=scenario.crs, sensor=rig.sensor, extrinsic=nominal,
                      trajectory=to_trajectory(ins, scenario.origin_m, crs, geodetic),
                      points=points, odometry=odometry, _truth=truth)
@@ -135,17 +137,18 @@ def firing_times(scenario: Scenario, sensor: SensorModel, effects: list[Effect])
 
 
 def _returns(scenario: Scenario, rig: _Rig, rng: np.random.Generator, chunk_s: float,
-             quiet: bool) -> Iterator[tuple[dict[str, np.ndarray], np.ndarray]]:
-    """The returns in time order, a batch per chunk_s [s] of firings: (raw columns, true world xyz [m, grid frame]).
+             quiet: bool) -> Iterator[tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]]:
+    """The returns in time order, a batch per chunk_s [s] of firings: (raw columns, true world xyz [m, grid frame],
+    on a mover of the traffic (bool)).
 
     Rays are cast in chunks of 0.25 s (0.01 s when objects move: the scene is rebuilt for each), the same
     whatever chunk_s, so that the returns do not depend on it. Returns whose stamp a later firing may still
     precede (stamps lag the firing by up to a revolution plus the effects' max_stamp_shift_s) wait for the
     next batch; concatenated, the batches are every return in a stable sort by time.
     """
-    scene = RaycastScene(scenario.scene)
+    scene = _Scene(RaycastScene(scenario.scene), movers(scenario))
     cycles, lidar_start = firing_times(scenario, rig.sensor, rig.effects)
-    casts = _chunks(cycles, 0.01 if scene.moving else 0.25)
+    casts = _chunks(cycles, 0.01 if scene.static.moving else 0.25)
     lag_s = 1.0 / rig.spin_hz + sum(effect.max_stamp_shift_s() for effect in rig.effects)
     batches = [list(group) for _, group in
                itertools.groupby(casts, key=lambda c: int((cycles[c.start] - cycles[0]) // chunk_s))]
@@ -155,12 +158,13 @@ def _returns(scenario: Scenario, rig: _Rig, rng: np.random.Generator, chunk_s: f
         parts = waiting + [_cast_chunk(cycles[c], lidar_start, scenario, rig, scene, rng) for c in batch]
         columns = {name: np.concatenate([p[0][name] for p in parts]) for name in parts[0][0]}
         world = np.concatenate([p[1] for p in parts])
+        moving = np.concatenate([p[2] for p in parts])
         order = np.argsort(columns["time"], kind="stable")
-        columns, world = {name: values[order] for name, values in columns.items()}, world[order]
+        columns, world, moving = {name: values[order] for name, values in columns.items()}, world[order], moving[order]
         next_firing_s = cycles[batch[-1].stop] if batch[-1].stop < len(cycles) else np.inf
         ready = int(np.searchsorted(columns["time"], next_firing_s - lag_s))
-        yield {name: values[:ready] for name, values in columns.items()}, world[:ready] + origin_m
-        waiting = [({name: values[ready:] for name, values in columns.items()}, world[ready:])]
+        yield {name: values[:ready] for name, values in columns.items()}, world[:ready] + origin_m, moving[:ready]
+        waiting = [({name: values[ready:] for name, values in columns.items()}, world[ready:], moving[ready:])]
 
 
 def _chunks(cycles: np.ndarray, chunk_s: float) -> list[slice]:
@@ -169,7 +173,40 @@ def _chunks(cycles: np.ndarray, chunk_s: float) -> list[slice]:
     return [slice(a, b) for a, b in zip(edges, np.r_[edges[1:], len(cycles)]) if b > a]
 
 
-def _cast_chunk(cycle_start, lidar_start, scenario, rig: _Rig, scene, rng):
+@dataclass(frozen=True)
+class _Scene:
+    """What the rays hit: the static scene (open3d; its own constant-velocity clutter cast at a chunk's mean
+    time) and the traffic's movers (each at every ray's own time)."""
+
+    static: RaycastScene
+    movers: list[Mover]
+
+    @property
+    def reflectivity(self) -> np.ndarray:
+        """Of the static objects, then of the movers (the indices cast returns)."""
+        return np.r_[self.static.reflectivity, [m.reflectivity for m in self.movers]].astype(np.float32)
+
+    def cast(self, origins: np.ndarray, directions: np.ndarray, elapsed_s: np.ndarray, max_range_m: float):
+        """Rays [m, local frame] fired at elapsed_s (N,) [s from the start] -> (distance m, inf on a miss;
+        object index, the movers after the static objects; unit normal; on a mover (bool))."""
+        distance, index, normal = self.static.cast(origins, directions, float(np.mean(elapsed_s)))
+        moved_distance, mover, moved_normal = cast_movers(self.movers, origins, directions, elapsed_s, max_range_m)
+        on_mover = moved_distance < distance
+        distance = np.where(on_mover, moved_distance, distance)
+        index = np.where(on_mover, len(self.static.objects) + mover, index)
+        normal = np.where(on_mover[:, None], moved_normal, normal)
+        return distance, index, normal, on_mover
+
+
+def movers(scenario: Scenario) -> list[Mover]:
+    """The traffic's movers for the scenario's drive (none without traffic)."""
+    if scenario.traffic is None:
+        return []
+    drive = scenario.drive
+    return scenario.traffic.movers(lambda t: drive.pose_at_distance(drive.distance(t))[0][:, :2], scenario.duration_s)
+
+
+def _cast_chunk(cycle_start, lidar_start, scenario, rig: _Rig, scene: _Scene, rng):
     sensor, n = rig.sensor, rig.sensor.n_fibres
     fibre = np.tile(np.arange(n, dtype=np.int16), len(cycle_start))
     t_fire = (cycle_start[:, None] + sensor.timing.laser_spacing_s * np.arange(n)[None, :]).ravel()
@@ -189,7 +226,8 @@ def _cast_chunk(cycle_start, lidar_start, scenario, rig: _Rig, scene, rng):
     position, rotation = rig.poses.interpolate(t_pose)
     origin = rotation.apply(rig.extrinsic.lidar_to_body(origin_lidar)) + position
     direction = rotation.apply(direction_lidar @ rig.extrinsic.R_body_lidar.T)
-    distance, hit_object, normal = scene.cast(origin, direction, float(np.mean(t_fire)) - scenario.start_time_s)
+    distance, hit_object, normal, on_mover = scene.cast(origin, direction, t_fire - scenario.start_time_s,
+                                                       rig.max_range_m)
 
     hit = np.isfinite(distance) & (distance >= rig.min_range_m) & (distance <= rig.max_range_m)
     fibre, encoder, t_fire, t_rev = fibre[hit], encoder[hit], t_fire[hit], t_rev[hit]
@@ -207,7 +245,7 @@ def _cast_chunk(cycle_start, lidar_start, scenario, rig: _Rig, scene, rng):
     columns = {"time": t_rec, "fibre": fibre, "range": range_m, "azimuth": encoder, "intensity": intensity,
                "scan": revolution[hit].astype(np.int32)}
     world = origin[hit] + distance[hit, None] * direction[hit]
-    return columns, world
+    return columns, world, on_mover[hit]
 
 
 def _true_factory_terms(sensor: SensorModel, fibre: np.ndarray, effects: list[Effect],
