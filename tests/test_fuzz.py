@@ -7,7 +7,8 @@ unsorted, duplicated or of the wrong type.
 Every case must end in a clean refusal (exit 2, one line naming the file) or a run that goes on (exit 0); never a
 traceback (exit 1). A recording `graphcal info` accepts must then be read by a calibration's reader without a
 traceback, and a calibration.yaml `Calibration.load` accepts must place 2000 of the recording's returns at
-finite points. The counts per category are printed (pytest -s) and checked against MIN_CASES.
+finite points. Every importer gets its own small input with one file mutated: a clean refusal, or a recording
+`graphcal info` accepts. The counts per category are printed (pytest -s) and checked against MIN_CASES.
 """
 
 from __future__ import annotations
@@ -203,3 +204,63 @@ def test_mutated_calibrations_are_refused_or_applied_at_finite_points(base, tmp_
         outcome["applied"] += 1
     print(dict(outcome))
     assert outcome["refused"] + outcome["applied"] == MIN_CASES - RECORDING_CASES and outcome["refused"] > 0
+
+
+IMPORT_CASES = 30  # per importer (pcap, pcd, ouster and las when the real samples are there)
+
+
+def _import_inputs(root: Path) -> dict[str, tuple[list[str], list[Path]]]:
+    """Small valid inputs of every importer: {importer: (its command line up to --out, the files to mutate)}."""
+    from ring_scans_synth import kitti_poses, scans, sensor
+    from test_importers_cli import _capture_with_fix
+    from test_importers_pcd import _scan_array, write_pcd
+
+    root.mkdir()
+    inputs = {"pcap": (["import", "pcap", str(_capture_with_fix(root))], [root / "drive.pcap"])}
+    folder = root / "pcd"
+    folder.mkdir()
+    drawn = scans(sensor(with_offsets=False), n_scans=2, columns=40)
+    for scan, encoding in zip(drawn, ("ascii", "binary_compressed")):
+        write_pcd(folder / f"{round(scan['stamp'] * 1e9)}.pcd", _scan_array(scan, "t", relative=True), encoding)
+    poses = root / "poses.txt"
+    poses.write_text("".join(" ".join(f"{v:.9f}" for v in p.ravel()) + "\n" for p in kitti_poses(len(drawn))))
+    inputs["pcd"] = (["import", "pcd", str(folder), "--poses", str(poses)], sorted(folder.iterdir()) + [poses])
+    real = Path(__file__).resolve().parents[2] / "shared/data/real"
+    ouster = real / "ouster_sdk_pcaps/OS-0-128-U1_v2.3.0_1024x10"
+    if Path(f"{ouster}.pcap").is_file():
+        (root / "os0.pcap").write_bytes(Path(f"{ouster}.pcap").read_bytes()[:150_000])  # a few hundred columns
+        shutil.copy(f"{ouster}.json", root / "os0.json")
+        inputs["ouster"] = (["import", "ouster", str(root / "os0.pcap"), "--metadata", str(root / "os0.json"),
+                             "--position", "45,6,300"], [root / "os0.pcap", root / "os0.json"])
+    leeward = real / "leeward_airborne_las_sbet"
+    if leeward.is_dir():
+        for name in ("points.las", "sbet.out"):
+            shutil.copy(leeward / name, root / name)
+        inputs["las"] = (["import", "las", str(root / "points.las"), "--trajectory", str(root / "sbet.out")],
+                         [root / "points.las", root / "sbet.out"])
+    return inputs
+
+
+def test_mutated_import_inputs_are_refused_or_imported_into_a_valid_recording(tmp_path, command_built_once):
+    """Every importer on its own small input with one file mutated (bit flips, truncation, empty, garbage, or in a
+    text file hostile numbers and lines): a clean refusal, or a recording that `graphcal info` then accepts."""
+    outcome = collections.Counter()
+    rng = np.random.default_rng(11)
+    for importer, (command, files) in _import_inputs(tmp_path / "inputs").items():
+        for case in range(IMPORT_CASES):
+            originals = {path: path.read_bytes() for path in files}
+            target = files[rng.integers(len(files))]
+            text = target.suffix in (".txt", ".json") or originals[target][:2] == b"# "
+            target.write_bytes((_text_mutation if text else _bytes_mutation)(originals[target], rng))
+            out = tmp_path / f"{importer}{case}"
+            code, output = _exit_code(command + ["--out", str(out), "-q"])
+            assert code in (0, 2), (importer, target.name, output)
+            if code == 0:
+                info = _exit_code(["info", str(out), "-q"])
+                assert info[0] == 0, (importer, target.name, info[1])
+                shutil.rmtree(out)
+            outcome[f"{importer}: {'refused' if code == 2 else 'imported'}"] += 1
+            for path, data in originals.items():
+                path.write_bytes(data)
+    print(dict(sorted(outcome.items())))
+    assert sum(outcome.values()) >= 2 * IMPORT_CASES

@@ -399,7 +399,17 @@ def _numbers(text: str | None, option: str, count: int = 3) -> tuple[float, ...]
     return values
 
 
-def _print_notes(recording, out: Path, quiet: bool) -> None:
+def _save_import(recording, out: Path | None, source: Path, quiet: bool) -> None:
+    """Check every imported return (an importer's arithmetic on a damaged input must not write a recording that
+    info refuses), write the recording at `out` (default out/<name>) and print its notes."""
+    from graphcal.common.errors import ConfigError, RecordingError
+
+    out = _imported_recording_folder(out, recording.name)
+    try:
+        recording.validate()
+    except RecordingError as error:
+        raise ConfigError(f"{source}: the returns imported from it do not form a valid recording ({error})") from None
+    recording.save(out)
     if not quiet:
         for note in recording.source["notes"]:
             typer.echo(f"  {note}")
@@ -451,9 +461,7 @@ def import_pcap_command(
     else:
         recording = import_pcap(pcap, **options)
     recording.crs = crs
-    out = _imported_recording_folder(out, recording.name)
-    recording.save(out)
-    _print_notes(recording, out, quiet)
+    _save_import(recording, out, pcap, quiet)
 
 
 def _imported_recording_folder(out: Path | None, name: str) -> Path:
@@ -517,9 +525,7 @@ def import_ouster_command(
                               position=_numbers(position, "--position"), attitude_deg=_numbers(attitude, "--attitude"),
                               mount=mount)
     recording.crs = crs
-    out = _imported_recording_folder(out, recording.name)
-    recording.save(out)
-    _print_notes(recording, out, quiet)
+    _save_import(recording, out, pcap, quiet)
 
 
 @import_app.command("kitti")
@@ -537,9 +543,7 @@ def import_kitti_command(
         _not_taken(out)
     recording = import_kitti(drive, calibration=read_velodyne_calibration(calibration) if calibration else None,
                              quiet=quiet)
-    out = _imported_recording_folder(out, recording.name)
-    recording.save(out)
-    _print_notes(recording, out, quiet)
+    _save_import(recording, out, drive, quiet)
 
 
 @import_app.command("sbet")
@@ -626,9 +630,7 @@ def import_pcd_command(
     recording = import_pcd_folder(folder, poses, calibration=read_velodyne_calibration(calibration) if calibration
                                   else None, crs=crs, origin=_numbers(origin, "--origin", 2),
                                   extrinsic=_extrinsic(lever_arm, boresight), pose_at=pose_at, quiet=quiet)
-    out = _imported_recording_folder(out, recording.name)
-    recording.save(out)
-    _print_notes(recording, out, quiet)
+    _save_import(recording, out, folder, quiet)
 
 
 def _extrinsic(lever_arm: str | None, boresight: str | None):
@@ -673,9 +675,7 @@ def import_pointcloud2_command(
                                    quiet=quiet)
     if trajectory is not None:
         recording.crs = crs
-    out = _imported_recording_folder(out, recording.name)
-    recording.save(out)
-    _print_notes(recording, out, quiet)
+    _save_import(recording, out, bag, quiet)
 
 
 @import_app.command("las")
@@ -709,9 +709,7 @@ def import_las_command(
                            boresight_deg=_numbers(boresight, "--boresight"),
                            calibration=read_velodyne_calibration(calibration) if calibration else None,
                            ring_field=ring_field)
-    out = _imported_recording_folder(out, recording.name)
-    recording.save(out)
-    _print_notes(recording, out, quiet)
+    _save_import(recording, out, las, quiet)
 
 
 def main() -> None:  # pragma: no cover - console entry

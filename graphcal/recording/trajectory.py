@@ -43,8 +43,10 @@ class Trajectory:
         return Trajectory(self.time[first:last], self.position[first:last], self.rpy_deg[first:last], self.geodetic)
 
     def save_csv(self, path: Path) -> None:
+        """Write trajectory.csv; the times exactly (17 significant digits: a pose at a return's own time, as an
+        importer may place one, still covers it when read back)."""
         values = np.column_stack([self.time, self.position, self.rpy_deg])
-        write_csv_columns(path, self.columns, values, formats=["%.9f"] + ["%.10f" if self.geodetic else "%.6f"] * 2
+        write_csv_columns(path, self.columns, values, formats=["%.17g"] + ["%.10f" if self.geodetic else "%.6f"] * 2
                           + ["%.6f"] + ["%.8f"] * 3)
 
     @classmethod
