@@ -20,6 +20,7 @@ from graphcal.recording.extrinsic import Extrinsic
 from graphcal.importers.gpstime import seconds_of_week
 from graphcal.importers.nmea import RmcFix, find_rmc
 from graphcal.importers.pcap import read_udp_payloads
+from graphcal.importers.trajectory_span import capture_trajectory
 from graphcal.importers.velodyne_calibration import VelodyneCalibration
 from graphcal.importers.velodyne_packets import (
     BANK_FLAGS,
@@ -47,7 +48,6 @@ POSITION_PACKET_BYTES = 512
 _POSITION_STAMP_AT = 198  # uint32 us past the hour in a position packet (HDL-32E / VLP-16 manuals)
 _CHUNK_PACKETS = 8192
 _SYNC_TOLERANCE_S = 3.0  # an RMC sentence arrives up to about 2 s after the second it names
-_MARGIN_S = 1e-3  # a static trajectory starts and ends this far beyond the returns (CSV rounding)
 _GENERIC_CALIBRATION = {"VLP-32C": "VLP32.yaml", "VLS-128": "VLS128.yaml"}  # the drivers' model files
 _VLS128_PACKET_US = (150.0, 180.0)  # packet periods of VLS-128 firmware versions (160 to 173.3 us)
 
@@ -159,15 +159,10 @@ def recording_from_returns(decoded: VelodyneReturns, importer: str, *, calibrati
     hour_utc_s = _hour(decoded, notes)
     time, week = seconds_of_week(hour_utc_s, decoded.returns["time_s"])
     notes.append(f"times are GPS seconds of week {week} (sensor time past the hour + the hour in UTC + leap seconds)")
-    if trajectory is None:
-        trajectory = _static_trajectory(path, decoded, time, position, attitude_deg, notes)
-    elif time[0] < trajectory.time[0] or time[-1] > trajectory.time[-1]:
-        raise RecordingError(path, f"returns span [{time[0]:.3f}, {time[-1]:.3f}] s of GPS week {week}, the "
-                                   f"trajectory [{trajectory.time[0]:.3f}, {trajectory.time[-1]:.3f}] s",
-                             expected="a trajectory in GPS seconds of week covering the returns")
-    else:
-        trajectory = trajectory.between(time[0] - 1.0, time[-1] + 1.0)
-        notes.append(f"trajectory given: {len(trajectory.time)} poses kept (the returns' span +- 1 s)")
+    where = "the position given"
+    if trajectory is None and position is None:
+        position, where = _position_of_fixes(path, decoded)
+    trajectory = capture_trajectory(path, time, week, trajectory, position, attitude_deg, notes, where)
     if extrinsic is None:
         extrinsic = Extrinsic(lever_arm_m=(0.0, 0.0, 0.0), boresight_deg=(0.0, 0.0, 0.0))
         notes.append("nominal extrinsic: identity (lidar frame = body frame)")
@@ -324,20 +319,12 @@ def _hour(decoded: VelodyneReturns, notes: list[str]) -> float:
     return float(hour)
 
 
-def _static_trajectory(path, decoded: VelodyneReturns, time: np.ndarray, position, attitude_deg,
-                       notes: list[str]) -> Trajectory:
-    if position is None:
-        fixes = [fix for _, fix in decoded.fixes if fix.valid]
-        if not fixes:
-            raise RecordingError(path, "no trajectory given and no valid $GPRMC fix in the position packets",
-                                 expected="a position (--position LAT,LON,ALT) or a trajectory (--trajectory)")
-        position = (float(np.mean([f.lat_deg for f in fixes])), float(np.mean([f.lon_deg for f in fixes])), 0.0)
-        where = f"the mean of {len(fixes)} GPRMC fixes, height 0 m (RMC has no height)"
-    else:
-        where = "the position given"
-    start, end = float(time[0]) - _MARGIN_S, float(time[-1]) + _MARGIN_S
-    notes.append(f"STATIC trajectory (the sensor is assumed not to move): lat {position[0]:.7f}, lon "
-                 f"{position[1]:.7f}, height {position[2]:.2f} m ({where}), attitude {tuple(attitude_deg)} deg vs ENU, "
-                 f"over [{start:.6f}, {end:.6f}] s")
-    return Trajectory(time=np.array([start, end]), position=np.array([position, position], dtype=np.float64),
-                      rpy_deg=np.array([attitude_deg, attitude_deg], dtype=np.float64), geodetic=True)
+def _position_of_fixes(path, decoded: VelodyneReturns) -> tuple[tuple[float, float, float], str]:
+    """The static position of a capture without trajectory or --position: the mean of its valid $GPRMC fixes
+    (height 0 m: RMC has none), and where it comes from in words; RecordingError when there is none."""
+    fixes = [fix for _, fix in decoded.fixes if fix.valid]
+    if not fixes:
+        raise RecordingError(path, "no trajectory given and no valid $GPRMC fix in the position packets",
+                             expected="a position (--position LAT,LON,ALT) or a trajectory (--trajectory)")
+    position = (float(np.mean([f.lat_deg for f in fixes])), float(np.mean([f.lon_deg for f in fixes])), 0.0)
+    return position, f"the mean of {len(fixes)} GPRMC fixes, height 0 m (RMC has no height)"
