@@ -80,3 +80,26 @@ def test_bad_traffic_spec_is_refused(change, message):
         TrafficSpec(**change)
     with pytest.raises(ValidationError, match="times must increase"):
         Mover(knots=[(1.0, 0.0, 0.0), (0.5, 1.0, 0.0)])
+
+
+def test_rejection_drops_pairs_on_a_moving_object_and_keeps_static_ones():
+    """Fibre pair (0, 1) sees a static plane z = 0 (2 mm noise) and a car whose rear moved 0.5 m/s x 0.1 s
+    along the normal between the two returns; fibre pair (1, 2) sees the plane 3 cm off as a whole (the
+    calibration's error, not motion); one static pair off by 4 cm was seen by both fibres at once."""
+    from graphcal.calibration.association import Correspondences
+    from graphcal.calibration.moving import moving_pairs
+
+    rng = np.random.default_rng(0)
+    n = 200
+    p = np.column_stack([rng.uniform(0, 10, (n, 2)), np.zeros(n)])
+    m = p + np.column_stack([rng.normal(0, 0.05, (n, 2)), rng.normal(0, 0.002, n)])
+    m[:10, 2] += 0.05  # on the car
+    m[100:, 2] += 0.03  # fibre pair (1, 2): a common offset
+    m[10, 2] += 0.04  # acquired together
+    points = np.r_[p, m]
+    fibre = np.r_[np.zeros(100, int), np.ones(100, int), np.ones(100, int), np.full(100, 2)]
+    time_s = np.r_[np.zeros(n), np.full(n, 0.1)]
+    time_s[n + 10] = 1e-6
+    pairs = Correspondences(np.arange(n), np.arange(n, 2 * n), np.tile([0.0, 0.0, 1.0], (n, 1)), np.ones(n))
+    rejected = moving_pairs(pairs, points, fibre, time_s, sigmas=5.0, speed_m_s=20.0)
+    np.testing.assert_array_equal(np.flatnonzero(rejected), np.arange(10))

@@ -69,7 +69,11 @@ class AssociationSettings(BaseModel):
     pair and estimate normals once, at the start with the fine gates, and keep them (the energy is then a
     plain least-squares fit; None: for a static sensor, whose re-associated energy falls by dropping pairs
     and re-shaping the ground); tile_m: features and pairs computed tile by tile of tile_m [m] of the plan
-    (graphcal.calibration.tiles; what a Dask cluster spreads; None: the whole cloud at once)."""
+    (graphcal.calibration.tiles; what a Dask cluster spreads; None: the whole cloud at once); moving_sigmas:
+    a pair is dropped as seen on a moving object when its residual at the current estimate departs from the
+    median of its fibre pair's by more than moving_sigmas robust sigmas (1.4826 MAD, at least
+    MOVING_FLOOR_M) and its two returns were acquired far enough apart for an object at moving_speed_m_s
+    [m/s] to have moved that far (None: keep every pair; graphcal.calibration.moving)."""
 
     model_config = _SECTION
     neighbours: int = Field(2, ge=1)
@@ -77,6 +81,8 @@ class AssociationSettings(BaseModel):
     fine: PhaseGates = FINE
     fixed: bool | None = None
     tile_m: float | None = Field(None, ge=10.0)
+    moving_sigmas: float | None = Field(5.0, gt=0)
+    moving_speed_m_s: float = Field(20.0, gt=0)
 
     @model_validator(mode="before")
     @classmethod

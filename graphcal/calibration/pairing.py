@@ -20,7 +20,8 @@ from graphcal.calibration.association import (
     local_features,
     neighbour_fibres,
 )
-from graphcal.calibration.config import FeatureSettings, PhaseGates
+from graphcal.calibration.config import AssociationSettings, FeatureSettings, PhaseGates
+from graphcal.calibration.moving import without_moving
 from graphcal.calibration.returns import ReturnData
 from graphcal.calibration.tiles import Tiling
 
@@ -70,19 +71,24 @@ def moved_m(points_m: np.ndarray, before_m: np.ndarray | None, radius_m: float) 
 @dataclass(frozen=True)
 class Association:
     """The association of one phase: its gates, each fibre's neighbouring fibres, the candidate p's
-    (fixed across outer iterations), the seed of its draws and its tiling (None: the whole cloud at once)."""
+    (fixed across outer iterations), the seed of its draws, its tiling (None: the whole cloud at once) and
+    the returns' acquisition times [s] with the settings that reject pairs seen on moving objects
+    (graphcal.calibration.moving; None: none rejected)."""
 
     gates: PhaseGates
     neighbours: dict
     candidates: np.ndarray
     seed: int
     tiling: Tiling | None = None
+    time_s: np.ndarray | None = None
+    moving: AssociationSettings | None = None
 
     @classmethod
     def of(cls, data: ReturnData, gates: PhaseGates, neighbours: int, seed: int,
-           tiling: Tiling | None = None) -> Association:
+           tiling: Tiling | None = None, moving: AssociationSettings | None = None) -> Association:
         candidates = _candidates(data, CANDIDATES_PER_PAIR * gates.pairs_per_fibre_pair, np.random.default_rng(seed))
-        return cls(gates, neighbour_fibres(data.sensor.elevation_deg, neighbours), candidates, seed, tiling)
+        return cls(gates, neighbour_fibres(data.sensor.elevation_deg, neighbours), candidates, seed, tiling,
+                   data.time_s, moving)
 
     def pairs(self, points_m: np.ndarray, fibre: np.ndarray, features: Features, gate_m: float,
               sight: Sight | None) -> Correspondences:
@@ -90,8 +96,13 @@ class Association:
         returns' lines of sight and stand-ins (returns.sight_at), or None for plain nearest returns."""
         cloud, gates = PairCloud(points_m, fibre, features, sight), PairGates.of(self.gates, gate_m)
         if self.tiling is not None:
-            return self.tiling.associate(cloud, self.neighbours, gates, self.seed, self.candidates)
-        return associate(cloud, self.neighbours, gates, np.random.default_rng(self.seed), self.candidates)
+            pairs = self.tiling.associate(cloud, self.neighbours, gates, self.seed, self.candidates)
+        else:
+            pairs = associate(cloud, self.neighbours, gates, np.random.default_rng(self.seed), self.candidates)
+        if self.moving is None:
+            return pairs
+        return without_moving(pairs, points_m, fibre, self.time_s, self.moving.moving_sigmas,
+                              self.moving.moving_speed_m_s)
 
 
 def _candidates(data: ReturnData, per_fibre: int, rng: np.random.Generator) -> np.ndarray:

@@ -185,8 +185,12 @@ class Problem:
         return sight_at(self.data, estimate, points_m) if self.phase == "fine" else None
 
     def association(self) -> Association:
+        """The phase's association; in the fine phase, near the solution, it rejects the pairs seen on moving
+        objects (graphcal.calibration.moving): far from it a fibre pair's residuals are the calibration's
+        errors, as varied as the surfaces it sees."""
         settings = self.settings
-        return Association.of(self.data, self.gates, settings.association.neighbours, settings.seed, self.tiling)
+        return Association.of(self.data, self.gates, settings.association.neighbours, settings.seed, self.tiling,
+                              settings.association if self.phase == "fine" else None)
 
     def associate(self, estimate: Estimate, points_m: np.ndarray | None = None,
                   features: Features | None = None) -> Correspondences:
