@@ -13,7 +13,7 @@ Facades carry pilasters and two ledges (3.5 m, 7 m) whose horizontal faces the u
 
 traffic=True adds moving traffic (graphcal/simulation/traffic.py, STREET_TRAFFIC): cars overtaking and
 oncoming 2 m either side of the street's axis, pedestrians on the sidewalks and crossing, drawn from the
-seed; about 15 % of the returns land on them (scenarios/street_traffic.py is this street with traffic).
+seed; about 17 % of the returns land on them (scenarios/street_traffic.py is this street with traffic).
 """
 
 from typing import Literal

@@ -1,7 +1,7 @@
 """street_traffic: sim2_street with moving traffic, cars overtaking and oncoming, pedestrians walking and crossing.
 
 The street, the drive and the sensor's errors are sim2_street's (same seed, same draws); the traffic
-(sim2_street.STREET_TRAFFIC, graphcal/simulation/traffic.py) is drawn from the seed too. About 15 % of
+(sim2_street.STREET_TRAFFIC, graphcal/simulation/traffic.py) is drawn from the seed too. About 17 % of
 the returns land on moving objects; truth/points.parquet flags them (column `moving`).
 """
 
