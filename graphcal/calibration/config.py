@@ -73,7 +73,8 @@ class AssociationSettings(BaseModel):
     a pair is dropped as seen on a moving object when its residual at the current estimate departs from the
     median of its fibre pair's by more than moving_sigmas robust sigmas (1.4826 MAD, at least
     MOVING_FLOOR_M) and its two returns were acquired far enough apart for an object at moving_speed_m_s
-    [m/s] to have moved that far (None: keep every pair; graphcal.calibration.moving)."""
+    [m/s] to have moved that far (None, the default: keep every pair, the fine gates keep moving surfaces
+    out; graphcal.calibration.moving)."""
 
     model_config = _SECTION
     neighbours: int = Field(2, ge=1)
@@ -81,7 +82,7 @@ class AssociationSettings(BaseModel):
     fine: PhaseGates = FINE
     fixed: bool | None = None
     tile_m: float | None = Field(None, ge=10.0)
-    moving_sigmas: float | None = Field(5.0, gt=0)
+    moving_sigmas: float | None = Field(None, gt=0)
     moving_speed_m_s: float = Field(20.0, gt=0)
 
     @model_validator(mode="before")
