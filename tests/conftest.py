@@ -39,9 +39,13 @@ def monterey_recording():
     return import_pcap(MONTEREY, quiet=True)
 
 
+def level_box_street(folder: Path, duration_s: float) -> Path:
+    """A recording of tools/foreign_sim: a level head in a box street with cars and poles, 1 cm range noise, a
+    5 mm / 0.005 deg white INS (the ordinary mapping car), duration_s [s] of its drive."""
+    return simulate("box_street", folder, duration_s=duration_s, size=0.03, seed=2, mount="level")
+
+
 @pytest.fixture(scope="module")
 def foreign_box_street(tmp_path_factory) -> Path:
-    """A recording of tools/foreign_sim: a level head in a box street with cars and poles, 15 s, 1 cm range
-    noise, a 5 mm / 0.005 deg white INS (the ordinary mapping car)."""
-    return simulate("box_street", tmp_path_factory.mktemp("foreign") / "box", duration_s=15.0, size=0.03, seed=2,
-                    mount="level")
+    """level_box_street, 15 s."""
+    return level_box_street(tmp_path_factory.mktemp("foreign") / "box", 15.0)

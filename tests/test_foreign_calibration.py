@@ -4,13 +4,20 @@ pattern, vehicle dynamics and INS noise), checked against their truth.
 A level head in a box street with cars and poles, 1 cm range noise, a 5 mm / 0.005 deg white INS: the
 ordinary mapping car whose calibration once slid into the fibres' collapse. The figures of every scene
 family at larger sizes are benchmarks/bench_foreign.py's; the same recording started at its truth:
-test_foreign_from_truth.py. Its recording: conftest.py's foreign_box_street."""
+test_foreign_from_truth.py (15 s of the drive; here 10 s)."""
 
 
 import numpy as np
+import pytest
 
 import graphcal
+from conftest import level_box_street
 from graphcal.calibration.evaluate import scorecard
+
+
+@pytest.fixture(scope="module")
+def foreign_box_street(tmp_path_factory):
+    return level_box_street(tmp_path_factory.mktemp("foreign") / "box", 10.0)
 
 
 def test_a_level_head_in_a_box_street_converges_without_collapse(foreign_box_street):
@@ -23,8 +30,8 @@ def test_a_level_head_in_a_box_street_converges_without_collapse(foreign_box_str
     card = scorecard(result, recording)
     evaluation = graphcal.evaluate(result, recording)
     assert card.named_fraction <= 0.25, result.unobservable
-    # the goal is 90 %; measured 83 % here (size 0.03), 97 % at size 0.1 (benchmarks/bench_foreign.py); a slide
-    # into the collapse left a third
+    # the goal is 90 % (benchmarks/results/foreign.json has it at size 0.1); this small recording is held to 80 %;
+    # a slide into the collapse left a third
     assert card.within_3_sigma >= 0.8, card
     assert card.rms_observable[0] < 0.5 and card.rms_observable[1] < 0.02, card  # cm, deg
     assert card.rms_observable[2] < 0.05 and card.rms_observable[3] < 1.0, card  # deg, cm
