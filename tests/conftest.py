@@ -1,19 +1,24 @@
 """Shared fixtures, and the order in which `pytest -n 2 --dist loadfile --no-loadscope-reorder` hands the
 modules to its workers: the longest first, so that the two workers end together."""
 
+import os
 import sys
 from pathlib import Path
 
-import pytest
+# each of the two workers on one core: numerical libraries single-threaded (set before numpy, open3d load)
+for _threads in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_threads, "1")
+
+import pytest  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tools.foreign_sim import simulate  # noqa: E402
 
-# Modules by their measured run time (--durations, 2 shared cores), the longest first; the others follow in
+# Modules by their measured run time (--durations on the idle 2-core machine), the longest first; the others follow in
 # collection order. The list only orders the work: a module missing from it still runs.
-LONGEST_FIRST = ("test_foreign_calibration", "test_diagnose", "test_static_calibration", "test_foreign_from_truth",
-                 "test_calibration", "test_open_world", "test_static_halves", "test_shared_returns",
-                 "test_trajectory_calibration", "test_scenarios_cli", "test_runs", "test_fuzz")
+LONGEST_FIRST = ("test_diagnose", "test_foreign_from_truth", "test_calibration", "test_foreign_calibration",
+                 "test_static_calibration", "test_trajectory_calibration", "test_static_halves", "test_open_world",
+                 "test_fuzz", "test_shared_returns", "test_scenarios_cli", "test_runs", "test_tiles", "test_foreign_sim")
 
 
 def pytest_collection_modifyitems(items):
