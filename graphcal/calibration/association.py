@@ -18,6 +18,11 @@ from scipy.spatial import cKDTree
 from graphcal.calibration.config import PhaseGates
 
 
+def rows_of(table, rows: np.ndarray):
+    """A dataclass of per-row arrays (Features, Sight) cut to rows: every field at those rows."""
+    return type(table)(*(getattr(table, f.name)[rows] for f in fields(table)))
+
+
 @dataclass(frozen=True)
 class Features:
     """Per-point local shape from the k nearest neighbours: unit normal (N,3) and the
@@ -30,6 +35,10 @@ class Features:
     planarity: np.ndarray
     scattering: np.ndarray
     out_of_plane_m: np.ndarray
+
+    def take(self, rows: np.ndarray) -> Features:
+        """The features of the points at rows (indices or a boolean mask)."""
+        return rows_of(self, rows)
 
 
 @dataclass(frozen=True)
@@ -72,6 +81,10 @@ class Sight:
     stand_ins: np.ndarray
     shift_m: np.ndarray
 
+    def take(self, rows: np.ndarray) -> Sight:
+        """The lines of sight of the returns at rows (indices or a boolean mask)."""
+        return rows_of(self, rows)
+
     @classmethod
     def of(cls, points_m: np.ndarray, rays: np.ndarray, fibre: np.ndarray) -> Sight:
         """From the points [m], their rays and fibres (rows of a fibre in firing order)."""
@@ -109,8 +122,7 @@ def local_features(points_m: np.ndarray, radius_m: float = 0.5, max_nn: int = 20
     if voxel_m > 0:
         sampled = np.asarray(cloud.voxel_down_sample(voxel_m).points)
         nearest = cKDTree(sampled).query(points_m, workers=-1)[1]
-        features = local_features(sampled, radius_m, max_nn)
-        return Features(*(np.asarray(getattr(features, field.name))[nearest] for field in fields(Features)))
+        return local_features(sampled, radius_m, max_nn).take(nearest)
     cloud.estimate_covariances(o3d.geometry.KDTreeSearchParamHybrid(radius=radius_m, max_nn=max_nn))
     eigenvalues, eigenvectors = np.linalg.eigh(np.asarray(cloud.covariances))  # ascending
     s = np.sqrt(np.clip(eigenvalues, 0.0, None))[:, ::-1]  # s1 >= s2 >= s3

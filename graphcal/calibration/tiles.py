@@ -25,7 +25,6 @@ from graphcal.calibration.association import (
     Features,
     PairCloud,
     PairGates,
-    Sight,
     associate,
     local_features,
 )
@@ -103,10 +102,9 @@ class Tiling:
         for tile in tiles:
             local = np.searchsorted(tile.halo, np.intersect1d(candidates, tile.core, assume_unique=True))
             most = None if gates.most is None else max(math.ceil(gates.most * len(local) / max(len(candidates), 1)), 1)
-            sight = None if cloud.sight is None else Sight(*(getattr(cloud.sight, f.name)[tile.halo]
-                                                              for f in fields(Sight)))
-            features = Features(*(getattr(cloud.features, f.name)[tile.halo] for f in fields(Features)))
-            jobs.append((PairCloud(cloud.points_m[tile.halo], cloud.fibre[tile.halo], features, sight), neighbours,
+            sight = None if cloud.sight is None else cloud.sight.take(tile.halo)
+            jobs.append((PairCloud(cloud.points_m[tile.halo], cloud.fibre[tile.halo], cloud.features.take(tile.halo),
+                                   sight), neighbours,
                          PairGates(gates.gate_m, gates.min_planarity, gates.min_normal_cos,
                                    gates.max_plane_distance_m, most),
                          [seed, *(k & 0xFFFFFFFF for k in tile.key)], local))
@@ -126,8 +124,7 @@ class Tiling:
 def features_of_core(job: tuple) -> Features:
     """One tile's job (a worker's): the features of its core rows from its halo's points [m]."""
     points_m, core_in_halo, radius_m, neighbours, voxel_m = job
-    features = local_features(points_m, radius_m, neighbours, voxel_m)
-    return Features(*(getattr(features, f.name)[core_in_halo] for f in fields(Features)))
+    return local_features(points_m, radius_m, neighbours, voxel_m).take(core_in_halo)
 
 
 def pairs_of_core(job: tuple) -> Correspondences:
