@@ -9,6 +9,7 @@ import pytest
 import velodyne_decoder as vd
 import yaml
 from scipy.spatial import cKDTree
+from velodyne_reference import reference_xyz
 from velodyne_synth import (
     data_packet,
     pcap_file,
@@ -344,14 +345,7 @@ def test_rosbag_vlp16_dual_return_matches_velodyne_decoder(tmp_path):
     decoded = decode_rosbag(bag, quiet=True)
     assert decoded.model == "VLP-16" and decoded.dual_return and decoded.n_data_packets == 603
     packets, stamps = read_velodyne_packets(bag)
-    config = vd.Config()
-    config.model, config.calibration = vd.Model.VLP16, vd.Calibration.read(str(calibration))
-    config.min_range, config.max_range = 0.0, 1000.0
-    decoder, clouds = vd.StreamDecoder(config), []
-    for stamp, data in zip(stamps, packets.view(np.uint8).reshape(-1, 1206)):
-        clouds.append(decoder.decode(float(stamp), data.tobytes(), False))
-    clouds.append(decoder.finish(False))
-    reference = np.concatenate([cloud[1] for cloud in clouds if cloud is not None])[:, :3]
+    reference = reference_xyz(packets, stamps, "VLP16", calibration)
     returns = decoded.returns
     assert len(reference) == len(returns["range"]) == 59414
     sensor = read_velodyne_calibration(calibration).sensor

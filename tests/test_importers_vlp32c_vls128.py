@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import yaml
 from scipy.spatial import cKDTree
+from velodyne_reference import reference_xyz
 
 REAL = Path(__file__).resolve().parents[2] / "shared/data/real"
 NEBULA = REAL / "nebula_velodyne_rosbag2"
@@ -173,21 +174,14 @@ def test_vlp32c_matches_velodyne_decoder():
     the same manual timing table, rounding its azimuths to 0.01 deg) for the same packets, but in the
     packets that straddle the field-of-view gap, whose rate velodyne-decoder takes across the gap."""
     pytest.importorskip("rosbags")
-    vd = pytest.importorskip("velodyne_decoder")
+    pytest.importorskip("velodyne_decoder")
     from graphcal.importers.velodyne_calibration import read_velodyne_calibration
     from graphcal.importers.velodyne_rosbag import decode_rosbag, read_velodyne_packets
 
     bag, _, calibration, limits = CASES["VLP-32C"]
     packets, stamps = read_velodyne_packets(NEBULA / bag)
     gap = _reference(packets, NEBULA / "calibration" / calibration, "VLP-32C", limits)["gap"]
-    config = vd.Config()
-    config.model, config.calibration = vd.Model.VLP32C, vd.Calibration.read(str(NEBULA / "calibration" / calibration))
-    config.min_range, config.max_range = 0.0, 1000.0
-    decoder, clouds = vd.StreamDecoder(config), []
-    for stamp, data in zip(stamps, packets.view(np.uint8).reshape(-1, 1206)):
-        clouds.append(decoder.decode(float(stamp), data.tobytes(), False))
-    clouds.append(decoder.finish(False))
-    reference = np.concatenate([cloud[1] for cloud in clouds if cloud is not None])[:, :3]
+    reference = reference_xyz(packets, stamps, "VLP32C", NEBULA / "calibration" / calibration)
     returns = decode_rosbag(NEBULA / bag, quiet=True).returns
     assert len(reference) == len(returns["range"]) == 131305
     sensor = read_velodyne_calibration(NEBULA / "calibration" / calibration, model="VLP-32C").sensor
