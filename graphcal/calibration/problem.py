@@ -172,11 +172,22 @@ class Problem:
                                               E(0) if held.layout.extrinsic else None, self.nominal))
 
     # --- association ---------------------------------------------------------------------------------
-    def points(self, estimate: Estimate) -> np.ndarray:
-        """World points [m] (minus the origin) of the phase's returns at the estimate."""
-        if self.effects is not None:
-            return self.effects.world(self.data, estimate, self.config.trajectory.pose_corrections)
-        return world_at(self.data, estimate, self.config.trajectory.pose_corrections)
+    def points(self, estimate: Estimate, rows: np.ndarray | None = None) -> np.ndarray:
+        """World points [m] (minus the origin) of the phase's returns at the estimate, one row per return; with
+        rows, only those are placed and the others are NaN (fixed pairs need only their own returns)."""
+        pose = self.config.trajectory.pose_corrections
+        if rows is None:
+            return (self.effects.world(self.data, estimate, pose) if self.effects is not None
+                    else world_at(self.data, estimate, pose))
+        points = np.full((len(self.data.time_s), 3), np.nan)
+        points[rows] = (self.effects.world(self.data, estimate, pose, rows) if self.effects is not None
+                        else world_at(self.data, estimate, pose, rows))
+        return points
+
+    def paired_rows(self) -> np.ndarray | None:
+        """The returns the fixed pairs use (None when the pairs are re-made at each estimate)."""
+        pairs = self.fixed_pairs
+        return None if pairs is None else np.unique(np.r_[pairs.index_p, pairs.index_m])
 
     def sight(self, estimate: Estimate, points_m: np.ndarray) -> Sight | None:
         """What the association chooses m by: stand-ins (sight_at) in the fine phase; plain nearest returns in
@@ -317,8 +328,9 @@ class Problem:
         problem = self.in_phase("fine" if fine else "coarse")
         gate, association = problem.gates.gate_start_m, problem.association()
         features, refreshed, points, since_refresh, fine_energies = None, False, None, refresh_every, []
+        rows = problem.paired_rows()
         for _ in progress(range(n_max), f"calibrating ({label})", total=n_max, quiet=quiet):
-            points = problem.points(estimate) if points is None else points
+            points = problem.points(estimate, rows) if points is None else points
             if problem.fixed_pairs is None and (features is None or since_refresh >= refresh_every):
                 features, refreshed = problem.cache.at(points)
                 since_refresh = 0 if refreshed else since_refresh
@@ -328,7 +340,7 @@ class Problem:
             before, weight_sum = energy_cm2(points[pairs.index_p], points[pairs.index_m], pairs)
             updated = problem.step(estimate, pairs)
             step = step_size(estimate, updated)
-            points = problem.points(updated)  # the next iteration's too
+            points = problem.points(updated, rows)  # the next iteration's too
             after, _ = energy_cm2(points[pairs.index_p], points[pairs.index_m], pairs)
             history.add(mode=label, iteration=len(history.rows), phase=problem.phase, energy_cm2=before,
                         energy_after_cm2=after, weight_sum=weight_sum, pairs=len(pairs), gate_m=gate, max_step=step,

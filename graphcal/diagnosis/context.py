@@ -104,9 +104,10 @@ class EffectModel:
         """The model with some effects' values replaced (an estimate's)."""
         return replace(self, values={**self.values, **values}) if values else self
 
-    def world(self, data: ReturnData, estimate: Estimate, pose: bool) -> np.ndarray:
-        """World points [m] of the returns at the estimate, the effects at the estimate's values (else the model's)."""
-        return world_with_effects(data, estimate, pose, self.with_values(estimate.effects))
+    def world(self, data: ReturnData, estimate: Estimate, pose: bool, rows: np.ndarray | None = None) -> np.ndarray:
+        """World points [m] of the given returns (all if None) at the estimate, the effects at the estimate's values
+        (else the model's)."""
+        return world_with_effects(data, estimate, pose, self.with_values(estimate.effects), rows)
 
 
 def world_with_effects(data: ReturnData, estimate: Estimate, pose: bool, model: EffectModel | None,
