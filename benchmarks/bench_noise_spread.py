@@ -35,7 +35,7 @@ def main() -> None:
     from graphcal.calibration.priors import Priors
     from graphcal.calibration.problem import Problem
     from graphcal.calibration.returns import initial_estimate, prepare
-    from graphcal.calibration.shared_returns import SharedReturnsCovariance
+    from graphcal.calibration.shared_returns import Linearised, shared_returns_covariance
     from graphcal.common.progress import progress
     from graphcal.simulation.script import load_scenario_builder
 
@@ -73,7 +73,7 @@ def main() -> None:
         keys = list(values.keys())
         step = graph.linearize(values).optimize()
         steps.append([step.at(key) for key in keys])
-        covariance = SharedReturnsCovariance(graph, values, blocks, pairs, noisy, truth, noise_m)
+        covariance = shared_returns_covariance(Linearised.of(graph, values, blocks, len(pairs)), pairs, noisy, truth, noise_m)
         variances.append([np.diag(covariance.marginalCovariance(key)) for key in keys])
     spread = np.sqrt((np.array(steps) ** 2).mean(axis=(0, 1))) * TO_CM_DEG
     sigma = np.sqrt(np.array(variances).mean(axis=(0, 1))) * TO_CM_DEG

@@ -19,7 +19,7 @@ from graphcal.calibration.priors import Priors
 from graphcal.calibration.problem import Problem
 from graphcal.calibration.result import SIGMA_SHARED, SIGMA_WIDENED
 from graphcal.calibration.returns import initial_estimate, prepare
-from graphcal.calibration.shared_returns import SharedReturnsCovariance
+from graphcal.calibration.shared_returns import Linearised, shared_returns_covariance
 from graphcal.simulation.script import load_scenario_builder
 from graphcal.simulation.starts import FAR_START_PRIORS
 
@@ -111,7 +111,7 @@ def test_it_is_the_spread_of_the_estimate_over_range_noise_draws(at_truth, monke
         lengths = ((deviation @ vectors) ** 2 / eigenvalues).sum(axis=1)
         return float(lengths.sum() / (len(deviation) - 1) / joint.shape[0])
 
-    assert abs(per_parameter(SharedReturnsCovariance(graph, values, blocks, pairs, data, truth, RANGE_NOISE_M)) - 1) < 0.1
+    assert abs(per_parameter(shared_returns_covariance(Linearised.of(graph, values, blocks, len(pairs)), pairs, data, truth, RANGE_NOISE_M)) - 1) < 0.1
     assert per_parameter(DenseMarginals(graph, values)) > 1.5
 
 
@@ -151,7 +151,7 @@ def test_without_pairs_the_estimate_carries_no_range_noise(at_truth):
     none = pairs.take(np.zeros(0, np.int64))
     blocks = problem.blocks(truth, none)
     graph, values = problem.graph(truth, none, damped=False, blocks=blocks)
-    covariance = SharedReturnsCovariance(graph, values, blocks, none, data, truth, RANGE_NOISE_M)
+    covariance = shared_returns_covariance(Linearised.of(graph, values, blocks, len(none)), none, data, truth, RANGE_NOISE_M)
     assert not blocks
     prior = priors.intrinsic[0 if data.sensor.reference_fibre else 1]
     np.testing.assert_allclose(covariance.marginalCovariance(I(0 if data.sensor.reference_fibre else 1)),

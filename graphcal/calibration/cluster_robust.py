@@ -17,35 +17,28 @@ MIN_BLOCKS blocks leave the sandwich undetermined (None).
 
 from __future__ import annotations
 
-import gtsam
 import numpy as np
 import scipy.sparse as sparse
 
-from factors.point_to_plane import Block
 from graphcal.calibration.observability import DenseMarginals
-from graphcal.calibration.shared_returns import whitened_jacobian
+from graphcal.calibration.shared_returns import Linearised
 
 BLOCK_S = 0.5
 MIN_BLOCKS = 20
 
 
-class ClusterRobustCovariance(DenseMarginals):
+def cluster_robust_covariance(linearised: Linearised, time_s: np.ndarray) -> DenseMarginals:
     """The sandwich above for every key of the graph, with gtsam.Marginals' interface (marginalCovariance(key), in
-    each key's tangent space). graph: the undamped graph at values (its information H includes the priors);
-    blocks: its point-to-plane blocks with their rows among the pairs; time_s: each pair's time [s] (of p)."""
+    each key's tangent space). linearised: the undamped graph at the estimate (shared_returns.Linearised); time_s:
+    each pair's time [s] (of p)."""
+    A, r = linearised.A, linearised.r
+    _, block_of = np.unique(np.floor(np.asarray(time_s) / BLOCK_S), return_inverse=True)
+    n_blocks = int(block_of.max()) + 1 if len(time_s) else 0
+    scores = (sparse.csr_matrix((r, (block_of, np.arange(len(r)))), shape=(n_blocks, len(r))) @ A).toarray()
+    scores -= scores.mean(axis=0)
+    return linearised.sandwich(n_blocks / (n_blocks - 1) * scores.T @ scores)
 
-    def __init__(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-                 blocks: list[tuple[np.ndarray, Block]], time_s: np.ndarray):
-        super().__init__(graph, values)  # H^-1
-        A, r, _ = whitened_jacobian(blocks, values, self.columns(), len(time_s), self.width)
-        _, block_of = np.unique(np.floor(np.asarray(time_s) / BLOCK_S), return_inverse=True)
-        n_blocks = int(block_of.max()) + 1 if len(time_s) else 0
-        scores = (sparse.csr_matrix((r, (block_of, np.arange(len(r)))), shape=(n_blocks, len(r))) @ A).toarray()
-        scores -= scores.mean(axis=0)
-        meat = n_blocks / (n_blocks - 1) * scores.T @ scores + self._information - (A.T @ A).toarray()
-        self._covariance = self._covariance @ meat @ self._covariance
 
-    @staticmethod
-    def determined(time_s: np.ndarray) -> bool:
-        """Whether the pairs span MIN_BLOCKS time blocks or more."""
-        return len(np.unique(np.floor(np.asarray(time_s) / BLOCK_S))) >= MIN_BLOCKS
+def determined(time_s: np.ndarray) -> bool:
+    """Whether the pairs span MIN_BLOCKS time blocks or more."""
+    return len(np.unique(np.floor(np.asarray(time_s) / BLOCK_S))) >= MIN_BLOCKS

@@ -7,6 +7,7 @@ least-squares fit with point noise sigma0 (Cramér-Rao bound when sigma0 is the 
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, replace
 
 import gtsam
@@ -75,6 +76,17 @@ class DenseMarginals:
     def jointCovariance(self, a, b) -> np.ndarray:
         """The covariance block of keys a (rows) and b (columns)."""
         return self._covariance[self._span[a], self._span[b]]
+
+    @property
+    def information(self) -> np.ndarray:
+        """H, the dense information matrix (the priors' included), in the columns of columns()."""
+        return self._information
+
+    def sandwich(self, meat: np.ndarray) -> DenseMarginals:
+        """The marginals of H^-1 meat H^-1 (a sandwich covariance on the same keys)."""
+        out = copy.copy(self)
+        out._covariance = self._covariance @ meat @ self._covariance
+        return out
 
 
 def dense_inverse(information: np.ndarray) -> np.ndarray:

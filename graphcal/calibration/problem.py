@@ -31,8 +31,8 @@ from graphcal.calibration.observability import (
 from graphcal.calibration.pairing import Association, FeatureCache
 from graphcal.calibration.priors import HELD_SIGMA, Priors, control_prior_sigma
 from graphcal.calibration.returns import Estimate, ReturnData, pose_of, prepare, revisits, sight_at, world_at
-from graphcal.calibration.cluster_robust import ClusterRobustCovariance
-from graphcal.calibration.shared_returns import SharedReturnsCovariance
+from graphcal.calibration import cluster_robust
+from graphcal.calibration.shared_returns import Linearised, shared_returns_covariance
 from graphcal.calibration.tiles import Tiling
 from graphcal.calibration.weak_directions import Layout, WeakDirections, lock_factor
 from graphcal.common.cluster import IN_PROCESS, TaskMap
@@ -425,18 +425,20 @@ class Problem:
         control_sigma = control_prior_sigma(problem.config, float(pairs.weight.sum()))
         weighting = problem.config.weighting
         shared = expected = None
+        linearised = Linearised.of(graph, values, blocks, len(pairs))
         if weighting.pair_noise == "incidence":
             if shared_returns and weighting.robust == "none":
-                shared = problem.uncertainty(SharedReturnsCovariance(graph, values, blocks, pairs, problem.data, estimate,
-                                                                     weighting.sigma0_m), estimate, control_sigma)
+                shared = problem.uncertainty(shared_returns_covariance(linearised, pairs, problem.data, estimate,
+                                                                       weighting.sigma0_m), estimate, control_sigma)
             if blocks:  # pairs whitened by the measured noise: the J it predicts
                 weight = np.concatenate([block.weight for _, block in blocks])
                 sigma = np.concatenate([np.broadcast_to(block.sigma0_m, len(block.weight)) for _, block in blocks])
                 expected = float((weight * sigma ** 2).sum() / weight.sum() * 1e4)
         time_s = problem.data.time_s[pairs.index_p]
         robust = None
-        if blocks and ClusterRobustCovariance.determined(time_s):
-            robust = problem.uncertainty(ClusterRobustCovariance(graph, values, blocks, time_s), estimate, control_sigma)
+        if blocks and cluster_robust.determined(time_s):
+            robust = problem.uncertainty(cluster_robust.cluster_robust_covariance(linearised, time_s), estimate,
+                                         control_sigma)
         return FinalFit(pairs, residual, problem.uncertainty(Marginals(graph, values), estimate, control_sigma), shared,
                         robust, expected)
 

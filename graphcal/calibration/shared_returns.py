@@ -17,6 +17,8 @@ shared and unit weights it is H^-1.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import gtsam
 import numpy as np
 import scipy.sparse as sparse
@@ -29,34 +31,49 @@ from graphcal.calibration.returns import Estimate, ReturnData, rays_at
 RETURNS_PER_CHUNK = 200_000  # rows of g computed at once (memory: about 38 nonzeros each)
 
 
-class SharedReturnsCovariance(DenseMarginals):
+@dataclass(frozen=True)
+class Linearised:
+    """The undamped graph at the estimate as the sandwich covariances need it: its dense marginals (the bread H^-1,
+    H including the priors) and the whitened Jacobian A of every pair (pairs x the graph's columns, sparse), the
+    pairs' whitened residuals r and whitenings s = sqrt(w) / sigma. Made once, shared by this module's sandwich and
+    cluster_robust.py's."""
+
+    bread: DenseMarginals
+    A: sparse.csr_matrix
+    r: np.ndarray
+    scale: np.ndarray
+
+    @classmethod
+    def of(cls, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, blocks: list[tuple[np.ndarray, Block]],
+           n_pairs: int) -> Linearised:
+        """blocks: the graph's point-to-plane blocks with their rows among the n_pairs pairs."""
+        bread = DenseMarginals(graph, values)
+        return cls(bread, *whitened_jacobian(blocks, values, bread.columns(), n_pairs, bread.width))
+
+    def sandwich(self, meat_of_pairs: np.ndarray) -> DenseMarginals:
+        """H^-1 (meat_of_pairs + P) H^-1, P = H - A^T A the priors' information: the nominal values are off by their
+        priors' sigmas, an error the estimate inherits where the data are silent (a weak direction held at nominal)."""
+        return self.bread.sandwich(meat_of_pairs + self.bread.information - (self.A.T @ self.A).toarray())
+
+
+def shared_returns_covariance(linearised: Linearised, pairs: Correspondences, data: ReturnData, estimate: Estimate,
+                              range_noise_m: float) -> DenseMarginals:
     """The sandwich covariance above for every key of the graph, with gtsam.Marginals' interface
-    (marginalCovariance(key), in each key's tangent space).
-
-    graph: the undamped graph at values (its information H includes the priors); blocks: its point-
-    to-plane blocks with their rows in pairs; range_noise_m: sigma, the range noise of one return."""
-
-    def __init__(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-                 blocks: list[tuple[np.ndarray, Block]], pairs: Correspondences, data: ReturnData,
-                 estimate: Estimate, range_noise_m: float):
-        super().__init__(graph, values)  # H^-1
-        width = self.width
-        A, _, scale = whitened_jacobian(blocks, values, self.columns(), len(pairs), width)
-        along_p = np.einsum("ni,ni->n", pairs.normal, rays_at(data, estimate, pairs.index_p))
-        along_m = np.einsum("ni,ni->n", pairs.normal, rays_at(data, estimate, pairs.index_m))
-        own = np.maximum(pairs.weight - (scale * range_noise_m) ** 2 * (along_p ** 2 + along_m ** 2), 0.0)
-        # the priors: the nominal value is itself off by the prior's sigma, an error the estimate inherits where
-        # the data are silent (a weak direction held at nominal): their information H - A^T A enters as is
-        meat = (A.T @ sparse.diags(own) @ A).toarray() + self._information - (A.T @ A).toarray()
-        # S (returns x pairs): return r's coefficient in each pair's residual, sigma s_k (+-n.u)
-        n_pairs = len(pairs)
-        S = sparse.csr_matrix((np.r_[scale * range_noise_m * along_p, -scale * range_noise_m * along_m],
-                               (np.r_[pairs.index_p, pairs.index_m], np.r_[np.arange(n_pairs), np.arange(n_pairs)])),
-                              shape=(len(data.time_s), n_pairs))
-        for first in range(0, S.shape[0], RETURNS_PER_CHUNK):
-            G = S[first:first + RETURNS_PER_CHUNK] @ A  # rows g_r
-            meat += (G.T @ G).toarray()
-        self._covariance = self._covariance @ meat @ self._covariance
+    (marginalCovariance(key), in each key's tangent space). range_noise_m: sigma, the range noise of one return."""
+    A, scale = linearised.A, linearised.scale
+    along_p = np.einsum("ni,ni->n", pairs.normal, rays_at(data, estimate, pairs.index_p))
+    along_m = np.einsum("ni,ni->n", pairs.normal, rays_at(data, estimate, pairs.index_m))
+    own = np.maximum(pairs.weight - (scale * range_noise_m) ** 2 * (along_p ** 2 + along_m ** 2), 0.0)
+    meat = (A.T @ sparse.diags(own) @ A).toarray()
+    # S (returns x pairs): return r's coefficient in each pair's residual, sigma s_k (+-n.u)
+    n_pairs = len(pairs)
+    S = sparse.csr_matrix((np.r_[scale * range_noise_m * along_p, -scale * range_noise_m * along_m],
+                           (np.r_[pairs.index_p, pairs.index_m], np.r_[np.arange(n_pairs), np.arange(n_pairs)])),
+                          shape=(len(data.time_s), n_pairs))
+    for first in range(0, S.shape[0], RETURNS_PER_CHUNK):
+        G = S[first:first + RETURNS_PER_CHUNK] @ A  # rows g_r
+        meat += (G.T @ G).toarray()
+    return linearised.sandwich(meat)
 
 
 def whitened_jacobian(blocks: list[tuple[np.ndarray, Block]], values: gtsam.Values, column: dict[int, int],
