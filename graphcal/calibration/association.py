@@ -71,11 +71,10 @@ class Correspondences:
 @dataclass(frozen=True)
 class Sight:
     """Per return: its unit line of sight rays (N,3) in the points' axes, and its stand-in (N,3) [m],
-    the point of that line level with the mean of its PROXY_FIRINGS neighbours on each side in its
-    fibre's firing order (its own range left out; itself where that mean is further than
-    PROXY_REACH_M: an edge, a gap), shift_m (N,) [m] along the line from the return to it (the
-    stand-in of its range is range + shift). Range noise moves a return along its line of sight,
-    so its stand-in does not depend on its own noise."""
+    the point of that line nearest the chord between the returns fired before and after it by its
+    fibre (its own range left out; itself at an edge or a gap, _shift_to_chord), shift_m (N,) [m]
+    along the line from the return to it (the stand-in of its range is range + shift). Range noise
+    moves a return along its line of sight, so its stand-in does not depend on its own noise."""
 
     rays: np.ndarray
     stand_ins: np.ndarray
@@ -89,16 +88,30 @@ class Sight:
     def of(cls, points_m: np.ndarray, rays: np.ndarray, fibre: np.ndarray) -> Sight:
         """From the points [m], their rays and fibres (rows of a fibre in firing order)."""
         shift = np.zeros(len(points_m))
-        offsets = [k for k in range(-PROXY_FIRINGS, PROXY_FIRINGS + 1) if k]
         for rows in rows_by_fibre(fibre).values():
-            if len(rows) <= 2 * PROXY_FIRINGS:
-                continue
-            inner = rows[PROXY_FIRINGS:len(rows) - PROXY_FIRINGS]
-            centre = np.arange(PROXY_FIRINGS, len(rows) - PROXY_FIRINGS)
-            to_mean = sum(points_m[rows[centre + k]] for k in offsets) / len(offsets) - points_m[inner]
-            near = np.einsum("ni,ni->n", to_mean, to_mean) <= PROXY_REACH_M ** 2
-            shift[inner[near]] = np.einsum("ni,ni->n", to_mean[near], rays[inner[near]])
+            if len(rows) >= 3:
+                inner = rows[1:-1]
+                shift[inner] = _shift_to_chord(points_m[rows[:-2]], points_m[inner], points_m[rows[2:]], rays[inner])
         return cls(rays, points_m + shift[:, None] * rays, shift)
+
+
+def _shift_to_chord(before: np.ndarray, point: np.ndarray, after: np.ndarray, ray: np.ndarray) -> np.ndarray:
+    """Shift [m] along each unit ray (N,3) from its point (N,3) to where the ray passes nearest the chord from the
+    return fired before it to the one fired after it (same fibre): the line of sight meets the surface the two
+    neighbours span, at their spacing whatever it is (a subsample's neighbours lie unevenly on either side). 0 (the
+    return stands for itself) where the ray passes beside the chord (an edge, a gap: further than PROXY_REACH_M from
+    it, or the shift itself further than that) or its foot falls outside the chord."""
+    chord, offset = after - before, point - before
+    a = np.einsum("ni,ni->n", chord, chord)
+    b = np.einsum("ni,ni->n", chord, ray)
+    e_chord, e_ray = np.einsum("ni,ni->n", chord, offset), np.einsum("ni,ni->n", ray, offset)
+    denominator = a - b ** 2  # |chord|^2 sin^2 of its angle to the ray
+    ok = denominator > 1e-12
+    s = np.where(ok, (e_chord - e_ray * b) / np.where(ok, denominator, 1.0), -1.0)  # foot along the chord, 0..1
+    t = s * b - e_ray
+    gap = offset + t[:, None] * ray - s[:, None] * chord
+    near = ok & (s >= 0) & (s <= 1) & (np.abs(t) <= PROXY_REACH_M) & (np.einsum("ni,ni->n", gap, gap) <= PROXY_REACH_M ** 2)
+    return np.where(near, t, 0.0)
 
 
 def rows_by_fibre(fibre: np.ndarray) -> dict[int, np.ndarray]:
@@ -145,8 +158,7 @@ def neighbour_fibres(elevation_deg: np.ndarray, n_steps: int) -> dict[int, list[
 
 
 LINE_CANDIDATES = 16  # stand-ins of fibre j nearest p's among which m is the one whose line of sight passes nearest it
-PROXY_FIRINGS = 2  # firings on each side of a return whose mean stands in for its range when choosing m
-PROXY_REACH_M = 0.2  # a return further than this from its neighbours' mean (an edge) stands for itself
+PROXY_REACH_M = 0.2  # a return whose line of sight passes further than this from its neighbours' chord stands for itself
 
 
 @dataclass(frozen=True)
