@@ -71,8 +71,9 @@ class Correspondences:
 @dataclass(frozen=True)
 class Sight:
     """Per return: its unit line of sight rays (N,3) in the points' axes, and its stand-in (N,3) [m],
-    the point of that line nearest the chord between the returns fired before and after it by its
-    fibre (its own range left out; itself at an edge or a gap, _shift_to_chord), shift_m (N,) [m]
+    the point of that line nearest the chord between the mean of the PROXY_FIRINGS returns its fibre
+    fired before it and that of those fired after (its own range left out; itself at an edge or a gap,
+    _shift_to_chord), shift_m (N,) [m]
     along the line from the return to it (the stand-in of its range is range + shift). Range noise
     moves a return along its line of sight, so its stand-in does not depend on its own noise."""
 
@@ -87,20 +88,25 @@ class Sight:
     @classmethod
     def of(cls, points_m: np.ndarray, rays: np.ndarray, fibre: np.ndarray) -> Sight:
         """From the points [m], their rays and fibres (rows of a fibre in firing order)."""
-        shift = np.zeros(len(points_m))
-        for rows in rows_by_fibre(fibre).values():
-            if len(rows) >= 3:
-                inner = rows[1:-1]
-                shift[inner] = _shift_to_chord(points_m[rows[:-2]], points_m[inner], points_m[rows[2:]], rays[inner])
+        shift, found = np.zeros(len(points_m)), np.zeros(len(points_m), bool)
+        for k in range(PROXY_FIRINGS, 0, -1):  # the most neighbours first; fewer where they reach past an edge
+            for rows in rows_by_fibre(fibre).values():
+                centre = np.flatnonzero(~found[rows[k:len(rows) - k]]) + k  # positions in rows still without one
+                if len(centre):
+                    inner = rows[centre]
+                    before = sum(points_m[rows[centre - j]] for j in range(1, k + 1)) / k
+                    after = sum(points_m[rows[centre + j]] for j in range(1, k + 1)) / k
+                    shift[inner], found[inner] = _shift_to_chord(before, points_m[inner], after, rays[inner])
         return cls(rays, points_m + shift[:, None] * rays, shift)
 
 
-def _shift_to_chord(before: np.ndarray, point: np.ndarray, after: np.ndarray, ray: np.ndarray) -> np.ndarray:
+def _shift_to_chord(before: np.ndarray, point: np.ndarray, after: np.ndarray,
+                    ray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Shift [m] along each unit ray (N,3) from its point (N,3) to where the ray passes nearest the chord from the
-    return fired before it to the one fired after it (same fibre): the line of sight meets the surface the two
-    neighbours span, at their spacing whatever it is (a subsample's neighbours lie unevenly on either side). 0 (the
-    return stands for itself) where the ray passes beside the chord (an edge, a gap: further than PROXY_REACH_M from
-    it, or the shift itself further than that) or its foot falls outside the chord."""
+    mean of the returns fired before it to the mean of those fired after it (same fibre): the line of sight meets
+    the surface the neighbours span, at their spacing whatever it is (a subsample's neighbours lie unevenly on
+    either side), and whether it was found: not (shift 0) where the ray passes beside the chord (an edge, a gap:
+    further than PROXY_REACH_M from it, or the shift itself further than that) or its foot falls outside it."""
     chord, offset = after - before, point - before
     a = np.einsum("ni,ni->n", chord, chord)
     b = np.einsum("ni,ni->n", chord, ray)
@@ -111,7 +117,7 @@ def _shift_to_chord(before: np.ndarray, point: np.ndarray, after: np.ndarray, ra
     t = s * b - e_ray
     gap = offset + t[:, None] * ray - s[:, None] * chord
     near = ok & (s >= 0) & (s <= 1) & (np.abs(t) <= PROXY_REACH_M) & (np.einsum("ni,ni->n", gap, gap) <= PROXY_REACH_M ** 2)
-    return np.where(near, t, 0.0)
+    return np.where(near, t, 0.0), near
 
 
 def rows_by_fibre(fibre: np.ndarray) -> dict[int, np.ndarray]:
@@ -158,6 +164,7 @@ def neighbour_fibres(elevation_deg: np.ndarray, n_steps: int) -> dict[int, list[
 
 
 LINE_CANDIDATES = 16  # stand-ins of fibre j nearest p's among which m is the one whose line of sight passes nearest it
+PROXY_FIRINGS = 2  # firings on each side of a return whose mean is an end of its chord
 PROXY_REACH_M = 0.2  # a return whose line of sight passes further than this from its neighbours' chord stands for itself
 
 
