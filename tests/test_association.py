@@ -197,7 +197,8 @@ def test_line_of_sight_choice_is_not_biased_by_range_noise():
         return r.mean(), r.std() / np.sqrt(len(r))
 
     nearest = associate(PairCloud(points, fibre, features), {0: [1]}, PairGates(2.0))
-    line_of_sight = associate(PairCloud(points, fibre, features, Sight.of(points, rays, fibre)), {0: [1]}, PairGates(2.0))
+    line_of_sight = associate(PairCloud(points, fibre, features, Sight.of(points, rays, fibre, range_m, azimuth)), {0: [1]},
+                                  PairGates(2.0))
     assert len(line_of_sight) > 0.9 * len(nearest) > 0.9 * per_ring * sweeps * 0.9
     biased, error = mean_and_error(nearest)
     assert biased < -10 * error  # m lifted

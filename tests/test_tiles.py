@@ -59,8 +59,8 @@ def test_a_tile_that_pairs_nothing_leaves_the_others_pairs_unchanged():
     gates, neighbours = PairGates(1.0, 0.3, 0.0, np.inf, None), neighbour_fibres(np.arange(8.0), 2)
     pairs = []
     for xyz, fibres in ((points, fibre), (lone_points, lone_fibre)):
-        rays = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
-        sight = Sight.of(xyz, rays, fibres)
+        range_m = np.linalg.norm(xyz, axis=1)
+        sight = Sight.of(xyz, xyz / range_m[:, None], fibres, range_m, np.arctan2(-xyz[:, 1], xyz[:, 0]))
         cloud = PairCloud(xyz, fibres, tiling.features(xyz, settings), sight)
         pairs.append(tiling.associate(cloud, neighbours, gates, 0, np.arange(0, len(xyz), 7)))
     np.testing.assert_array_equal(pairs[1].index_p, pairs[0].index_p)

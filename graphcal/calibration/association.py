@@ -71,11 +71,10 @@ class Correspondences:
 @dataclass(frozen=True)
 class Sight:
     """Per return: its unit line of sight rays (N,3) in the points' axes, and its stand-in (N,3) [m],
-    the point of that line level with the mean of its PROXY_FIRINGS neighbours on each side in its
-    fibre's firing order (its own range left out; itself where that mean is further than
-    PROXY_REACH_M: an edge, a gap), shift_m (N,) [m] along the line from the return to it (the
-    stand-in of its range is range + shift). Range noise moves a return along its line of sight,
-    so its stand-in does not depend on its own noise."""
+    the point of that line at the range the PROXY_FIRINGS returns its fibre fired before it and after it
+    give at its azimuth (its own range left out; itself at an edge or a gap, _shift_to_neighbours), shift_m (N,) [m]
+    along the line from the return to it (the stand-in of its range is range + shift). Range noise
+    moves a return along its line of sight, so its stand-in does not depend on its own noise."""
 
     rays: np.ndarray
     stand_ins: np.ndarray
@@ -86,19 +85,42 @@ class Sight:
         return rows_of(self, rows)
 
     @classmethod
-    def of(cls, points_m: np.ndarray, rays: np.ndarray, fibre: np.ndarray) -> Sight:
-        """From the points [m], their rays and fibres (rows of a fibre in firing order)."""
-        shift = np.zeros(len(points_m))
-        offsets = [k for k in range(-PROXY_FIRINGS, PROXY_FIRINGS + 1) if k]
-        for rows in rows_by_fibre(fibre).values():
-            if len(rows) <= 2 * PROXY_FIRINGS:
-                continue
-            inner = rows[PROXY_FIRINGS:len(rows) - PROXY_FIRINGS]
-            centre = np.arange(PROXY_FIRINGS, len(rows) - PROXY_FIRINGS)
-            to_mean = sum(points_m[rows[centre + k]] for k in offsets) / len(offsets) - points_m[inner]
-            near = np.einsum("ni,ni->n", to_mean, to_mean) <= PROXY_REACH_M ** 2
-            shift[inner[near]] = np.einsum("ni,ni->n", to_mean[near], rays[inner[near]])
+    def of(cls, points_m: np.ndarray, rays: np.ndarray, fibre: np.ndarray, range_m: np.ndarray,
+           azimuth_rad: np.ndarray) -> Sight:
+        """From the points [m], their rays, fibres, measured ranges [m] and encoder azimuths [rad] (rows of a fibre
+        in firing order)."""
+        shift, found = np.zeros(len(points_m)), np.zeros(len(points_m), bool)
+        for k in range(PROXY_FIRINGS, 0, -1):  # the most neighbours first; fewer where they reach past an edge
+            for rows in rows_by_fibre(fibre).values():
+                centre = np.flatnonzero(~found[rows[k:len(rows) - k]]) + k  # positions in rows still without one
+                if len(centre):
+                    inner = rows[centre]
+                    around = rows[centre[:, None] + np.r_[np.arange(-k, 0), np.arange(1, k + 1)]]
+                    shift[inner], found[inner] = _shift_to_neighbours(range_m[inner], azimuth_rad[inner],
+                                                                      range_m[around], azimuth_rad[around])
         return cls(rays, points_m + shift[:, None] * rays, shift)
+
+
+def _shift_to_neighbours(range_m: np.ndarray, azimuth_rad: np.ndarray, around_range_m: np.ndarray,
+                         around_azimuth_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Shift [m] from each return's range (N,) to its stand-in range, the line through its neighbours' ranges
+    (N, 2k: k fired before it, then k after) against their encoder azimuths, taken at its own azimuth: exact for
+    a ring of constant range (the ground under a level head) and for a range that changes linearly as the head
+    turns, at the neighbours' spacing whatever it is (a subsample's neighbours lie unevenly on either side). Not
+    found (shift 0: the return stands for itself) where its azimuth is not between its neighbours', where a
+    neighbour lies further than PROXY_REACH_M from the line (an edge, a gap) or the shift itself is further."""
+    k = around_range_m.shape[1] // 2
+    x = np.angle(np.exp(1j * (around_azimuth_rad - azimuth_rad[:, None])))  # wrapped to (-pi, pi]
+    x_mean, y_mean = x.mean(axis=1), around_range_m.mean(axis=1)
+    dx, dy = x - x_mean[:, None], around_range_m - y_mean[:, None]
+    spread = np.einsum("nk,nk->n", dx, dx)
+    between = (x[:, k - 1] * x[:, k] < 0) & (spread > 0)  # either way the head turns
+    slope = np.einsum("nk,nk->n", dx, dy) / np.where(between, spread, 1.0)
+    stand_in = y_mean - slope * x_mean
+    off_line = np.abs(dy - slope[:, None] * dx).max(axis=1)
+    shift = stand_in - range_m
+    found = between & (off_line <= PROXY_REACH_M) & (np.abs(shift) <= PROXY_REACH_M)
+    return np.where(found, shift, 0.0), found
 
 
 def rows_by_fibre(fibre: np.ndarray) -> dict[int, np.ndarray]:
@@ -145,8 +167,8 @@ def neighbour_fibres(elevation_deg: np.ndarray, n_steps: int) -> dict[int, list[
 
 
 LINE_CANDIDATES = 16  # stand-ins of fibre j nearest p's among which m is the one whose line of sight passes nearest it
-PROXY_FIRINGS = 2  # firings on each side of a return whose mean stands in for its range when choosing m
-PROXY_REACH_M = 0.2  # a return further than this from its neighbours' mean (an edge) stands for itself
+PROXY_FIRINGS = 2  # firings on each side of a return whose ranges give its stand-in (then one, past an edge)
+PROXY_REACH_M = 0.2  # a return whose neighbours' ranges lie further than this from their line stands for itself
 
 
 @dataclass(frozen=True)

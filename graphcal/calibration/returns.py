@@ -192,4 +192,4 @@ def sight_at(data: ReturnData, estimate: Estimate, points_m: np.ndarray) -> Sigh
     points are then their own best stand-ins (docs/reference/math.md "Which m")."""
     if not noisy(data.range_noise_m):
         return None
-    return Sight.of(points_m, rays_at(data, estimate), data.fibre)
+    return Sight.of(points_m, rays_at(data, estimate), data.fibre, data.range_m, data.azimuth_rad)
