@@ -60,6 +60,10 @@ class Correspondences:
     def __len__(self) -> int:
         return len(self.index_p)
 
+    def rows(self) -> np.ndarray:
+        """The returns the pairs use (as p or m), sorted, each once."""
+        return np.union1d(self.index_p, self.index_m)
+
     def take(self, rows: np.ndarray) -> Correspondences:
         """The pairs at rows (indices or a boolean mask)."""
         shifts = (None, None) if self.shift_p_m is None else (self.shift_p_m[rows], self.shift_m_m[rows])
@@ -90,8 +94,9 @@ class Sight:
         """From the points [m], their rays, fibres, measured ranges [m] and encoder azimuths [rad] (rows of a fibre
         in firing order)."""
         shift, found = np.zeros(len(points_m)), np.zeros(len(points_m), bool)
+        by_fibre = rows_by_fibre(fibre).values()
         for k in range(PROXY_FIRINGS, 0, -1):  # the most neighbours first; fewer where they reach past an edge
-            for rows in rows_by_fibre(fibre).values():
+            for rows in by_fibre:
                 centre = np.flatnonzero(~found[rows[k:len(rows) - k]]) + k  # positions in rows still without one
                 if len(centre):
                     inner = rows[centre]

@@ -176,18 +176,13 @@ class Problem:
         """World points [m] (minus the origin) of the phase's returns at the estimate, one row per return; with
         rows, only those are placed and the others are NaN (fixed pairs need only their own returns)."""
         pose = self.config.trajectory.pose_corrections
+        placed = (self.effects.world(self.data, estimate, pose, rows) if self.effects is not None
+                  else world_at(self.data, estimate, pose, rows))
         if rows is None:
-            return (self.effects.world(self.data, estimate, pose) if self.effects is not None
-                    else world_at(self.data, estimate, pose))
+            return placed
         points = np.full((len(self.data.time_s), 3), np.nan)
-        points[rows] = (self.effects.world(self.data, estimate, pose, rows) if self.effects is not None
-                        else world_at(self.data, estimate, pose, rows))
+        points[rows] = placed
         return points
-
-    def paired_rows(self) -> np.ndarray | None:
-        """The returns the fixed pairs use (None when the pairs are re-made at each estimate)."""
-        pairs = self.fixed_pairs
-        return None if pairs is None else np.unique(np.r_[pairs.index_p, pairs.index_m])
 
     def sight(self, estimate: Estimate, points_m: np.ndarray) -> Sight | None:
         """What the association chooses m by: stand-ins (sight_at) in the fine phase; plain nearest returns in
@@ -328,7 +323,7 @@ class Problem:
         problem = self.in_phase("fine" if fine else "coarse")
         gate, association = problem.gates.gate_start_m, problem.association()
         features, refreshed, points, since_refresh, fine_energies = None, False, None, refresh_every, []
-        rows = problem.paired_rows()
+        rows = None if problem.fixed_pairs is None else problem.fixed_pairs.rows()  # fixed pairs: only their returns
         for _ in progress(range(n_max), f"calibrating ({label})", total=n_max, quiet=quiet):
             points = problem.points(estimate, rows) if points is None else points
             if problem.fixed_pairs is None and (features is None or since_refresh >= refresh_every):
@@ -424,19 +419,19 @@ class Problem:
         graph, values = problem.graph(estimate, pairs, damped=False, blocks=blocks)
         control_sigma = control_prior_sigma(problem.config, float(pairs.weight.sum()))
         weighting = problem.config.weighting
-        shared = expected = None
-        linearised = Linearised.of(graph, values, blocks, len(pairs))
-        if weighting.pair_noise == "incidence":
-            if shared_returns and weighting.robust == "none":
-                shared = problem.uncertainty(shared_returns_covariance(linearised, pairs, problem.data, estimate,
-                                                                       weighting.sigma0_m), estimate, control_sigma)
-            if blocks:  # pairs whitened by the measured noise: the J it predicts
-                weight = np.concatenate([block.weight for _, block in blocks])
-                sigma = np.concatenate([np.broadcast_to(block.sigma0_m, len(block.weight)) for _, block in blocks])
-                expected = float((weight * sigma ** 2).sum() / weight.sum() * 1e4)
+        shared = expected = robust = None
         time_s = problem.data.time_s[pairs.index_p]
-        robust = None
-        if blocks and cluster_robust.determined(time_s):
+        with_shared = weighting.pair_noise == "incidence" and shared_returns and weighting.robust == "none"
+        with_robust = bool(blocks) and cluster_robust.determined(time_s)
+        linearised = Linearised.of(graph, values, blocks, len(pairs)) if with_shared or with_robust else None
+        if with_shared:
+            shared = problem.uncertainty(shared_returns_covariance(linearised, pairs, problem.data, estimate,
+                                                                   weighting.sigma0_m), estimate, control_sigma)
+        if weighting.pair_noise == "incidence" and blocks:  # pairs whitened by the measured noise: the J it predicts
+            weight = np.concatenate([block.weight for _, block in blocks])
+            sigma = np.concatenate([np.broadcast_to(block.sigma0_m, len(block.weight)) for _, block in blocks])
+            expected = float((weight * sigma ** 2).sum() / weight.sum() * 1e4)
+        if with_robust:
             robust = problem.uncertainty(cluster_robust.cluster_robust_covariance(linearised, time_s), estimate,
                                          control_sigma)
         return FinalFit(pairs, residual, problem.uncertainty(Marginals(graph, values), estimate, control_sigma), shared,

@@ -42,18 +42,20 @@ class Linearised:
     A: sparse.csr_matrix
     r: np.ndarray
     scale: np.ndarray
+    priors_information: np.ndarray
 
     @classmethod
     def of(cls, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, blocks: list[tuple[np.ndarray, Block]],
            n_pairs: int) -> Linearised:
         """blocks: the graph's point-to-plane blocks with their rows among the n_pairs pairs."""
         bread = DenseMarginals(graph, values)
-        return cls(bread, *whitened_jacobian(blocks, values, bread.columns(), n_pairs, bread.width))
+        A, r, scale = whitened_jacobian(blocks, values, bread.columns(), n_pairs, bread.width)
+        return cls(bread, A, r, scale, bread.information - (A.T @ A).toarray())
 
     def sandwich(self, meat_of_pairs: np.ndarray) -> DenseMarginals:
         """H^-1 (meat_of_pairs + P) H^-1, P = H - A^T A the priors' information: the nominal values are off by their
         priors' sigmas, an error the estimate inherits where the data are silent (a weak direction held at nominal)."""
-        return self.bread.sandwich(meat_of_pairs + self.bread.information - (self.A.T @ self.A).toarray())
+        return self.bread.sandwich(meat_of_pairs + self.priors_information)
 
 
 def shared_returns_covariance(linearised: Linearised, pairs: Correspondences, data: ReturnData, estimate: Estimate,

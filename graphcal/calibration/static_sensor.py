@@ -144,7 +144,7 @@ def _fold(problem: Problem, estimate: Estimate, fit: Estimate, name: str,
           train_test: tuple[Correspondences, Correspondences], free: np.ndarray) -> dict:
     """One half's fit: J [cm^2] before/after on its pairs and on the held-out ones, its estimates."""
     train, test = train_test
-    rows = np.unique(np.r_[train.index_p, train.index_m, test.index_p, test.index_m])
+    rows = np.union1d(train.rows(), test.rows())
     start, end = problem.points(estimate, rows), problem.points(fit, rows)
 
     def energy(points: np.ndarray, sub: Correspondences) -> float:
