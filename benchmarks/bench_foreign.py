@@ -17,7 +17,6 @@ import argparse
 import datetime
 import json
 import platform
-import shutil
 import sys
 import tempfile
 import time
@@ -34,34 +33,18 @@ FAMILIES = ("box_street", "suburb", "open_road", "relief_street")
 MOUNTS = ("level", "tilted")
 
 
-def _truth_as_nominal(recording_dir: Path) -> None:
-    """Rewrite a simulated recording so that its nominal model is the truth (the true offsets folded into
-    sensor.yaml, SensorModel.with_offsets; the true extrinsic as extrinsic.yaml) and its truth zero
-    offsets from it."""
-    import numpy as np
-
-    from graphcal.recording.intrinsics import load_offsets_csv, save_offsets_csv
-    from graphcal.recording.sensor import SensorModel
-    from graphcal.common.yamlfile import read_yaml, write_yaml
-
-    sensor = SensorModel.from_dict(read_yaml(recording_dir / "sensor.yaml"), recording_dir / "sensor.yaml")
-    truth = load_offsets_csv(recording_dir / "truth" / "intrinsics.csv", sensor.n_fibres)
-    write_yaml(recording_dir / "sensor.yaml", sensor.with_offsets(truth).to_dict())
-    shutil.copy(recording_dir / "truth" / "extrinsic.yaml", recording_dir / "extrinsic.yaml")
-    save_offsets_csv(recording_dir / "truth" / "intrinsics.csv", np.zeros_like(truth))
-
-
 def _case(family: str, mount: str, size: float, duration_s: float, seed: int, from_truth: bool, settings: dict,
           queue) -> None:
     import graphcal
     from graphcal.calibration.evaluate import scorecard
     from graphcal.common.errors import CalibrationError
     from tools.foreign_sim import simulate
+    from tools.truth_as_nominal import truth_as_nominal
 
     with tempfile.TemporaryDirectory() as folder:
         directory = simulate(family, Path(folder) / "rec", duration_s=duration_s, size=size, seed=seed, mount=mount)
         if from_truth:
-            _truth_as_nominal(Path(directory))
+            directory = truth_as_nominal(Path(directory), Path(folder) / "at_truth")
         recording = graphcal.Recording.load(directory)
         row = {"family": family, "mount": mount, "seed": seed, "from_truth": from_truth,
                "returns": len(recording.points)}

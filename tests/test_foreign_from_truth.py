@@ -2,34 +2,17 @@
 level head in a box street, conftest.py's foreign_box_street) stays within its sigmas: the paired energy's
 minimum is the truth."""
 
-import shutil
-from pathlib import Path
-
 import numpy as np
 
 import graphcal
 from graphcal.calibration.evaluate import scorecard
-from graphcal.common.yamlfile import read_yaml, write_yaml
-from graphcal.recording.intrinsics import load_offsets_csv, save_offsets_csv
-from graphcal.recording.sensor import SensorModel
-
-
-def _truth_as_nominal(source: Path, target: Path) -> Path:
-    """A copy of the recording whose nominal model is its truth (offsets folded into sensor.yaml, the true
-    extrinsic as extrinsic.yaml) and whose truth is then zero offsets."""
-    shutil.copytree(source, target)
-    sensor = SensorModel.from_dict(read_yaml(target / "sensor.yaml"))
-    truth = load_offsets_csv(target / "truth" / "intrinsics.csv", sensor.n_fibres)
-    write_yaml(target / "sensor.yaml", sensor.with_offsets(truth).to_dict())
-    shutil.copy(target / "truth" / "extrinsic.yaml", target / "extrinsic.yaml")
-    save_offsets_csv(target / "truth" / "intrinsics.csv", np.zeros_like(truth))
-    return target
+from tools.truth_as_nominal import truth_as_nominal
 
 
 def test_started_at_the_truth_the_fit_stays_within_its_sigmas(foreign_box_street, tmp_path):
     """Nominal model = truth: the paired energy's minimum must be the truth, so the fit stays within its
     reported sigmas and names what it cannot see instead of sliding along it."""
-    recording = graphcal.Recording.load(_truth_as_nominal(foreign_box_street, tmp_path / "at_truth"))
+    recording = graphcal.Recording.load(truth_as_nominal(foreign_box_street, tmp_path / "at_truth"))
     result = graphcal.calibrate(recording, quiet=True)
     card = scorecard(result, recording)
     assert card.named_fraction <= 0.25, result.unobservable
