@@ -22,7 +22,6 @@ from graphcal.calibration.evaluate import (
     nominal_calibration,
 )
 from graphcal.calibration.result import Calibration
-from graphcal.calibration.verdict import verdict
 from graphcal.simulation.scenario import ExtrinsicSpec, IntrinsicErrors
 from graphcal.simulation.scene import ParkedCar
 from graphcal.simulation.script import load_scenario_builder
@@ -142,7 +141,7 @@ def test_straight_drive_leaves_the_lever_arm_and_roll_unobservable(tmp_path):
     result = calibrate(recording, CalibrationConfig(mode="extrinsic", stopping={"max_outer_iterations": 15}), quiet=True)
     unseen = {"extrinsic.roll_deg", "extrinsic.lever_arm_x_m", "extrinsic.lever_arm_y_m", "extrinsic.lever_arm_z_m"}
     assert set(result.unobservable) == unseen
-    line = verdict(result.unobservable, result.calibration.reasons)
+    line = result.verdict
     assert "boresight roll, lever arm x and lever arm y (a drive with turns would show them)" in line
     assert "lever arm z (a drive with slopes or banked turns" in line
     estimate = result.calibration.estimate.extrinsic

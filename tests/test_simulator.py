@@ -8,7 +8,7 @@ import graphcal
 from graphcal.common.errors import ConfigError
 from graphcal.recording.geodesy import to_world
 from graphcal.recording.georeference import georeference
-from graphcal.simulation.drive import Drive, loop, straight, turn
+from graphcal.simulation.drive import Drive, Spin, loop, spin, straight, turn
 from graphcal.simulation.scenario import (
     ExtrinsicSpec,
     InsErrors,
@@ -232,6 +232,34 @@ def test_drive_geometry():
     end, end_yaw = closed.pose_at_distance(np.array([closed.length_m]))
     np.testing.assert_allclose(end[0, :2], [0, 0], atol=1e-9)
     assert end_yaw[0] == pytest.approx(360.0)
+
+
+def test_a_spin_turns_on_the_spot_while_the_speed_profile_waits():
+    """A spin of 90 deg at 90 deg/s between two straights: the profile (0 to 5 m/s in 2 s, then 5 m/s) reaches it
+    at 10 m after 3 s; the body stays there for 1 s while its heading turns at the yaw rate, then the profile resumes
+    where it stopped along the new heading; the wheels turn opposite ways through the spin, by (track / 2) x 90 deg
+    over the radius."""
+    from graphcal.simulation.odometry import simulate_odometry
+    from graphcal.simulation.scenario import OdometrySpec
+
+    drive = Drive(segments=straight(10) + spin(90.0, 90.0) + straight(10), speed_knots=[(0, 0.0), (2, 5.0)])
+    t = np.array([0.0, 2.0, 3.0, 3.5, 4.0, 5.0])
+    xyz, yaw_deg = drive.pose_at(t)
+    np.testing.assert_allclose(xyz[:, :2], [[0, 0], [5, 0], [10, 0], [10, 0], [10, 0], [10, 5]], atol=1e-9)
+    np.testing.assert_allclose(yaw_deg, [0, 0, 0, 45, 90, 90], atol=1e-9)
+    np.testing.assert_allclose(drive.distance(t), [0, 5, 10, 10, 10, 15], atol=1e-9)
+    spec = OdometrySpec(rate_hz=100.0)
+    odometry = simulate_odometry(drive, spec, 0.0, 5.0, np.random.default_rng(0))
+    during = np.searchsorted(odometry.time, [3.0, 4.0])
+    wheel_rad = spec.track_m / 2 * np.pi / 2 / spec.wheel_radius_m
+    np.testing.assert_allclose(np.diff(odometry.wheel_left_rad[during]), -wheel_rad, atol=1e-9)
+    np.testing.assert_allclose(np.diff(odometry.wheel_right_rad[during]), wheel_rad, atol=1e-9)
+    for angle_deg, rate_deg_s in ((0.0, 10.0), (90.0, 0.0)):
+        with pytest.raises(ValidationError):
+            Spin(angle_deg=angle_deg, yaw_rate_deg_s=rate_deg_s)
+    stopping = Drive(segments=straight(10) + spin(90.0, 45.0), speed_knots=[(0, 2.0), (2, 0.0)])  # covers 2 m
+    with pytest.raises(ConfigError, match="short of its spin at 10.0 m"):
+        stopping.pose_at(t)
 
 
 def test_scene_builders_have_the_requested_extent():

@@ -21,7 +21,7 @@ from graphcal.calibration.problem import PHASES, FinalFit, History, Problem
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.calibration.returns import Estimate, initial_estimate
 from graphcal.calibration.static_sensor import halves_over_draws, pair_draws, soft_over_draws
-from graphcal.calibration.verdict import RIGID_REASON
+from graphcal.calibration.verdict import RIGID_REASON, Motion, verdict
 from graphcal.calibration.weak_directions import WeakDirections
 from graphcal.common.cluster import IN_PROCESS, TaskMap, open_task_map
 from graphcal.recording.directory import Recording
@@ -132,7 +132,8 @@ class CalibrationPipeline:
         self.estimate = self.problem.priors.hold_at_nominal(self.estimate, self.problem.nominal)
 
     def result(self, final: FinalFit) -> CalibrationResult:
-        """The calibration, checked (calibration/checks.py), with what it names and why."""
+        """The calibration, checked (calibration/checks.py), with what it names and why, and the one-line verdict on
+        what the drive could not show (verdict.py)."""
         problem, estimate = self.problem, self.estimate
         data, config, estimated = problem.full, problem.settings, problem.estimated
         held = list(problem.held)
@@ -154,7 +155,8 @@ class CalibrationPipeline:
                                  time.perf_counter() - self.started, self.timings,
                                  halves=None if self.halves is None else self.halves.to_yaml_dict(),
                                  shared_returns_uncertainty=final.shared_returns,
-                                 cluster_robust_uncertainty=final.cluster_robust)
+                                 cluster_robust_uncertainty=final.cluster_robust,
+                                 verdict=verdict(unobservable, reasons, Motion.of(data.R_nav, data.X_nav)))
 
     def check(self, final: FinalFit, unobservable: list[str]) -> None:
         """Refuse a result that is not one (CalibrationError, exit code 3)."""

@@ -140,7 +140,9 @@ class CalibrationResult:
     each return's noise counted once over all the pairs it serves in (shared_returns.py), which
     calibration.yaml writes as `sigma`; cluster_robust_uncertainty: the 1-sigmas from the pairs' own
     residuals clustered by time (cluster_robust.py; None on a drive too short for it); uncertainty stays
-    gtsam.Marginals' (pairs as independent), which names the unobservable parameters."""
+    gtsam.Marginals' (pairs as independent), which names the unobservable parameters; verdict: one plain line on what
+    the drive could not observe and which manoeuvre or scene would show it (verdict.py; None when it names nothing
+    beyond the trajectory's common motion)."""
 
     calibration: Calibration
     uncertainty: Uncertainty
@@ -156,6 +158,7 @@ class CalibrationResult:
     halves: dict | None = None
     shared_returns_uncertainty: Uncertainty | None = None
     cluster_robust_uncertainty: Uncertainty | None = None
+    verdict: str | None = None
 
     @property
     def energy_cm2(self) -> tuple[float, float]:

@@ -31,8 +31,9 @@ REVISIT_AFTER_S = 20.0  # ... at least this much earlier
 @dataclass(frozen=True)
 class ReturnData:
     """Per-return arrays (N) of the returns used (rows: their row in points.parquet), the control
-    times [s], the head's range noise [m] (1-sigma; NaN: unknown) and the recorded trajectory's white
-    noise (trajectory_noise.PoseNoise)."""
+    times [s], the head's range noise [m] (1-sigma; NaN: unknown), the recorded trajectory's white
+    noise (trajectory_noise.PoseNoise) and the nominal lever arm [m, body frame], which places the sensor
+    on the vehicle."""
 
     sensor: SensorModel
     rows: np.ndarray
@@ -48,11 +49,14 @@ class ReturnData:
     origin_m: np.ndarray
     range_noise_m: float
     pose_noise: PoseNoise = PoseNoise.none()
+    lever_arm_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     @property
     def static(self) -> bool:
-        """The sensor's positions span less than STATIC_BELOW_M (a tripod, a parked car)."""
-        return bool(np.ptp(self.X_nav, axis=0).max() < STATIC_BELOW_M)
+        """The sensor's positions span less than STATIC_BELOW_M (a tripod, a parked car; a vehicle turning on the
+        spot moves a sensor mounted off its turning axis around a circle)."""
+        sensor_m = self.X_nav + self.R_nav @ self.lever_arm_m
+        return bool(np.ptp(sensor_m, axis=0).max() < STATIC_BELOW_M)
 
     def sample(self, n: int, rng: np.random.Generator) -> ReturnData:
         """A random subset of n of the returns (all of them when there are no more), same control times."""
@@ -104,7 +108,8 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
     return ReturnData(recording.sensor, columns["rows"], columns["fibre"].astype(np.int64),
                       columns["range"].astype(np.float64), columns["azimuth"].astype(np.float64),
                       time, rotation.as_matrix(), position - origin, control, alpha, control_times, origin, range_noise_m,
-                      measured_pose_noise(recording.world.poses))
+                      measured_pose_noise(recording.world.poses),
+                      np.asarray(recording.extrinsic.lever_arm_m, dtype=np.float64))
 
 
 def _read_rows(recording: Recording, max_points: int | None, rng: np.random.Generator) -> dict[str, np.ndarray]:

@@ -1,34 +1,73 @@
 """One plain line on what a drive could not observe and which manoeuvre or scene would show it.
 
 A calibration names every parameter the data cannot see (calibration.yaml `unobservable`, with a reason each).
-On a degenerate drive (a standstill, a straight line, a flat plain) that is tens of names; a user needs the
-verdict: which groups of parameters, and what to record next time. The manoeuvres follow from the geometry
-(docs/reference/math.md "Observability"): the lever arm and the boresight yaw move the cloud differently only
-when the vehicle turns; the lever arm's height only when it rolls or pitches; a fibre's range offset, elevation
-and height only when it sees surfaces at several ranges and orientations.
+On a degenerate drive (a standstill, a straight line, a turn on the spot, a flat plain) that is tens of names; a
+user needs the verdict: which groups of parameters, and what to record next time. The manoeuvres follow from the
+geometry (docs/reference/math.md "Weak directions", its examples): the lever arm and the boresight roll move the
+cloud differently only when the vehicle turns, the boresight yaw only when it travels (on the spot, turning the
+extrinsic about the vertical turns the whole cloud), the lever arm's height only when it rolls or pitches; what a
+drive that made them all still did not show needs upright surfaces facing several ways; a fibre's range offset,
+elevation and height need surfaces at several ranges and orientations.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+import numpy as np
+
 from graphcal.calibration.observability import TRAJECTORY_GAUGE
+from graphcal.calibration.returns import STATIC_BELOW_M
 
 RIGID_REASON = "a static sensor: the whole cloud moves rigidly with it"
+TURNED_DEG = 45.0  # a drive whose heading spans this much has turned [deg]
+TILTED_DEG = 2.0  # ... whose up axis swings this far has rolled or pitched [deg]
 
-# what shows each extrinsic axis, in the words of the verdict
-EXTRINSIC_MANOEUVRE = {
-    "roll_deg": "turns", "pitch_deg": "turns", "yaw_deg": "turns", "lever_arm_x_m": "turns",
-    "lever_arm_y_m": "turns", "lever_arm_z_m": "slopes or banked turns (the vehicle rolling or pitching)",
-}
+# what the vehicle must do for each extrinsic axis to move the cloud other than rigidly (the pitch: travel or a turn,
+# either; a turn on the spot shows the lever arm's x, its y only once travel shows the yaw it trades with)
+EXTRINSIC_NEEDS = {"roll_deg": ("turned",), "pitch_deg": (), "yaw_deg": ("travelled",), "lever_arm_x_m": ("turned",),
+                   "lever_arm_y_m": ("turned", "travelled"), "lever_arm_z_m": ("tilted",)}
+MANOEUVRE_WORDS = {"turned": "a drive with turns", "travelled": "a drive along a road",
+                   "tilted": "a drive with slopes or banked turns (the vehicle rolling or pitching)"}
+# what shows an extrinsic axis that the drive's manoeuvres did not
+EXTRINSIC_SCENE = "facades or poles beside the road, not only flat ground,"
 EXTRINSIC_WORDS = {"roll_deg": "boresight roll", "pitch_deg": "boresight pitch", "yaw_deg": "boresight yaw",
                    "lever_arm_x_m": "lever arm x", "lever_arm_y_m": "lever arm y", "lever_arm_z_m": "lever arm z"}
-INTRINSIC_WORDS = {"d_range_m": "range offsets", "d_azimuth_deg": "azimuth offsets",
-                   "d_elevation_deg": "elevations", "h_z_m": "heights"}
+INTRINSIC_WORDS = {"d_range_m": "range offset", "d_azimuth_deg": "azimuth offset",
+                   "d_elevation_deg": "elevation", "h_z_m": "height"}
 INTRINSIC_SCENE = "surfaces at several ranges and orientations (facades beside the road, not only flat ground)"
+# what shows them when the vehicle only turned on the spot
+INTRINSIC_DRIVE = "a drive past facades, each surface seen from many places,"
 
 
-def verdict(unobservable: tuple[str, ...] | list[str], reasons: dict[str, str]) -> str | None:
-    """The line for a calibration that names `unobservable` with `reasons` ({name: why}), None when it names
-    nothing beyond the drive's common motion (which no self-calibration sees)."""
+@dataclass(frozen=True)
+class Motion:
+    """What the vehicle did while the lidar recorded: travelled (its positions span STATIC_BELOW_M or more), turned
+    (its heading spans TURNED_DEG or more), tilted (its up axis swings TILTED_DEG or more: slopes, banked turns)."""
+
+    travelled: bool
+    turned: bool
+    tilted: bool
+
+    @classmethod
+    def of(cls, R_world_body: np.ndarray, X_world_body_m: np.ndarray) -> Motion:
+        """From the vehicle's poses in time order: rotations (N, 3, 3) and positions (N, 3) [m]."""
+        heading_rad = np.unwrap(np.arctan2(R_world_body[:, 1, 0], R_world_body[:, 0, 0]))
+        up_swing_rad = np.ptp(R_world_body[:, :2, 2], axis=0).max()  # the up axis's horizontal part, small angles
+        return cls(travelled=bool(np.ptp(X_world_body_m, axis=0).max() >= STATIC_BELOW_M),
+                   turned=bool(np.degrees(np.ptp(heading_rad)) >= TURNED_DEG),
+                   tilted=bool(np.degrees(up_swing_rad) >= TILTED_DEG))
+
+    def shows_with(self, axis: str) -> str:
+        """What would show an extrinsic axis this drive did not: the first manoeuvre it needs that the vehicle did
+        not make, else the scene."""
+        missing = [need for need in EXTRINSIC_NEEDS[axis] if not getattr(self, need)]
+        return MANOEUVRE_WORDS[missing[0]] if missing else EXTRINSIC_SCENE
+
+
+def verdict(unobservable: tuple[str, ...] | list[str], reasons: dict[str, str], motion: Motion) -> str | None:
+    """The line for a calibration of a drive that made `motion` and names `unobservable` with `reasons`
+    ({name: why}), None when it names nothing beyond the drive's common motion (which no self-calibration sees)."""
     names = [name for name in unobservable if name not in TRAJECTORY_GAUGE]
     intrinsic = [name for name in names if name.startswith("fibre_")]
     extrinsic = [name.removeprefix("extrinsic.") for name in names if name.startswith("extrinsic.")]
@@ -38,18 +77,20 @@ def verdict(unobservable: tuple[str, ...] | list[str], reasons: dict[str, str]) 
         return (f"static sensor: the extrinsic and the trajectory are unobservable; {len(intrinsic)} intrinsic "
                 f"parameters held (a drive with turns past facades would show them)")
     parts = []
-    by_manoeuvre: dict[str, list[str]] = {}
+    by_remedy: dict[str, list[str]] = {}
     for axis in extrinsic:
-        by_manoeuvre.setdefault(EXTRINSIC_MANOEUVRE[axis], []).append(EXTRINSIC_WORDS[axis])
-    for manoeuvre, axes in by_manoeuvre.items():
-        parts.append(f"the {_listed(axes)} (a drive with {manoeuvre} would show {'it' if len(axes) == 1 else 'them'})")
+        by_remedy.setdefault(motion.shows_with(axis), []).append(EXTRINSIC_WORDS[axis])
+    for remedy, axes in by_remedy.items():
+        parts.append(f"the {_listed(axes)} ({remedy} would show {'it' if len(axes) == 1 else 'them'})")
     if intrinsic:
         kinds = {}
         for name in intrinsic:
             kind = name.partition(".")[2]
             kinds[kind] = kinds.get(kind, 0) + 1
-        counted = _listed([f"{count} fibre {INTRINSIC_WORDS.get(kind, kind)}" for kind, count in kinds.items()])
-        parts.append(f"{counted} (fibres that see {INTRINSIC_SCENE} would show them)")
+        counted = _listed([f"{count} fibre {INTRINSIC_WORDS.get(kind, kind)}{'s' if count > 1 else ''}"
+                           for kind, count in kinds.items()])
+        remedy = f"fibres that see {INTRINSIC_SCENE}" if motion.travelled else INTRINSIC_DRIVE
+        parts.append(f"{counted} ({remedy} would show them)")
     other = [name for name in names if not name.startswith(("fibre_", "extrinsic."))]
     if other:
         parts.append(_listed(other))

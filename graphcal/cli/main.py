@@ -162,8 +162,6 @@ def calibrate(recording: Annotated[Path, typer.Argument(help="recording director
 
 
 def _print_calibration(run) -> None:
-    from graphcal.calibration.verdict import verdict
-
     result, evaluation = run.result, run.evaluation
     before, after = result.energy_cm2
     typer.echo(f"J {before:.3g} -> {after:.3g} cm^2 in {result.seconds:.1f} s ({len(result.history)} outer iterations)")
@@ -172,9 +170,8 @@ def _print_calibration(run) -> None:
         voxel_m = result.config.features.voxel_m
         typer.echo(f"range noise {noise_m * 1000:.2g} mm: pairs {result.config.weighting.pair_noise}, features from "
                    + (f"{voxel_m} m voxels" if voxel_m else "every return"))
-    line = verdict(result.unobservable, result.calibration.reasons)
-    if line is not None:
-        typer.echo(f"{line} ({len(result.unobservable)} names, each with its reason: calibration.yaml "
+    if result.verdict is not None:
+        typer.echo(f"{result.verdict} ({len(result.unobservable)} names, each with its reason: calibration.yaml "
                    "unobservable_reasons)")
     if evaluation is not None:
         typer.echo(f"against truth, cloud-to-cloud mean {evaluation.cloud_before.mean * 100:.3g} -> "

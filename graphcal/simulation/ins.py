@@ -25,7 +25,7 @@ def sample_times(start_s: float, end_s: float, rate_hz: float) -> np.ndarray:
 def true_poses(drive: Drive, start_time_s: float, duration_s: float, rate_hz: float) -> PoseTrack:
     """T_local_body sampled at rate_hz over [start, start + duration] (local frame, m, deg)."""
     elapsed = sample_times(0.0, duration_s, rate_hz)
-    xyz, yaw = drive.pose_at_distance(drive.distance(elapsed))
+    xyz, yaw = drive.pose_at(elapsed)
     rpy = np.column_stack([np.zeros_like(yaw), np.zeros_like(yaw), yaw])
     return PoseTrack.from_rpy(start_time_s + elapsed, xyz, rpy)
 

@@ -19,7 +19,7 @@ _RATE_STEP_S = 1e-4  # central difference of the true heading for the yaw rate
 
 def _heading_rad(drive: Drive, elapsed_s: np.ndarray, duration_s: float) -> np.ndarray:
     elapsed_s = np.clip(elapsed_s, 0.0, duration_s)
-    return np.radians(drive.pose_at_distance(drive.distance(elapsed_s))[1])
+    return np.radians(drive.pose_at(elapsed_s)[1])
 
 
 def simulate_odometry(drive: Drive, spec: OdometrySpec, start_time_s: float, duration_s: float,

@@ -203,7 +203,7 @@ def movers(scenario: Scenario) -> list[Mover]:
     if scenario.traffic is None:
         return []
     drive = scenario.drive
-    return scenario.traffic.movers(lambda t: drive.pose_at_distance(drive.distance(t))[0][:, :2], scenario.duration_s)
+    return scenario.traffic.movers(lambda t: drive.pose_at(t)[0][:, :2], scenario.duration_s)
 
 
 def _cast_chunk(cycle_start, lidar_start, scenario, rig: _Rig, scene: _Scene, rng):

@@ -1,0 +1,107 @@
+"""Degenerate drives calibrated end to end with graphcal.calibrate's defaults: what each cannot observe follows from
+its geometry (docs/reference/math.md "Weak directions"), and each result carries one plain line that says so and
+names the manoeuvre or scene that would show it (graphcal.calibration.verdict).
+
+Small noise-free recordings (a few seconds, about 1 % of an HDL-32E's firings) whose nominal model is the truth:
+what is named comes from the drive and the scene, not from errors to find. The lever arm is (0.8, 0, 1.9) m."""
+
+import numpy as np
+from typer.testing import CliRunner
+
+import graphcal
+from graphcal.cli.main import app
+from graphcal.recording.sensor import sensor_from_catalog
+from graphcal.simulation.drive import Drive, spin, straight, turn
+from graphcal.simulation.scenario import ExtrinsicSpec, Scenario
+from graphcal.simulation.scene import Facade, Ground, Pole, street
+from graphcal.simulation.starts import PITCHED_HEAD
+
+COURTYARD = ((-20.0, -15.0), (25.0, -15.0), (25.0, 18.0), (-20.0, 18.0))
+
+
+def courtyard() -> list:
+    """Ground, four facades with pilasters and ledges around the origin (15 to 25 m away), three poles."""
+    facades = [Facade(start_xy=COURTYARD[k], end_xy=COURTYARD[(k + 1) % 4], height_m=12.0, relief_spacing_m=5.0,
+                      ledge_heights_m=(3.5, 7.0)) for k in range(4)]
+    return [Ground(size_m=(80.0, 80.0))] + facades + [Pole(xy=xy) for xy in ((-8.0, 6.0), (10.0, -7.0), (5.0, 9.0))]
+
+
+def scenario(name: str, scene: list, drive: Drive, duration_s: float, size: float = 0.01,
+             extrinsic: ExtrinsicSpec = PITCHED_HEAD) -> Scenario:
+    return Scenario(name=name, duration_s=duration_s, size=size, seed=1, extrinsic=extrinsic, scene=scene, drive=drive)
+
+
+def calibrated(*args, **kwargs) -> graphcal.CalibrationResult:
+    """calibrate, with its defaults, of the simulated scenario(*args, **kwargs)."""
+    return graphcal.calibrate(graphcal.simulate(scenario(*args, **kwargs), quiet=True), quiet=True)
+
+
+def extrinsic_named(result) -> set[str]:
+    return {name.removeprefix("extrinsic.") for name in result.unobservable if name.startswith("extrinsic.")}
+
+
+def test_a_straight_drive_names_the_lever_arm_and_the_roll_about_its_line():
+    """The body never turns: a lever-arm error shifts every scan by the same world vector, and a roll about the
+    driving line turns every scan about that same line, the cloud rigidly. A pitch or a yaw turns each scan about
+    an axis across the line through its own place on it: the facades behind and ahead disagree, so they are seen."""
+    scene = street(length_m=80.0, width_m=16.0, relief_spacing_m=5.0, start_x_m=-25.0, ledge_heights_m=(3.5, 7.0))
+    result = calibrated("straight", scene, Drive(segments=straight(40.0), speed_knots=[(0.0, 6.0)]), 2.0, size=0.012)
+    assert extrinsic_named(result) == {"roll_deg", "lever_arm_x_m", "lever_arm_y_m", "lever_arm_z_m"}
+    assert result.verdict.startswith("this drive cannot observe the boresight roll, lever arm x and lever arm y (a drive "
+                                     "with turns would show them); the lever arm z (a drive with slopes or banked turns")
+
+
+def test_a_turn_on_the_spot_names_the_yaw_and_the_height_of_the_lever_arm():
+    """The body only turns about its vertical axis. The sensor, 0.8 m off that axis, circles it: a moving sensor,
+    not a static one, and a lever arm x error changes the circle's radius (seen), a boresight roll or pitch tilts
+    each scan towards a direction that turns with the vehicle (seen). Turning the whole extrinsic about the body's
+    vertical (the boresight yaw, the lever arm carried along in y) turns every scan about the turning axis: the
+    cloud rigidly, unseen; so is a vertical shift (lever arm z) with no roll or pitch."""
+    drive = Drive(segments=spin(370.0, 120.0), speed_knots=[(0.0, 0.0)])
+    result = calibrated("spin", courtyard(), drive, 3.0, size=0.008)
+    assert result.config.mode == "joint"  # calibrated as a moving sensor: intrinsics and extrinsic
+    named = extrinsic_named(result)
+    assert {"yaw_deg", "lever_arm_z_m"} <= named <= {"yaw_deg", "lever_arm_y_m", "lever_arm_z_m"}
+    line = result.verdict
+    assert line.startswith("this drive cannot observe the boresight yaw")
+    assert "(a drive along a road would show" in line and "the lever arm z (a drive with slopes" in line
+    assert "(a drive past facades, each surface seen from many places, would show them)" in line
+
+
+def test_a_drive_with_turns_on_a_flat_plain_names_what_the_ground_cannot_show():
+    """A level head over a plain with nothing on it. The ground's normal is vertical everywhere: a horizontal shift
+    (lever arm x, y) or a turn about the vertical (boresight yaw, every fibre's azimuth offset) leaves it on itself,
+    and so does a vertical shift of every scan (lever arm z) while the vehicle neither rolls nor pitches; a tilt of
+    the head shows, towards a direction that turns with the vehicle. A fibre aimed level or up sees nothing; one
+    aimed down sees the ground at one range, the ring's height: one number for its range offset, elevation and
+    height, so two of the three at least are named."""
+    drive = Drive(segments=straight(8.0) + turn(10.0, 90.0) + straight(20.0), speed_knots=[(0.0, 6.0)])
+    result = calibrated("plain", [Ground(size_m=(300.0, 300.0))], drive, 5.0, extrinsic=ExtrinsicSpec())
+    assert extrinsic_named(result) == {"yaw_deg", "lever_arm_x_m", "lever_arm_y_m", "lever_arm_z_m"}
+    named = set(result.unobservable)
+    sensor = sensor_from_catalog("HDL-32E")
+    for fibre in np.flatnonzero(np.arange(sensor.n_fibres) != sensor.reference_fibre):
+        assert f"fibre_{fibre}.d_azimuth_deg" in named, fibre
+        ring = {kind for kind in ("d_range_m", "d_elevation_deg", "h_z_m") if f"fibre_{fibre}.{kind}" in named}
+        assert len(ring) == 3 if sensor.elevation_deg[fibre] >= 0 else len(ring) >= 2, (fibre, ring)
+    line = result.verdict
+    assert line.startswith("this drive cannot observe the boresight yaw, lever arm x and lever arm y (facades or poles "
+                           "beside the road, not only flat ground, would show them); the lever arm z (a drive with "
+                           "slopes")
+    assert "fibre heights (fibres that see surfaces at several ranges and orientations" in line
+
+
+def test_a_standstill_prints_one_plain_line_through_the_command_line(tmp_path):
+    """A vehicle that does not move: every scan is one viewpoint, and the extrinsic and a common motion of the
+    trajectory move the whole cloud rigidly. The command line prints the static sensor's line, not the 130 names."""
+    recording = graphcal.simulate(scenario("standstill", courtyard(), Drive(segments=straight(1.0),
+                                                                             speed_knots=[(0.0, 0.0)]), 2.0),
+                                  quiet=True).save(tmp_path / "rec")
+    run = CliRunner().invoke(app, ["calibrate", str(recording), "--out", str(tmp_path / "run"), "--no-evaluate",
+                                   "--viewer-points", "1000"])
+    assert run.exit_code == 0, run.output
+    lines = run.output.strip().splitlines()
+    verdicts = [line for line in lines if "unobservable" in line]
+    assert len(verdicts) == 1 and verdicts[0].startswith(
+        "static sensor: the extrinsic and the trajectory are unobservable; 124 intrinsic parameters held")
+    assert len(lines) <= 6 and "fibre_" not in run.output
