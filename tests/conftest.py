@@ -18,7 +18,7 @@ from tools.foreign_sim import simulate  # noqa: E402
 # collection order. The list only orders the work: a module missing from it still runs.
 LONGEST_FIRST = ("test_diagnose", "test_foreign_from_truth", "test_calibration", "test_foreign_calibration",
                  "test_static_calibration", "test_trajectory_calibration", "test_static_halves", "test_open_world",
-                 "test_fuzz", "test_shared_returns", "test_scenarios_cli", "test_runs", "test_tiles", "test_foreign_sim")
+                 "test_fuzz", "test_degenerate_drives", "test_shared_returns", "test_scenarios_cli", "test_runs", "test_tiles", "test_foreign_sim")
 
 
 def pytest_collection_modifyitems(items):

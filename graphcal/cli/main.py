@@ -171,8 +171,8 @@ def _print_calibration(run) -> None:
         typer.echo(f"range noise {noise_m * 1000:.2g} mm: pairs {result.config.weighting.pair_noise}, features from "
                    + (f"{voxel_m} m voxels" if voxel_m else "every return"))
     if result.verdict is not None:
-        typer.echo(f"{result.verdict} ({len(result.unobservable)} names, each with its reason: calibration.yaml "
-                   "unobservable_reasons)")
+        typer.echo(f"{result.verdict}; {len(result.unobservable)} names, each with its reason, in calibration.yaml "
+                   "unobservable_reasons")
     if evaluation is not None:
         typer.echo(f"against truth, cloud-to-cloud mean {evaluation.cloud_before.mean * 100:.3g} -> "
                    f"{evaluation.cloud_after.mean * 100:.3g} cm ({evaluation.cloud_after_gauge_free.mean * 100:.3g} cm "
