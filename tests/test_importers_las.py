@@ -1,5 +1,6 @@
 """`import las` on LAS/LAZ files the test georeferences from known raw returns with graphcal's forward model
-(a 16-laser head with a ring extra dimension; a single-beam line scanner), and on the leeward airborne sample."""
+(a 16-laser head with a ring extra dimension; a single-beam line scanner), read in chunks, and on the leeward
+airborne sample."""
 
 from pathlib import Path
 
@@ -76,8 +77,8 @@ def test_las_with_ring_dimension_gives_back_the_raw_returns(tmp_path, suffix):
                          to_world(trajectory, CRS).poses)
     ring = np.argsort(model.fibres_by_elevation())[truth["fibre"]]
     _write_las(tmp_path / f"cloud{suffix}", world, truth, ring, CRS, "1.4")
-    recording = import_las(tmp_path / f"cloud{suffix}", trajectory, lever_arm_m=MOUNT.lever_arm_m,
-                           boresight_deg=MOUNT.boresight_deg,
+    recording = import_las(tmp_path / f"cloud{suffix}", trajectory, tmp_path / "rec",
+                           lever_arm_m=MOUNT.lever_arm_m, boresight_deg=MOUNT.boresight_deg,
                            calibration=read_velodyne_calibration(tmp_path / "calib.yaml"))
     points = recording.points.read()
     assert recording.crs.startswith("PROJCRS") or recording.crs.startswith("PROJCS")
@@ -116,16 +117,59 @@ def test_single_beam_line_scanner_gets_its_scan_plane(tmp_path):
 def test_las_errors_name_the_file(tmp_path):
     (tmp_path / "junk.las").write_bytes(b"LASF" + b"\0" * 300)
     with pytest.raises(RecordingError, match="junk.las: not a readable LAS"):
-        import_las(tmp_path / "junk.las", _trajectory())
+        import_las(tmp_path / "junk.las", _trajectory(), tmp_path / "rec")
     truth = _returns(synth.sensor(False), 50)
     world = np.column_stack([np.full(50, 450_000.0), np.full(50, 5_400_000.0), np.zeros(50)])
     _write_las(tmp_path / "nocrs.las", world, truth, None, None, "1.2")
     with pytest.raises(RecordingError, match="nocrs.las, field 'crs': no CRS"):
-        import_las(tmp_path / "nocrs.las", _trajectory())
+        import_las(tmp_path / "nocrs.las", _trajectory(), tmp_path / "rec")
     truth["time"] = truth["time"] + 1000.0
     _write_las(tmp_path / "late.las", world, truth, None, CRS, "1.4")
     with pytest.raises(RecordingError, match="late.las, field 'gps_time'"):
-        import_las(tmp_path / "late.las", _trajectory())
+        import_las(tmp_path / "late.las", _trajectory(), tmp_path / "rec")
+
+
+def _jittered_las(path: Path, block: int) -> int:
+    """A LAS file of a 16-laser head whose points are shuffled within blocks of `block` points (out of time order
+    by up to a block), a tenth of them after the trajectory's end; its number of points."""
+    model = synth.sensor(with_offsets=False)
+    truth = _returns(model, 3000, seed=3)
+    truth["time"][-300:] += 5.0  # after the trajectory: left out
+    world = georeference(np.minimum(truth["time"], T0 + 1.9), truth["fibre"], truth["range"], truth["azimuth"], model,
+                         MOUNT, to_world(_trajectory(), CRS).poses)
+    order = np.concatenate([start + np.random.default_rng(start).permutation(block)
+                            for start in range(0, len(world), block)])
+    _write_las(path, world[order], {key: values[order] for key, values in truth.items()},
+               np.argsort(model.fibres_by_elevation())[truth["fibre"]][order], CRS, "1.4")
+    return len(world)
+
+
+def test_chunked_las_import_writes_the_same_points_as_one_chunk(tmp_path, monkeypatch):
+    """Chunks of 128 points (points up to 100 out of time order, row groups of 1000 rows) against the whole file as
+    one chunk: the same points.parquet, byte for byte, and the same recording beside it."""
+    monkeypatch.setattr("graphcal.recording.points.BATCH_ROWS", 1000)
+    n = _jittered_las(tmp_path / "cloud.las", block=100)
+    chunked = import_las(tmp_path / "cloud.las", _trajectory(), tmp_path / "chunked", lever_arm_m=MOUNT.lever_arm_m,
+                         boresight_deg=MOUNT.boresight_deg, chunk_points=128)
+    whole = import_las(tmp_path / "cloud.las", _trajectory(), tmp_path / "whole", lever_arm_m=MOUNT.lever_arm_m,
+                       boresight_deg=MOUNT.boresight_deg, chunk_points=n)
+    assert (tmp_path / "chunked/points.parquet").read_bytes() == (tmp_path / "whole/points.parquet").read_bytes()
+    for name in ("sensor.yaml", "extrinsic.yaml", "recording.yaml"):
+        assert (tmp_path / "chunked" / name).read_text() == (tmp_path / "whole" / name).read_text()
+    points = chunked.points.read()
+    assert len(points["time"]) == 2700 and np.all(np.diff(points["time"]) >= 0)
+    assert chunked.points._file.metadata.num_row_groups == 3
+    assert any("300 points outside" in n for n in chunked.source["notes"])
+
+
+def test_las_out_of_time_order_beyond_a_chunk_is_refused(tmp_path):
+    """Points out of time order by up to 100 points, read 30 at a time: refused, naming the file and the field, and
+    saying how to sort it; no folder is left behind."""
+    _jittered_las(tmp_path / "cloud.las", block=100)
+    with pytest.raises(RecordingError, match=r"cloud.las, field 'time': .*time order to within 30 points.*lassort"):
+        import_las(tmp_path / "cloud.las", _trajectory(), tmp_path / "rec", lever_arm_m=MOUNT.lever_arm_m,
+                   boresight_deg=MOUNT.boresight_deg, chunk_points=30)
+    assert not (tmp_path / "rec").exists() and sorted(p.name for p in tmp_path.iterdir()) == ["cloud.las"]
 
 
 @pytest.mark.skipif(not LEEWARD.is_dir(), reason="leeward sample not present")

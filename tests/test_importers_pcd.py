@@ -104,7 +104,7 @@ def test_import_pcd_recovers_raw_returns_without_calibration(tmp_path, encoding)
         write_pcd(folder / f"{round(scan['stamp'] * 1e9)}.pcd", _scan_array(scan, "t", relative=True), encoding)
     poses = synth.kitti_poses(len(scans))
     (tmp_path / "poses.txt").write_text("".join(" ".join(f"{v:.9f}" for v in p.ravel()) + "\n" for p in poses))
-    recording = import_pcd_folder(folder, tmp_path / "poses.txt", quiet=True)
+    recording = import_pcd_folder(folder, tmp_path / "poses.txt", tmp_path / "rec", quiet=True)
     points, truth = _matched(recording, _truth(scans), model)
     # poses at each scan's last return: of scan 0, only its last return is within the trajectory
     assert len(points["time"]) == sum(len(s["time"]) for s in scans[1:]) + 1
@@ -141,7 +141,8 @@ def test_import_pcd_with_calibration_and_named_poses(tmp_path):
         lines.append(name + " " + " ".join(f"{v:.9f}" for v in poses[k].ravel()))
     (tmp_path / "poses.txt").write_text("\n".join(lines) + "\n")
     calibration = read_velodyne_calibration(write_calibration)
-    recording = import_pcd_folder(folder, tmp_path / "poses.txt", calibration=calibration, quiet=True)
+    recording = import_pcd_folder(folder, tmp_path / "poses.txt", tmp_path / "rec", calibration=calibration,
+                                  quiet=True)
     points, truth = _matched(recording, _truth(scans), model)
     np.testing.assert_array_equal(points["fibre"], truth["fibre"])
     np.testing.assert_allclose(points["range"], truth["range"], atol=2e-4)
@@ -158,10 +159,10 @@ def test_import_pcd_errors_name_the_file(tmp_path):
     write_pcd(folder / "a.pcd", points[["x", "y", "z", "t"]], "binary")
     (tmp_path / "poses.txt").write_text(" ".join(["0"] * 12) + "\n")
     with pytest.raises(RecordingError, match="a.pcd.*no ring field"):
-        import_pcd_folder(folder, tmp_path / "poses.txt", quiet=True)
+        import_pcd_folder(folder, tmp_path / "poses.txt", tmp_path / "rec", quiet=True)
     write_pcd(folder / "a.pcd", points, "binary")  # relative times, and no stamp in the name
     with pytest.raises(RecordingError, match="a.pcd.*relative"):
-        import_pcd_folder(folder, tmp_path / "poses.txt", quiet=True)
+        import_pcd_folder(folder, tmp_path / "poses.txt", tmp_path / "rec", quiet=True)
     damaged = tmp_path / "damaged.pcd"
     write_pcd(damaged, points, "binary_compressed")
     damaged.write_bytes(damaged.read_bytes()[:-100])

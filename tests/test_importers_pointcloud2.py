@@ -1,13 +1,14 @@
 """`import pointcloud2` on bags the test writes with rosbags (rosbag1, rosbag2 sqlite3, rosbag2 mcap, a standalone
 MCAP file) from synthetic scans with known raw returns, in the velodyne_pointcloud and ouster-ros point layouts,
-with the trajectory from NavSatFix + Imu, from Odometry, or from a trajectory.csv."""
+with the trajectory from NavSatFix + Imu, from Odometry, or from a trajectory.csv, and the extrinsic from the bag's
+/tf_static."""
 
 import numpy as np
 import pytest
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
@@ -21,6 +22,7 @@ from graphcal.recording.directory import Recording
 from graphcal.recording.trajectory import Trajectory
 
 CLOUD = "sensor_msgs/msg/PointCloud2"
+TF = "tf2_msgs/msg/TFMessage"
 # PointField datatypes
 F32, F64, U16, U32 = 7, 8, 4, 6
 VELODYNE = [("x", F32), ("y", F32), ("z", F32), ("intensity", F32), ("ring", U16), ("time", F32)]
@@ -40,7 +42,7 @@ def _header(store, seconds: float, frame: str):
     return store.types["std_msgs/msg/Header"](stamp=_stamp(store, seconds), frame_id=frame, **kwargs)
 
 
-def _cloud(store, scan: dict, layout, model) -> object:
+def _cloud(store, scan: dict, layout, model, frame: str = "lidar") -> object:
     """A PointCloud2 of one synthetic scan in a driver's layout (Ouster: ring 0 is the top beam, t in ns)."""
     dtype = np.dtype([(name, _NUMPY[kind]) for name, kind in layout])
     points = np.zeros(len(scan["time"]), dtype=dtype)
@@ -56,7 +58,7 @@ def _cloud(store, scan: dict, layout, model) -> object:
         points["timestamp"] = scan["time"]
     field = store.types["sensor_msgs/msg/PointField"]
     fields = [field(name=name, offset=dtype.fields[name][1], datatype=kind, count=1) for name, kind in layout]
-    return store.types[CLOUD](header=_header(store, scan["stamp"], "lidar"), height=1, width=len(points),
+    return store.types[CLOUD](header=_header(store, scan["stamp"], frame), height=1, width=len(points),
                               fields=fields, is_bigendian=False, point_step=dtype.itemsize,
                               row_step=dtype.itemsize * len(points), data=np.frombuffer(points.tobytes(), np.uint8),
                               is_dense=True, **({}))
@@ -98,15 +100,34 @@ def _odometry(store, times):
     return out
 
 
+def _tf(store, t: float, transforms) -> object:
+    """A TFMessage of (parent, child, translation m, roll pitch yaw deg) transforms (T_parent_child)."""
+    if TF not in store.types:  # the ROS 1 store has no tf2_msgs
+        store.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", TF))
+    t_ = store.types
+    stamped = []
+    for parent, child, translation, rpy in transforms:
+        q = Rotation.from_euler("ZYX", rpy[::-1], degrees=True).as_quat()
+        transform = t_["geometry_msgs/msg/Transform"](translation=t_["geometry_msgs/msg/Vector3"](*translation),
+                                                      rotation=t_["geometry_msgs/msg/Quaternion"](*q))
+        stamped.append(t_["geometry_msgs/msg/TransformStamped"](header=_header(store, t, parent), child_frame_id=child,
+                                                                transform=transform))
+    return t_[TF](transforms=stamped)
+
+
 def _pose_times(scans):
     return synth.START_UTC - 0.05 + 0.05 * np.arange(2 * len(scans) + 3)
 
 
-def _write(path, container, scans, layout, model, trajectory):
-    """A bag of the scans (+ NavSatFix/Imu or Odometry messages) in one container."""
+def _write(path, container, scans, layout, model, trajectory, tf=(), frame="lidar", logged=None):
+    """A bag of the scans (+ NavSatFix/Imu or Odometry messages) in one container; tf: (topic, time, transforms)
+    of TFMessages (see _tf); frame: the clouds' header.frame_id; logged: the clouds' log times (default: their
+    stamps), which set their order in the bag."""
     ros1 = container == "rosbag1"
     store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
-    messages = [("/points", CLOUD, scan["stamp"], _cloud(store, scan, layout, model)) for scan in scans]
+    logged = [scan["stamp"] for scan in scans] if logged is None else logged
+    messages = [("/points", CLOUD, t, _cloud(store, scan, layout, model, frame)) for t, scan in zip(logged, scans)]
+    messages += [(topic, TF, t, _tf(store, t, transforms)) for topic, t, transforms in tf]
     if trajectory == "navsat":
         for t, fix, imu in _navsat_imu(store, _pose_times(scans)):
             messages += [("/fix", "sensor_msgs/msg/NavSatFix", t, fix), ("/imu", "sensor_msgs/msg/Imu", t, imu)]
@@ -151,7 +172,7 @@ def test_rosbag1_velodyne_layout_with_navsatfix_and_imu(tmp_path):
     model = synth.sensor(with_offsets=False)
     scans = synth.scans(model, n_scans=3)
     bag = _write(tmp_path / "drive.bag", "rosbag1", scans, VELODYNE, model, "navsat")
-    recording = import_pointcloud2(bag, quiet=True)
+    recording = import_pointcloud2(bag, tmp_path / "rec", quiet=True)
     _check(recording, scans, model, fibre_known=False)
     trajectory = recording.trajectory
     assert trajectory.geodetic and recording.crs == "auto"
@@ -165,7 +186,7 @@ def test_rosbag2_sqlite3_ouster_layout_with_odometry(tmp_path):
     model = synth.sensor(with_offsets=False)
     scans = synth.scans(model, n_scans=2, seed=4)
     bag = _write(tmp_path / "drive", "rosbag2", scans, OUSTER, model, "odometry")
-    recording = import_pointcloud2(bag, quiet=True)
+    recording = import_pointcloud2(bag, tmp_path / "rec", quiet=True)
     _check(recording, scans, model, fibre_known=False)
     assert not recording.trajectory.geodetic and recording.crs.startswith("+proj=tmerc")
     np.testing.assert_allclose(recording.trajectory.position[:, 0], 0.5 * np.arange(len(recording.trajectory.time)))
@@ -177,7 +198,8 @@ def test_rosbag2_mcap_velodyne_layout_with_calibration(tmp_path):
     scans = synth.scans(model, n_scans=2, seed=5)
     synth.write_ros_calibration(tmp_path / "calib.yaml", model)
     bag = _write(tmp_path / "drive", "rosbag2-mcap", scans, VELODYNE, model, "navsat")
-    recording = import_pointcloud2(bag, calibration=read_velodyne_calibration(tmp_path / "calib.yaml"), quiet=True)
+    calibration = read_velodyne_calibration(tmp_path / "calib.yaml")
+    recording = import_pointcloud2(bag, tmp_path / "rec", calibration=calibration, quiet=True)
     _check(recording, scans, model, fibre_known=True)
 
 
@@ -205,9 +227,79 @@ def test_bag_errors_name_the_bag(tmp_path):
     scans = synth.scans(model, n_scans=1, columns=20)
     bag = _write(tmp_path / "drive.bag", "rosbag1", scans, VELODYNE, model, None)
     with pytest.raises(RecordingError, match="drive.bag.*no trajectory"):
-        import_pointcloud2(bag, quiet=True)
+        import_pointcloud2(bag, tmp_path / "rec", quiet=True)
     with pytest.raises(RecordingError, match="drive.bag.*0 sensor_msgs/msg/PointCloud2 topics named /other"):
-        import_pointcloud2(bag, topic="/other", quiet=True)
+        import_pointcloud2(bag, tmp_path / "rec", topic="/other", quiet=True)
     (tmp_path / "junk.bag").write_bytes(b"#ROSBAG V2.0\n" + b"\0" * 40)
     result = CliRunner().invoke(app, ["import", "pointcloud2", str(tmp_path / "junk.bag"), "-q"])
     assert result.exit_code == 2 and "junk.bag: not a readable ROS bag" in result.output
+
+
+BASE_ROOF = ("base_link", "roof", (0.5, 0.0, 1.6), (0.0, 2.0, 0.0))  # parent, child, translation m, roll pitch yaw deg
+ROOF_VELODYNE = ("roof", "velodyne", (0.3, -0.1, 0.25), (1.0, -0.5, 91.0))
+
+
+def _odom_base_link(t: float, x: float):
+    """A moving transform on /tf (the vehicle's pose), which the extrinsic must not take."""
+    return ("/tf", t, [("odom", "base_link", (x, 0.0, 0.0), (0.0, 0.0, 0.0))])
+
+
+def test_tf_static_chain_becomes_the_extrinsic_unless_one_is_given(tmp_path):
+    """base_link -> roof -> velodyne on /tf_static (two messages), odom -> base_link moving on /tf: the recording's
+    extrinsic is T_base_link_velodyne, composed here with scipy; --lever-arm on the command line wins."""
+    model = synth.sensor(with_offsets=False)
+    scans = synth.scans(model, n_scans=2, seed=7)
+    t0 = synth.START_UTC - 0.05
+    tf = [("/tf_static", t0, [BASE_ROOF]), ("/tf_static", t0, [ROOF_VELODYNE]),
+          _odom_base_link(t0, 0.0), _odom_base_link(t0 + 0.1, 0.5)]
+    bag = _write(tmp_path / "drive", "rosbag2", scans, VELODYNE, model, "odometry", tf=tf, frame="velodyne")
+    recording = import_pointcloud2(bag, tmp_path / "rec", quiet=True)
+    (_, _, t_a, rpy_a), (_, _, t_b, rpy_b) = BASE_ROOF, ROOF_VELODYNE
+    R_base_roof = Rotation.from_euler("ZYX", rpy_a[::-1], degrees=True)
+    R_roof_velodyne = Rotation.from_euler("ZYX", rpy_b[::-1], degrees=True)
+    R_base_velodyne = R_base_roof * R_roof_velodyne
+    t_base_velodyne = R_base_roof.apply(t_b) + np.array(t_a)
+    np.testing.assert_allclose(recording.extrinsic.lever_arm_m, t_base_velodyne, atol=1e-12)
+    np.testing.assert_allclose(recording.extrinsic.R_body_lidar, R_base_velodyne.as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(recording.extrinsic.boresight_deg,  # RECORDING.md: R = Rz(yaw) Ry(pitch) Rx(roll)
+                               R_base_velodyne.as_euler("ZYX", degrees=True)[::-1], atol=1e-9)
+    assert any("from the bag's tf: base_link -> roof -> velodyne" in n for n in recording.source["notes"])
+    result = CliRunner().invoke(app, ["import", "pointcloud2", str(bag), "--lever-arm", "1,2,3", "--out",
+                                      str(tmp_path / "given"), "-q"])
+    assert result.exit_code == 0, result.output
+    given = Recording.load(tmp_path / "given")
+    assert given.extrinsic.lever_arm_m == (1.0, 2.0, 3.0) and given.extrinsic.boresight_deg == (0.0, 0.0, 0.0)
+    assert any("extrinsic as given" in n for n in given.source["notes"])
+
+
+def test_broken_tf_chain_is_named_and_the_extrinsic_stays_identity(tmp_path):
+    """A ROS 1 bag (frames with tf's leading '/') whose static transforms do not link base_link to velodyne: the
+    extrinsic is identity, as without tf, and the notes name both frames and the transforms found."""
+    model = synth.sensor(with_offsets=False)
+    scans = synth.scans(model, n_scans=2, seed=8)
+    t0 = synth.START_UTC - 0.05
+    tf = [("/tf_static", t0, [("/base_link", "/roof", *BASE_ROOF[2:]), ("/mount", "/velodyne", *ROOF_VELODYNE[2:])])]
+    bag = _write(tmp_path / "drive.bag", "rosbag1", scans, VELODYNE, model, "odometry", tf=tf, frame="/velodyne")
+    recording = import_pointcloud2(bag, tmp_path / "rec", quiet=True)
+    assert recording.extrinsic.lever_arm_m == (0.0, 0.0, 0.0) and recording.extrinsic.boresight_deg == (0.0, 0.0, 0.0)
+    note = next(n for n in recording.source["notes"] if "extrinsic" in n)
+    assert "identity" in note and "does not link base_link" in note and "to velodyne" in note, note
+    assert "transforms found: base_link -> roof, mount -> velodyne" in note, note
+
+
+def test_scans_are_sorted_within_one_scan_and_refused_beyond(tmp_path):
+    """Messages logged out of their stamps' order: two neighbours swapped come out sorted by time (the raw values as
+    in order); a scan logged after two later ones is refused, naming the bag and the time field."""
+    model = synth.sensor(with_offsets=False)
+    scans = synth.scans(model, n_scans=4, seed=9)
+    stamps = [scan["stamp"] for scan in scans]
+    swapped = _write(tmp_path / "swapped.bag", "rosbag1", scans, VELODYNE, model, "navsat",
+                     logged=[stamps[1] + 0.001, stamps[1], stamps[2], stamps[3]])  # scan 1, 0, 2, 3
+    recording = import_pointcloud2(swapped, tmp_path / "rec", quiet=True)
+    _check(recording, scans, model, fibre_known=False)
+    assert np.all(np.diff(recording.points.read(["time"])["time"]) >= 0)
+    late = _write(tmp_path / "late.bag", "rosbag1", scans, VELODYNE, model, "navsat",
+                  logged=[stamps[2] + 0.001, stamps[1], stamps[2], stamps[3]])  # scan 1, 2, 0, 3
+    with pytest.raises(RecordingError, match=r"late.bag, field 'time': .* before .*scans in time order"):
+        import_pointcloud2(late, tmp_path / "late", quiet=True)
+    assert not (tmp_path / "late").exists()

@@ -78,9 +78,11 @@ def _side(fig, side, x, y, labels: tuple[str, str, str], path: Path, style: str 
 
 def pcd_figure(real: Path, out: Path) -> Path:
     folder = real / "pjlab_lidar2imu_pcd_poses"
-    recording = import_pcd_folder(folder / "top_center_lidar", folder / "top_center_lidar-enu.txt", quiet=True)
-    rows = np.arange(0, len(recording.points), 4)
-    xyz, points = _world(recording, rows)
+    with tempfile.TemporaryDirectory() as tmp:
+        recording = import_pcd_folder(folder / "top_center_lidar", folder / "top_center_lidar-enu.txt",
+                                      Path(tmp) / "pcd", quiet=True)
+        rows = np.arange(0, len(recording.points), 4)
+        xyz, points = _world(recording, rows)
     fig, (top, side) = plt.subplots(1, 2, figsize=(12, 5.2), gridspec_kw={"width_ratios": [1.4, 1]})
     _top(top, xyz, points["fibre"], "fibre (ring)", extent=60)
     top.set_title(f"OpenCalib sample, imported: {len(recording.points):,} returns, 4 scans (every 4th drawn)")
@@ -132,8 +134,9 @@ def _nebula_bag(real: Path, bag: Path) -> np.ndarray:
 def pointcloud2_figure(real: Path, out: Path) -> Path:
     with tempfile.TemporaryDirectory() as tmp:
         points = _nebula_bag(real, Path(tmp) / "vlp16")
-        recording = import_pointcloud2(Path(tmp) / "vlp16", calibration=read_velodyne_calibration(
-            real / "nebula_velodyne_rosbag2/calibration/VLP16.yaml"), quiet=True)
+        calibration = read_velodyne_calibration(real / "nebula_velodyne_rosbag2/calibration/VLP16.yaml")
+        recording = import_pointcloud2(Path(tmp) / "vlp16", Path(tmp) / "recording", calibration=calibration,
+                                       quiet=True)
         xyz, imported = _world(recording)
     echo = points[np.any(np.column_stack([points[n] for n in "xyz"]) != 0, axis=1)]
     p_lidar = recording.sensor.to_xyz(imported["fibre"].astype(np.intp), imported["range"].astype(np.float64),
@@ -152,8 +155,9 @@ def pointcloud2_figure(real: Path, out: Path) -> Path:
 
 def las_figure(real: Path, out: Path) -> Path:
     folder = real / "leeward_airborne_las_sbet"
-    recording = import_las(folder / "points.las", import_sbet(folder / "sbet.out"))
-    xyz, points = _world(recording)
+    with tempfile.TemporaryDirectory() as tmp:
+        recording = import_las(folder / "points.las", import_sbet(folder / "sbet.out"), Path(tmp) / "leeward")
+        xyz, points = _world(recording)
     fig, (top, side) = plt.subplots(1, 2, figsize=(12, 5.2), gridspec_kw={"width_ratios": [1.4, 1]})
     _top(top, xyz, points["time"] - points["time"][0], "time [s]", equal=False)
     top.set_title(f"leeward airborne LAS + SBET, imported: {len(xyz):,} returns")

@@ -399,14 +399,16 @@ def _numbers(text: str | None, option: str, count: int = 3) -> tuple[float, ...]
 def _save_import(recording, out: Path | None, source: Path, quiet: bool) -> None:
     """Check every imported return (an importer's arithmetic on a damaged input must not write a recording that
     info refuses), write the recording at `out` (default out/<name>) and print its notes."""
-    from graphcal.common.errors import ConfigError, RecordingError
+    from graphcal.importers.return_stream import check_imported
 
     out = _imported_recording_folder(out, recording.name)
-    try:
-        recording.validate()
-    except RecordingError as error:
-        raise ConfigError(f"{source}: the returns imported from it do not form a valid recording ({error})") from None
+    check_imported(recording, source)
     recording.save(out)
+    _print_import(recording, out, quiet)
+
+
+def _print_import(recording, out: Path, quiet: bool) -> None:
+    """The notes of an imported recording and where it was written, unless quiet."""
     if not quiet:
         for note in recording.source["notes"]:
             typer.echo(f"  {note}")
@@ -620,14 +622,13 @@ def import_pcd_command(
     from graphcal.importers.pcd_folder import import_pcd_folder
     from graphcal.importers.velodyne_calibration import read_velodyne_calibration
 
-    if out is not None:  # before the import's work
-        _not_taken(out)
+    out = _imported_recording_folder(out, folder.name)  # before the import's work
     if pose_at not in ("start", "end"):
         raise ConfigError(f"--pose-at {pose_at!r}: expected start or end")
-    recording = import_pcd_folder(folder, poses, calibration=read_velodyne_calibration(calibration) if calibration
-                                  else None, crs=crs, origin=_numbers(origin, "--origin", 2),
+    recording = import_pcd_folder(folder, poses, out, calibration=read_velodyne_calibration(calibration)
+                                  if calibration else None, crs=crs, origin=_numbers(origin, "--origin", 2),
                                   extrinsic=_extrinsic(lever_arm, boresight), pose_at=pose_at, quiet=quiet)
-    _save_import(recording, out, folder, quiet)
+    _print_import(recording, out, quiet)
 
 
 def _extrinsic(lever_arm: str | None, boresight: str | None):
@@ -653,8 +654,10 @@ def import_pointcloud2_command(
         out: Annotated[Path | None, typer.Option(help="recording directory (default out/<bag name>)")] = None,
         crs: Annotated[str, typer.Option(help="world CRS (needed for a projected trajectory.csv)")] = "auto",
         origin: Annotated[str, typer.Option(help="Odometry's local frame: its centre LAT,LON (deg)")] = "0,0",
-        lever_arm: Annotated[str | None, typer.Option(help="lidar -> body lever arm X,Y,Z (m)")] = None,
-        boresight: Annotated[str | None, typer.Option(help="lidar -> body ROLL,PITCH,YAW (deg)")] = None,
+        lever_arm: Annotated[str | None, typer.Option(help="lidar -> body lever arm X,Y,Z (m); default: the bag's "
+                                                           "/tf_static, else 0")] = None,
+        boresight: Annotated[str | None, typer.Option(help="lidar -> body ROLL,PITCH,YAW (deg); default: the bag's "
+                                                           "/tf_static, else 0")] = None,
         quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
     """ROS PointCloud2 scans with ring and per-point time -> recording (docs/howto/import-pointcloud2.md).
 
@@ -663,16 +666,13 @@ def import_pointcloud2_command(
     from graphcal.importers.pointcloud2 import import_pointcloud2
     from graphcal.importers.velodyne_calibration import read_velodyne_calibration
 
-    if out is not None:  # before the import's work
-        _not_taken(out)
-    recording = import_pointcloud2(bag, topic=topic, calibration=read_velodyne_calibration(calibration)
+    out = _imported_recording_folder(out, bag.stem)  # before the import's work
+    recording = import_pointcloud2(bag, out, topic=topic, calibration=read_velodyne_calibration(calibration)
                                    if calibration else None, trajectory=_read_trajectory(trajectory)
-                                   if trajectory else None, pose_topic=pose_topic,
+                                   if trajectory else None, crs=crs, pose_topic=pose_topic,
                                    extrinsic=_extrinsic(lever_arm, boresight), origin=_numbers(origin, "--origin", 2),
                                    quiet=quiet)
-    if trajectory is not None:
-        recording.crs = crs
-    _save_import(recording, out, bag, quiet)
+    _print_import(recording, out, quiet)
 
 
 @import_app.command("las")
@@ -699,14 +699,13 @@ def import_las_command(
     from graphcal.importers.las_cloud import import_las
     from graphcal.importers.velodyne_calibration import read_velodyne_calibration
 
-    if out is not None:  # before the import's work
-        _not_taken(out)
-    recording = import_las(las, _read_trajectory(trajectory), crs=crs,
+    out = _imported_recording_folder(out, las.stem)  # before the import's work
+    recording = import_las(las, _read_trajectory(trajectory), out, crs=crs,
                            lever_arm_m=_numbers(lever_arm, "--lever-arm") or (0.0, 0.0, 0.0),
                            boresight_deg=_numbers(boresight, "--boresight"),
                            calibration=read_velodyne_calibration(calibration) if calibration else None,
                            ring_field=ring_field)
-    _save_import(recording, out, las, quiet)
+    _print_import(recording, out, quiet)
 
 
 def main() -> None:  # pragma: no cover - console entry

@@ -74,6 +74,12 @@ class RingModel:
     def fibres(self, ring: np.ndarray) -> np.ndarray:
         return self.fibre_of_ring[ring].astype(np.int16)
 
+    def unknown_ring(self, ring: np.ndarray) -> int | None:
+        """The first ring id of `ring` without a fibre in the model (one it was not fitted with), else None."""
+        known = self.fibre_of_ring
+        unknown = (ring < 0) | (ring >= len(known)) | (known[np.clip(ring, 0, len(known) - 1)] < 0)
+        return int(ring[unknown][0]) if unknown.any() else None
+
     def raw(self, ring: np.ndarray, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(fibre, range m, encoder azimuth rad in [0, 2 pi), misfit m) of sensor-frame points xyz (N, 3) [m]."""
         fibre = self.fibres(ring)
@@ -121,11 +127,30 @@ def ring_model(xyz: np.ndarray, ring: np.ndarray, model: str, rotation_hz: float
     return RingModel(_with_rate(sensor, rotation_hz), fibre_of_ring, notes)
 
 
-def misfit_note(misfit_m: np.ndarray) -> str:
+class MisfitSpread:
+    """The model misfit |m| of any number of returns, counted in bins 1.2 % wide on a log scale from 0.1 µm to
+    1 km: its quantiles (to the bin's upper edge) in fixed memory."""
+
+    _EDGES_M = np.geomspace(1e-7, 1e3, 2001)
+
+    def __init__(self):
+        self._counts = np.zeros(len(self._EDGES_M) + 1, dtype=np.int64)
+
+    def add(self, misfit_m: np.ndarray) -> None:
+        bins = np.searchsorted(self._EDGES_M, np.abs(np.asarray(misfit_m, dtype=np.float64)))
+        self._counts += np.bincount(bins, minlength=len(self._counts))
+
+    def quantile_m(self, q: float) -> float:
+        """The misfit [m] that a fraction q of the returns do not exceed (the top edge, 1 km, for any above it)."""
+        index = int(np.searchsorted(np.cumsum(self._counts), q * self._counts.sum()))
+        return float(self._EDGES_M[min(index, len(self._EDGES_M) - 1)])
+
+
+def misfit_note(misfit: MisfitSpread) -> str:
     """The model misfit of an import, in plain words."""
-    misfit_m = np.abs(misfit_m)
-    return (f"model misfit (distance of a point from its fibre's beam line): median {1000 * np.median(misfit_m):.1f} "
-            f"mm, 99 % {1000 * np.percentile(misfit_m, 99):.1f} mm")
+    median_mm, top_mm = 1000 * misfit.quantile_m(0.5), 1000 * misfit.quantile_m(0.99)
+    return (f"model misfit (distance of a point from its fibre's beam line): median {median_mm:.1f} mm, "
+            f"99 % {top_mm:.1f} mm")
 
 
 def _fitted_model(model: str, rotation_hz: float, elevation: np.ndarray, vertical: np.ndarray) -> SensorModel:

@@ -29,7 +29,7 @@ from graphcal.common.progress import progress
 from graphcal.importers.frame_poses import FramePoses, frame_time, read_frame_poses
 from graphcal.importers.pcd import read_pcd
 from graphcal.importers.point_fields import ScanPoints, scan_points
-from graphcal.importers.scan_recording import ScanSource, local_crs, recording_from_scans
+from graphcal.importers.scan_recording import ScanSource, local_crs, write_scan_recording
 from graphcal.importers.velodyne_calibration import VelodyneCalibration
 from graphcal.recording.directory import Recording
 from graphcal.recording.extrinsic import Extrinsic
@@ -39,11 +39,13 @@ from graphcal.recording.trajectory import Trajectory
 _NAME_CLOCK_SPREAD_S = 0.05  # frame names on one clock: their offsets from the scans agree within this
 
 
-def import_pcd_folder(folder: str | Path, poses: str | Path, *, calibration: VelodyneCalibration | None = None,
+def import_pcd_folder(folder: str | Path, poses: str | Path, out: str | Path, *,
+                      calibration: VelodyneCalibration | None = None,
                       crs: str | None = None, origin: tuple[float, float] = (0.0, 0.0),
                       extrinsic: Extrinsic | None = None, pose_at: str = "end", model: str = "lidar",
                       name: str | None = None, quiet: bool = False) -> Recording:
-    """The PCD scans of `folder` with the poses of `poses` as a recording; see the module docstring."""
+    """The PCD scans of `folder` with the poses of `poses` as the recording folder `out` (written whole; an existing
+    folder is replaced); see the module docstring. The scans are read whole (the poses are timed by them)."""
     folder = Path(folder)
     if pose_at not in ("start", "end"):
         raise ValueError(f"pose_at must be 'start' or 'end', not {pose_at!r}")
@@ -70,7 +72,7 @@ def import_pcd_folder(folder: str | Path, poses: str | Path, *, calibration: Vel
     if crs is None:
         source.notes.append(f"pose frame taken as a local frame (x east, y north, z up) centred at lat {origin[0]:g}, "
                             f"lon {origin[1]:g}: a transverse Mercator CRS")
-    return recording_from_scans(scans, source, calibration, name or folder.name, quiet)
+    return write_scan_recording(scans, source, out, calibration, name or folder.name, quiet)
 
 
 def _numeric_stamp(stem: str) -> float | None:

@@ -94,14 +94,3 @@ def _times(values: np.ndarray, name: str, source, stamp_s: float | None, stamp_w
                              expected="absolute times, or a stamp to count them from")
     return stamp_s + seconds, f"per-point time {name!r} ({stored}): {unit} relative to {stamp_what}"
 
-
-def intensity_0_255(intensity: np.ndarray) -> tuple[np.ndarray, str]:
-    """Intensities as the recording's 0-255 column: as stored when they fit, x255 when within 0-1 (reflectance),
-    else scaled by 255 / max; with a note of what was done."""
-    intensity = np.maximum(intensity, 0.0)  # no driver writes negative intensities on purpose
-    top = float(np.max(intensity)) if len(intensity) else 0.0
-    if top <= 1.0 and np.any(intensity % 1.0 != 0.0):
-        return np.clip(intensity * 255.0, 0.0, 255.0), "intensity within 0-1 (a reflectance): multiplied by 255"
-    if top <= 255.0:
-        return intensity, "intensity as stored (0-255)"
-    return intensity * (255.0 / top), f"intensity scaled by 255 / {top:g} (the largest value) into 0-255"

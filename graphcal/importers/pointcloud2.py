@@ -7,20 +7,24 @@ XYZIRT and ouster-ros layouts among them); relative times count from the message
 Raw range and encoder azimuth come back through the nominal model (scan_recording, beam_fit).
 The trajectory: a file (SBET or trajectory.csv, GPS seconds of week) or the bag's own
 NavSatFix + Imu or Odometry messages (ros_trajectory). Header stamps are read as UTC.
+The lidar -> body extrinsic: as given, else T_body_lidar from the bag's tf (ros_tf; body = the
+trajectory's body frame, lidar = the first cloud's header.frame_id), else identity.
+Messages are read one at a time and their returns written as they come (scan_recording).
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
 from graphcal.common.errors import RecordingError
-from graphcal.common.progress import progress
 from graphcal.importers.point_fields import ScanPoints, scan_points
-from graphcal.importers.ros_messages import RosBag, open_bag
+from graphcal.importers.ros_messages import RosBag, Topic, open_bag
+from graphcal.importers.ros_tf import tf_extrinsic
 from graphcal.importers.ros_trajectory import bag_trajectory, stamp_s
-from graphcal.importers.scan_recording import ScanSource, local_crs, recording_from_scans
+from graphcal.importers.scan_recording import ScanSource, local_crs, write_scan_recording
 from graphcal.importers.velodyne_calibration import VelodyneCalibration
 from graphcal.recording.directory import Recording
 from graphcal.recording.extrinsic import Extrinsic
@@ -58,36 +62,47 @@ def cloud_fields(msg, source, index: int = 0) -> np.ndarray:
     return np.frombuffer(np.ascontiguousarray(rows).tobytes(), dtype=dtype)
 
 
-def read_scans(bag: RosBag, topic: str | None = None, quiet: bool = False) -> tuple[list[ScanPoints], str]:
-    """The scans of the bag's PointCloud2 topic, and that topic's name."""
+def cloud_topic(bag: RosBag, topic: str | None = None) -> Topic:
+    """The bag's PointCloud2 topic: the only one, or the one named `topic`; RecordingError otherwise."""
     clouds = bag.of_type(POINTCLOUD2, topic)
     if len(clouds) != 1:
         raise RecordingError(bag.path, f"{len(clouds)} {POINTCLOUD2} topics{f' named {topic}' if topic else ''}; "
                                        f"topics: {bag.listing()}", field="topic",
                              expected="one PointCloud2 topic (choose it with --topic)" if clouds else
                              "a PointCloud2 topic (a lidar driver's point cloud)")
-    scans = []
-    for index, (_, _, msg) in enumerate(progress(bag.messages(clouds), f"reading {clouds[0].name}", quiet=quiet)):
-        source = f"{bag.path}, {clouds[0].name} message {index}"
-        scans.append(scan_points(cloud_fields(msg, bag.path, index), source, stamp_s(msg.header),
-                                 "the header stamp"))
-    return scans, clouds[0].name
+    return clouds[0]
 
 
-def import_pointcloud2(bag: str | Path, *, topic: str | None = None, calibration: VelodyneCalibration | None = None,
-                       trajectory: Trajectory | None = None, pose_topic: str | None = None,
-                       extrinsic: Extrinsic | None = None, origin: tuple[float, float] = (0.0, 0.0),
-                       model: str = "lidar", name: str | None = None, quiet: bool = False) -> Recording:
-    """A bag's PointCloud2 scans as a recording; trajectory: GPS seconds of week (SBET, CSV), else from the bag.
-    extrinsic: lidar -> body (the trajectory's frame); identity when not given."""
+def read_scans(bag: RosBag, cloud: Topic) -> Iterator[ScanPoints]:
+    """The scans of the PointCloud2 topic, one message at a time, in the bag's order."""
+    for index, (_, _, msg) in enumerate(bag.messages([cloud])):
+        source = f"{bag.path}, {cloud.name} message {index}"
+        yield scan_points(cloud_fields(msg, bag.path, index), source, stamp_s(msg.header), "the header stamp")
+
+
+def cloud_frame(bag: RosBag, cloud: Topic) -> str:
+    """The first message's header.frame_id (the lidar frame), without tf2's leading '/'; '' for no message."""
+    first = next(iter(bag.messages([cloud])), None)
+    return "" if first is None else first[2].header.frame_id.lstrip("/")
+
+
+def import_pointcloud2(bag: str | Path, out: str | Path, *, topic: str | None = None,
+                       calibration: VelodyneCalibration | None = None, trajectory: Trajectory | None = None,
+                       crs: str = "auto", pose_topic: str | None = None, extrinsic: Extrinsic | None = None,
+                       origin: tuple[float, float] = (0.0, 0.0), model: str = "lidar", name: str | None = None,
+                       quiet: bool = False) -> Recording:
+    """A bag's PointCloud2 scans as the recording folder `out` (written whole, message by message; an existing
+    folder is replaced). trajectory: GPS seconds of week (SBET, CSV) in the world CRS `crs`, else from the bag.
+    extrinsic: lidar -> body (the trajectory's frame); when not given, from the bag's tf, else identity."""
     bag = Path(bag)
     with open_bag(bag) as opened:
-        scans, cloud_topic = read_scans(opened, topic, quiet)
-        notes = [f"scans: {cloud_topic} (PointCloud2, one message per scan, header stamps read as UTC)"]
-        crs = "auto"
+        cloud = cloud_topic(opened, topic)
+        notes = [f"scans: {cloud.name} (PointCloud2, one message per scan, header stamps read as UTC)"]
+        body_frame = None
         if trajectory is None:
-            trajectory, trajectory_notes = bag_trajectory(opened, pose_topic)
-            notes.extend(trajectory_notes)
+            from_bag = bag_trajectory(opened, pose_topic)
+            trajectory, body_frame, crs = from_bag.trajectory, from_bag.body_frame, "auto"
+            notes.extend(from_bag.notes)
             if not trajectory.geodetic:
                 crs = local_crs(*origin)
                 notes.append(f"the odometry frame is taken as a local frame (x east, y north, z up) centred at lat "
@@ -96,10 +111,22 @@ def import_pointcloud2(bag: str | Path, *, topic: str | None = None, calibration
         else:
             notes.append("trajectory: the file given (GPS seconds of week)")
             utc = False
-    notes.append("points taken as the driver wrote them, in the sensor frame (not transformed to another frame); raw "
-                 "range and azimuth are recovered through the nominal model (exact only when it is the driver's own)")
-    notes.append("lidar -> body extrinsic as given" if extrinsic is not None else
-                 "lidar -> body extrinsic: identity (none given)")
-    source = ScanSource(path=bag, importer="pointcloud2", model=model, trajectory=trajectory, trajectory_utc=utc,
-                        extrinsic=extrinsic or Extrinsic((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)), crs=crs, notes=notes)
-    return recording_from_scans(scans, source, calibration, name or bag.stem, quiet)
+        extrinsic, extrinsic_note = _extrinsic(opened, extrinsic, body_frame, cloud_frame(opened, cloud))
+        notes += ["points taken as the driver wrote them, in the sensor frame (not transformed to another frame); raw "
+                  "range and azimuth are recovered through the nominal model (exact only when it is the driver's own)",
+                  extrinsic_note]
+        source = ScanSource(path=bag, importer="pointcloud2", model=model, trajectory=trajectory,
+                            trajectory_utc=utc, extrinsic=extrinsic, crs=crs, notes=notes)
+        return write_scan_recording(read_scans(opened, cloud), source, out, calibration, name or bag.stem, quiet)
+
+
+def _extrinsic(bag: RosBag, given: Extrinsic | None, body_frame: str | None, lidar_frame: str
+               ) -> tuple[Extrinsic, str]:
+    """The lidar -> body extrinsic and where it came from: as given (it wins over the bag), else the bag's
+    T_body_lidar (ros_tf), else identity (with the reason the bag's tf gave none)."""
+    if given is not None:
+        return given, "lidar -> body extrinsic as given (the bag's tf is not read)"
+    from_tf, note = tf_extrinsic(bag, body_frame, lidar_frame)
+    if from_tf is not None:
+        return from_tf, note
+    return Extrinsic((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)), f"lidar -> body extrinsic: identity (none given; {note})"

@@ -7,10 +7,14 @@
   with status < 0 (no fix) are left out. A geodetic trajectory (crs auto).
 - Odometry: pose.pose of child_frame_id in frame_id (position m, orientation quaternion), a
   local metric frame (the importer places it as a projected CRS).
-Times are the header stamps, s since 1970 (UTC as the bag's clock has it).
+Times are the header stamps, s since 1970 (UTC as the bag's clock has it). The body frame, by its
+name in the bag's tf: Odometry's child_frame_id, or the Imu's header.frame_id (the frame whose
+attitude the trajectory carries); none when the messages name several.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
@@ -30,9 +34,19 @@ def stamp_s(header) -> float:
     return header.stamp.sec + 1e-9 * header.stamp.nanosec
 
 
-def bag_trajectory(bag: RosBag, topic: str | None = None) -> tuple[Trajectory, list[str]]:
+@dataclass(frozen=True)
+class BagTrajectory:
+    """The trajectory (body -> world, times in UTC s since 1970), what was read, and the body frame's name
+    in the bag (None when the messages name several)."""
+
+    trajectory: Trajectory
+    notes: list[str]
+    body_frame: str | None
+
+
+def bag_trajectory(bag: RosBag, topic: str | None = None) -> BagTrajectory:
     """The bag's trajectory (NavSatFix + Imu preferred, else Odometry; `topic` picks a NavSatFix or Odometry
-    topic), times in UTC s since 1970, and notes; RecordingError when the bag has neither."""
+    topic); RecordingError when the bag has neither."""
     fixes, imus, odometry = bag.of_type(NAVSATFIX, topic), bag.of_type(IMU), bag.of_type(ODOMETRY, topic)
     if fixes and imus:
         return _navsat(bag, fixes[0], imus[0])
@@ -43,8 +57,8 @@ def bag_trajectory(bag: RosBag, topic: str | None = None) -> tuple[Trajectory, l
                          expected="GNSS/INS messages in the bag, or a trajectory file (--trajectory)")
 
 
-def _navsat(bag: RosBag, fix_topic: Topic, imu_topic: Topic) -> tuple[Trajectory, list[str]]:
-    fixes, imu = [], []
+def _navsat(bag: RosBag, fix_topic: Topic, imu_topic: Topic) -> BagTrajectory:
+    fixes, imu, imu_frames = [], [], set()
     for topic, _, msg in bag.messages([fix_topic, imu_topic]):
         if topic == fix_topic:
             if msg.status.status >= 0:
@@ -52,6 +66,7 @@ def _navsat(bag: RosBag, fix_topic: Topic, imu_topic: Topic) -> tuple[Trajectory
         else:
             q = msg.orientation
             imu.append((stamp_s(msg.header), q.x, q.y, q.z, q.w))
+            imu_frames.add(msg.header.frame_id)
     fixes, imu = _increasing(np.array(fixes).reshape(-1, 4)), _increasing(np.array(imu).reshape(-1, 5))
     if len(fixes) < 2 or len(imu) < 2:
         raise RecordingError(bag.path, f"{len(fixes)} valid fixes on {fix_topic.name}, {len(imu)} IMU messages on "
@@ -66,10 +81,10 @@ def _navsat(bag: RosBag, fix_topic: Topic, imu_topic: Topic) -> tuple[Trajectory
     trajectory.validate(bag.path)
     notes = [f"trajectory: {len(fixes)} fixes of {fix_topic.name} (NavSatFix, altitude above the ellipsoid), attitude "
              f"from {imu_topic.name} (Imu orientation read as REP 103: x forward, y left, z up vs East-North-Up)"]
-    return trajectory, notes
+    return BagTrajectory(trajectory, notes, _one_frame(imu_frames))
 
 
-def _odometry(bag: RosBag, topic: Topic) -> tuple[Trajectory, list[str]]:
+def _odometry(bag: RosBag, topic: Topic) -> BagTrajectory:
     rows, frames = [], set()
     for _, _, msg in bag.messages([topic]):
         p, q = msg.pose.pose.position, msg.pose.pose.orientation
@@ -81,7 +96,14 @@ def _odometry(bag: RosBag, topic: Topic) -> tuple[Trajectory, list[str]]:
     trajectory = Trajectory(rows[:, 0], rows[:, 1:4].copy(), _rpy(Rotation.from_quat(rows[:, 4:8])), geodetic=False)
     trajectory.validate(bag.path)
     names = ", ".join(f"{child or '?'} in {parent or '?'}" for parent, child in sorted(frames))
-    return trajectory, [f"trajectory: {len(rows)} poses of {topic.name} (Odometry: {names}), a local frame"]
+    notes = [f"trajectory: {len(rows)} poses of {topic.name} (Odometry: {names}), a local frame"]
+    return BagTrajectory(trajectory, notes, _one_frame({child for _, child in frames}))
+
+
+def _one_frame(frames: set[str]) -> str | None:
+    """The frame the messages name (without tf2's leading '/'), None when they name several."""
+    names = {frame.lstrip("/") for frame in frames}
+    return names.pop() if len(names) == 1 else None
 
 
 def _rpy(rotation: Rotation) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""points.parquet: raw returns, read lazily in row batches, validated batch by batch."""
+"""points.parquet: raw returns, written in row groups as they come (sorted by time in bounded memory), read
+lazily in row batches, validated batch by batch."""
 
 from __future__ import annotations
 
@@ -43,6 +44,70 @@ def row_group_writer(path: Path, schema: pa.Schema) -> Iterator[Callable[[dict[s
                          for field in schema}
                 writer.write_table(pa.table(typed, schema=schema), row_group_size=BATCH_ROWS)
         yield write
+
+
+@contextmanager
+def time_sorted_writer(path: Path, schema: pa.Schema, source: Path | str, expected: str
+                       ) -> Iterator[Callable[[dict[str, np.ndarray]], None]]:
+    """A Parquet file (zstd) of rows sorted by time, written as they come in bounded memory: each write(columns)
+    is merged with the rows held back so far and all but the latest len(columns) rows go out, in row groups of
+    BATCH_ROWS rows whatever the writes' sizes. The file holds the stable sort of all the rows by time, the same
+    for any split of them into writes, as long as no row is earlier than one already out; when one is (the input
+    is out of order by more than one write), RecordingError naming `source`, the time field and `expected`.
+    Not atomic by itself: write into a temporary path (graphcal.common.atomic)."""
+    with row_group_writer(path, schema) as write:
+        sorter = _TimeSorter(write, source, expected)
+        yield sorter.add
+        sorter.close()
+
+
+class _TimeSorter:
+    """time_sorted_writer's state: the rows held back (sorted) and the rows out but not yet written."""
+
+    def __init__(self, write: Callable[[dict[str, np.ndarray]], None], source: Path | str, expected: str):
+        self._write, self._source, self._expected = write, source, expected
+        self._held: dict[str, np.ndarray] = {}
+        self._out: list[dict[str, np.ndarray]] = []
+        self._last_out_s = -np.inf
+
+    def add(self, columns: dict[str, np.ndarray]) -> None:
+        time = columns["time"]
+        if not len(time):
+            return
+        if time.min() < self._last_out_s:
+            raise RecordingError(self._source, f"time {float(time.min())!r} is before {self._last_out_s!r}, the time "
+                                               "of rows already written", field="time", expected=self._expected)
+        merged = concatenated_columns([self._held, columns]) if self._held else columns
+        order = np.argsort(merged["time"], kind="stable")
+        cut = len(order) - len(time)
+        self._release({name: values[order[:cut]] for name, values in merged.items()})
+        self._held = {name: values[order[cut:]] for name, values in merged.items()}
+
+    def close(self) -> None:
+        """Write the rows held back and every row out."""
+        self._release(self._held)
+        self._held = {}
+        if self._out:
+            self._write(concatenated_columns(self._out))
+            self._out = []
+
+    def _release(self, rows: dict[str, np.ndarray]) -> None:
+        """Rows sorted by time, after every row out so far: out, and written in groups of BATCH_ROWS."""
+        if not rows or not len(rows["time"]):
+            return
+        self._last_out_s = float(rows["time"][-1])
+        self._out.append(rows)
+        waiting = sum(len(part["time"]) for part in self._out)
+        if waiting >= BATCH_ROWS:
+            out = concatenated_columns(self._out)
+            full = waiting - waiting % BATCH_ROWS
+            self._write({name: values[:full] for name, values in out.items()})
+            self._out = [{name: values[full:] for name, values in out.items()}]
+
+
+def concatenated_columns(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """Column dicts with the same keys, their rows one after the other."""
+    return {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
 
 
 def _kind_ok(arrow_type: pa.DataType, kinds: Sequence[str]) -> bool:
