@@ -156,7 +156,8 @@ class CalibrationPipeline:
                                  halves=None if self.halves is None else self.halves.to_yaml_dict(),
                                  shared_returns_uncertainty=final.shared_returns,
                                  cluster_robust_uncertainty=final.cluster_robust,
-                                 verdict=verdict(unobservable, reasons, Motion.of(data.R_nav, data.X_nav)))
+                                 verdict=verdict(unobservable, reasons, Motion.of(data.R_nav, data.X_nav)),
+                                 trajectory_noise=self.recording.world.white_noise)
 
     def check(self, final: FinalFit, unobservable: list[str]) -> None:
         """Refuse a result that is not one (CalibrationError, exit code 3)."""

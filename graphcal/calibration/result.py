@@ -30,6 +30,7 @@ from graphcal.recording.intrinsics import offsets_from_file_units, offsets_to_fi
 from graphcal.recording.rotations import rpy_deg_from_rotation
 from graphcal.recording.sensor import SensorModel
 from graphcal.common.yamlfile import read_yaml, write_yaml
+from graphcal.recording.trajectory_noise import PoseNoise
 
 FORMAT = "graphcal-calibration/1"
 CALIBRATION_FILE = "calibration.yaml"
@@ -142,7 +143,8 @@ class CalibrationResult:
     residuals clustered by time (cluster_robust.py; None on a drive too short for it); uncertainty stays
     gtsam.Marginals' (pairs as independent), which names the unobservable parameters; verdict: one plain line on what
     the drive could not observe and which manoeuvre or scene would show it (verdict.py; None when it names nothing
-    beyond the trajectory's common motion)."""
+    beyond the trajectory's common motion); trajectory_noise: the white noise smoothed out of the recorded poses
+    before the calibration used them (recording.world.white_noise)."""
 
     calibration: Calibration
     uncertainty: Uncertainty
@@ -159,6 +161,7 @@ class CalibrationResult:
     shared_returns_uncertainty: Uncertainty | None = None
     cluster_robust_uncertainty: Uncertainty | None = None
     verdict: str | None = None
+    trajectory_noise: PoseNoise = field(default_factory=PoseNoise.none)
 
     @property
     def energy_cm2(self) -> tuple[float, float]:

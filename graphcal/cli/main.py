@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import math
 import sys
 import time
 from pathlib import Path
@@ -170,6 +171,10 @@ def _print_calibration(run) -> None:
         voxel_m = result.config.features.voxel_m
         typer.echo(f"range noise {noise_m * 1000:.2g} mm: pairs {result.config.weighting.pair_noise}, features from "
                    + (f"{voxel_m} m voxels" if voxel_m else "every return"))
+    smoothed = result.trajectory_noise
+    if smoothed.interval_s > 0:
+        typer.echo(f"trajectory white noise {smoothed.position_m * 1000:.2g} mm, "
+                   f"{math.degrees(smoothed.attitude_rad):.2g} deg a pose: smoothed out before the calibration")
     if result.verdict is not None:
         typer.echo(f"{result.verdict}; {len(result.unobservable)} names, each with its reason, in calibration.yaml "
                    "unobservable_reasons")

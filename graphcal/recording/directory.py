@@ -41,8 +41,9 @@ class Recording:
 
     @cached_property
     def world(self) -> WorldTrajectory:
-        """T_world_body(t) in the projected world frame, with grid scale and convergence."""
-        return to_world(self.trajectory, self.crs, self._source("recording.yaml"))
+        """T_world_body(t) in the projected world frame, with grid scale and convergence; the recorded poses'
+        white noise, where they carry some, smoothed out (WorldTrajectory.white_noise says how much)."""
+        return to_world(self.trajectory, self.crs, self._source("recording.yaml")).smoothed()
 
     def with_points(self, points: PointTable) -> Recording:
         """The same drive with other returns (a batch of them): the world trajectory is shared,

@@ -10,7 +10,7 @@ applied to the lidar points here.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from pyproj import CRS, Proj, Transformer
@@ -23,6 +23,7 @@ from graphcal.common.errors import RecordingError
 from graphcal.recording.poses import PoseTrack
 from graphcal.recording.rotations import rotation_from_rpy_deg
 from graphcal.recording.trajectory import Trajectory
+from graphcal.recording.trajectory_noise import PoseNoise, smoothed_poses
 
 WGS84_3D = "EPSG:4979"
 
@@ -32,13 +33,20 @@ class WorldTrajectory:
     """T_world_body(t) in the projected CRS, with the map factors at each fix.
 
     poses: body -> world; scale_factor: grid scale k at each fix (dimensionless);
-    convergence_deg: meridian convergence gamma at each fix [deg].
+    convergence_deg: meridian convergence gamma at each fix [deg]; white_noise: the poses' white noise
+    smoothed out of them (PoseNoise.none() where none was).
     """
 
     crs: CRS
     poses: PoseTrack
     scale_factor: np.ndarray
     convergence_deg: np.ndarray
+    white_noise: PoseNoise = field(default_factory=PoseNoise.none)
+
+    def smoothed(self) -> WorldTrajectory:
+        """The same trajectory with the white noise of its poses smoothed out (trajectory_noise.smoothed_poses)."""
+        poses, noise = smoothed_poses(self.poses)
+        return replace(self, poses=poses, white_noise=noise)
 
 
 def resolve_crs(spec: str, trajectory: Trajectory, source: str = "recording.yaml") -> CRS:
