@@ -42,8 +42,9 @@ def test_uneven_or_short_trajectories_leave_the_noise_unknown():
 
 def test_white_pose_noise_is_smoothed_out_and_clean_poses_are_kept():
     """A drive with a 1.5 Hz body bounce (3 cm, 0.3 deg) under 5 mm and 0.005 deg of white noise a 200 Hz
-    sample: the smoothed poses are within half the noise of the truth (measured: 0.19-0.31 of it in position,
-    0.08-0.37 in attitude, the bounce's pitch the most); noise-free poses come back unchanged."""
+    sample: the smoothed poses are within a third (position) and 0.4 (attitude) of the noise of the truth
+    (measured: 0.21-0.25 in position, 0.23-0.30 in attitude, the bounce's pitch the most); noise-free poses
+    come back unchanged."""
     t, position, rpy = _drive(200.0)
     bounce = np.sin(2 * np.pi * 1.5 * t)
     position[:, 2] += 0.03 * bounce
@@ -57,5 +58,25 @@ def test_white_pose_noise_is_smoothed_out_and_clean_poses_are_kept():
     assert noise.position_m == pytest.approx(0.005, rel=0.05)
     position_error_m = np.sqrt(np.mean((smooth.position_m - position) ** 2, axis=0))
     attitude_error_rad = np.sqrt(np.mean((truth.rotation.inv() * smooth.rotation).as_rotvec() ** 2, axis=0))
-    assert np.all(position_error_m < 0.005 / 2), position_error_m
-    assert np.all(attitude_error_rad < np.radians(0.005) / 2), np.degrees(attitude_error_rad)
+    assert np.all(position_error_m < 0.005 / 3), position_error_m
+    assert np.all(attitude_error_rad < np.radians(0.005) / 2.5), np.degrees(attitude_error_rad)
+
+
+def test_the_smoothing_does_not_cut_the_corner_of_a_turn():
+    """A 90 deg turn at 30 deg/s and 8 m/s (4.2 m/s^2 sideways, entered and left in 0.5 s, the body rolling
+    1.5 deg) under 5 mm and 0.005 deg of white noise: no position is off by the noise sigma (measured: at most
+    0.8 of it; one penalty for a whole drive of tools/foreign_sim put a position 3.6 sigmas off), the attitude within 0.4 of it in
+    RMS (measured 0.18-0.33; the roll's kinks at the turn's ends up to 3.9 sigmas)."""
+    t = np.arange(0.0, 12.0, 1.0 / 200.0)
+    yaw_rate = np.radians(30.0) * np.clip((t - 4.0) / 0.5, 0, 1) * np.clip((7.5 - t) / 0.5, 0, 1)
+    yaw = np.cumsum(yaw_rate) / 200.0
+    position = np.column_stack([np.cumsum(8.0 * np.cos(yaw)) / 200.0, np.cumsum(8.0 * np.sin(yaw)) / 200.0,
+                                np.zeros_like(t)])
+    truth = Rotation.from_euler("xyz", np.column_stack([-np.radians(1.5) * yaw_rate / np.radians(30.0),
+                                                       np.zeros_like(t), yaw]))
+    rng = np.random.default_rng(7)
+    smooth, _ = smoothed_poses(PoseTrack(t, position + rng.normal(0, 0.005, position.shape),
+                                         truth * Rotation.from_rotvec(rng.normal(0, np.radians(0.005), (len(t), 3)))))
+    assert np.abs(smooth.position_m - position).max() < 0.005
+    attitude_error_rad = np.sqrt(np.mean((truth.inv() * smooth.rotation).as_rotvec() ** 2, axis=0))
+    assert np.all(attitude_error_rad < 0.4 * np.radians(0.005)), np.degrees(attitude_error_rad)

@@ -7,11 +7,8 @@ few samples. The fourth difference of five consecutive samples cancels any cubic
 range_noise.py measures a head's range noise.
 
 Noise above a floor (an INS re-solved at every epoch, not a smoothed trajectory) is smoothed out before
-anything uses the poses: each position axis and attitude angle is fitted by a cubic smoothing spline whose
-penalty follows the discrepancy principle (its residual's RMS equals the channel's measured noise). Measured on
-tools/foreign_sim's box street (200 Hz, 5 mm and 0.005 deg white): the poses' error 5.0 -> 0.7 mm and
-0.005 -> 0.0012 deg, and a level head's downward elevations, fitted from the truth, 0.03-0.12 -> 0.015-0.035 deg
-from it on average over four noise draws (docs/reference/math.md "The trajectory's jitter").
+anything uses the poses: each position axis and attitude angle is a cubic smoothing spline whose penalty follows
+the discrepancy principle window by window (docs/reference/math.md "The trajectory's jitter").
 """
 
 from __future__ import annotations
@@ -29,7 +26,9 @@ UNIFORM_TOLERANCE = 0.01  # relative spread of five samples' intervals for their
 # white noise above which the poses are smoothed: a post-processed (smoothed) GNSS/INS trajectory is far below
 SMOOTH_ABOVE_M = 1e-3
 SMOOTH_ABOVE_RAD = np.radians(1e-3)
-PENALTY_BISECTIONS = 12  # halvings of the log10 penalty's bracket [-12, 6]: 0.005 decade
+PENALTY_WINDOW_S = 1.0  # seconds of each window where a channel's penalty is chosen
+PENALTY_SPAN = 2.0  # decades between the least and the largest window penalty (the weights' conditioning)
+PENALTY_BISECTIONS = 8  # halvings of the log10 penalty's bracket [-12, 6]: 0.07 decade
 
 
 @dataclass(frozen=True)
@@ -90,15 +89,26 @@ def smoothed_poses(poses: PoseTrack) -> tuple[PoseTrack, PoseNoise]:
 
 def _smoothed_channel(time_s: np.ndarray, values: np.ndarray) -> np.ndarray:
     """One channel smoothed for its own white noise (1.4826 x the median absolute fourth difference over even
-    runs), the penalty chosen over the whole drive (a window of straight driving would allow any penalty and
-    smooth the turns away); unchanged where the noise is nil."""
+    runs); unchanged where the noise is nil. The smoothing follows the motion: a penalty is chosen on each window
+    of PENALTY_WINDOW_S (at most PENALTY_SPAN decades above the smallest), and the spline's weights make each
+    window's penalty its own (weight = the largest penalty over this window's, log-interpolated between window
+    centres). One penalty for the whole drive cuts
+    the corners of the turns by several noise sigmas, a lateral error that the lever arm's height then takes up
+    against the roll in the turn."""
     runs = _even_runs(time_s)
     sigma = 1.4826 * float(np.median(np.abs(values[runs] @ FOURTH_DIFFERENCE))) if len(runs) else 0.0
     if not sigma > 0:
         return values
     offset = values[0]
-    log_penalty = _discrepancy_penalty(time_s, values - offset, sigma)
-    return make_smoothing_spline(time_s, values - offset, lam=10.0 ** log_penalty)(time_s) + offset
+    size = max(int(round(PENALTY_WINDOW_S / float(np.median(np.diff(time_s))))), 20)
+    starts = np.arange(0, max(len(values) - size, 0) + 1, size)
+    log_penalty = np.array([_discrepancy_penalty(time_s[a:a + size], values[a:a + size] - offset, sigma)
+                            for a in starts])
+    log_penalty = np.minimum(log_penalty, log_penalty.min() + PENALTY_SPAN)
+    centres_s = time_s[np.minimum(starts + size // 2, len(time_s) - 1)]
+    log_weight = log_penalty.max() - np.interp(time_s, centres_s, log_penalty)
+    spline = make_smoothing_spline(time_s, values - offset, w=10.0 ** log_weight, lam=10.0 ** log_penalty.max())
+    return spline(time_s) + offset
 
 
 def _discrepancy_penalty(time_s: np.ndarray, values: np.ndarray, sigma: float) -> float:
