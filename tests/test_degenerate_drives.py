@@ -5,7 +5,10 @@ names the manoeuvre or scene that would show it (graphcal.calibration.verdict).
 Small noise-free recordings (a few seconds, about 1 % of an HDL-32E's firings) whose nominal model is the truth:
 what is named comes from the drive and the scene, not from errors to find. The lever arm is (0.8, 0, 1.9) m."""
 
+import html
+
 import numpy as np
+import yaml
 from typer.testing import CliRunner
 
 import graphcal
@@ -105,3 +108,6 @@ def test_a_standstill_prints_one_plain_line_through_the_command_line(tmp_path):
     assert len(verdicts) == 1 and verdicts[0].startswith(
         "static sensor: the extrinsic and the trajectory are unobservable; 124 intrinsic parameters held")
     assert len(lines) <= 6 and "fibre_" not in run.output
+    calibration = yaml.safe_load((tmp_path / "run" / "calibration.yaml").read_text())
+    assert verdicts[0].startswith(calibration["verdict"])
+    assert html.escape(calibration["verdict"]) in (tmp_path / "run" / "report.html").read_text()

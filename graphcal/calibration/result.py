@@ -230,6 +230,7 @@ class CalibrationResult:
                 "intrinsics": rows, "extrinsic": extrinsic, "trajectory_corrections": corrections,
                 "effects": list(self.effects), "unobservable": sorted(unobservable),
                 "unobservable_reasons": {name: cal.reasons[name] for name in sorted(cal.reasons)},
+                "verdict": self.verdict,
                 "energy_cm2": {"before": float(before), "after": float(after)},
                 "provenance": {"sigma": (SIGMA_MARGINALS if self.shared_returns_uncertainty is None else SIGMA_SHARED)
                                + ("" if self.cluster_robust_uncertainty is None else SIGMA_WIDENED),
@@ -272,6 +273,9 @@ def read_calibration_yaml(path: Path) -> dict:
     if not isinstance(reasons, dict) or not all(isinstance(v, str) for v in reasons.values()):
         raise RecordingError(path, f"unobservable_reasons is {reasons!r}", field="unobservable_reasons",
                              expected="a mapping of parameter name to plain words")
+    if not isinstance(data.get("verdict"), str | None):
+        raise RecordingError(path, f"verdict is {data['verdict']!r}", field="verdict",
+                             expected="one line of plain words, or nothing")
     return data
 
 

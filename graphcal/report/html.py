@@ -117,6 +117,8 @@ def _header(folder: Path, calibration: dict, manifest: dict, history: list[dict]
             ["stages", ", ".join(dict.fromkeys(row["mode"] for row in history))],
             ["outer iterations", str(len(history))],
             ["J before → after [cm²]", f"{energy.get('before', float('nan')):.4g} → {energy.get('after', float('nan')):.4g}"],
+            ["what the drive could not observe",
+             calibration.get("verdict") or "nothing beyond the drive's common motion"],
             ["unobservable", ", ".join(calibration.get("unobservable") or []) or "none"]]
     return f"<h1>graphcal calibration report: {html.escape(folder.name)}</h1>" + table(["", ""], rows)
 
