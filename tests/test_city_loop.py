@@ -11,7 +11,9 @@ import pytest
 
 from graphcal.recording.directory import Recording
 from graphcal.simulation.ins_drift import ins_drift
-from graphcal.simulation.route import street_circuit
+from graphcal.common.errors import ConfigError
+from graphcal.simulation.drive import spin, straight
+from graphcal.simulation.route import looped_drive, street_circuit
 from graphcal.simulation.scenario import SEED_002_ODOMETRY, InsErrors
 from graphcal.simulation.script import SCENARIOS_DIR, load_scenario_builder
 from graphcal.simulation.simulator import simulate, simulate_to
@@ -84,6 +86,11 @@ def test_street_circuit_takes_every_street_once_each_way_without_u_turn(blocks):
     assert all(abs(a[0] - b[0]) + abs(a[1] - b[1]) == 1 for a, b in steps)
     after = steps[1:] + steps[:1]
     assert all(step[0] != following[1] for step, following in zip(steps, after))  # never straight back
+
+
+def test_a_lap_with_a_turn_on_the_spot_is_refused():
+    with pytest.raises(ConfigError, match="straights and arcs, not spin"):
+        looped_drive(straight(50.0) + spin(90.0, 20.0), (0.0, 0.0), 0.0, 60.0, np.random.default_rng(0))
 
 
 def test_drift_terms_are_seeded_and_of_their_stated_size():

@@ -103,7 +103,12 @@ def looped_drive(lap: list, start_xy: tuple[float, float], start_yaw_deg: float,
                  accel_m_s2: float = 1.5, brake_m_s2: float = 2.0) -> Drive:
     """The lap driven again and again for duration_s [s]: each straight at a cruise speed drawn in cruise_m_s,
     every arc at turn_m_s, the straight before an arc ending with a stop of stop_s [s] with stop_probability,
-    speeds changing at accel_m_s2 and brake_m_s2 (piecewise-linear speed, exact on the path's lengths)."""
+    speeds changing at accel_m_s2 and brake_m_s2 (piecewise-linear speed, exact on the path's lengths).
+    A lap of anything but straights and arcs (a turn on the spot) is refused: its speed profile has no length
+    to cover."""
+    others = sorted({seg.kind for seg in lap if not isinstance(seg, Straight | Arc)})
+    if others:
+        raise ConfigError(f"looped_drive: a lap is straights and arcs, not {', '.join(others)}")
     segments, knots = [], [(0.0, turn_m_s)]
     while knots[-1][0] <= duration_s:
         for k, seg in enumerate(lap):
