@@ -34,8 +34,9 @@ def test_a_level_head_in_a_box_street_converges_without_collapse(foreign_box_str
     # a slide into the collapse left a third
     assert card.within_3_sigma >= 0.8, card
     assert card.rms_observable[0] < 0.5 and card.rms_observable[1] < 0.02, card  # cm, deg
-    assert card.rms_observable[2] < 0.05 and card.rms_observable[3] < 1.0, card  # deg, cm
+    # measured 0.014 deg and 0.11 cm; 0.024 deg and 0.25 cm with the INS's white noise left in the poses
+    assert card.rms_observable[2] < 0.02 and card.rms_observable[3] < 0.3, card  # deg, cm
     assert np.all(evaluation.intrinsic_rms_after[:3] < 0.5 * evaluation.intrinsic_rms_before[:3]), evaluation.table()
-    # the lever arm's z is seen only through the roll in the turn: 1.8 cm off with a sigma of 0.9 cm on these 10 s
+    # the lever arm's z is seen only through the roll in the turn: 1.4 cm off on these 10 s
     assert evaluation.rotation_error_deg[1] < 0.05 and evaluation.lever_arm_error_m[1] < 0.025, evaluation.table()
     assert evaluation.cloud_after_gauge_free.mean < 0.8 * evaluation.cloud_before.mean, evaluation.table()
