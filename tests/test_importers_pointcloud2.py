@@ -179,6 +179,7 @@ def test_rosbag1_velodyne_layout_with_navsatfix_and_imu(tmp_path):
     np.testing.assert_allclose(trajectory.position[:, 0], LAT + 1e-6 * np.arange(len(trajectory.time)))
     np.testing.assert_allclose(trajectory.rpy_deg[:, 2], 30 + 2 * np.arange(len(trajectory.time)), atol=1e-9)
     np.testing.assert_allclose(trajectory.rpy_deg[:, :2], [[0.5, 1.0]] * len(trajectory.time), atol=1e-9)
+    assert any("antenna's offset from it is not applied" in note for note in recording.source["notes"])
 
 
 def test_rosbag2_sqlite3_ouster_layout_with_odometry(tmp_path):

@@ -80,7 +80,8 @@ def _navsat(bag: RosBag, fix_topic: Topic, imu_topic: Topic) -> BagTrajectory:
     trajectory = Trajectory(fixes[:, 0], fixes[:, 1:4].copy(), _rpy(rotation), geodetic=True)
     trajectory.validate(bag.path)
     notes = [f"trajectory: {len(fixes)} fixes of {fix_topic.name} (NavSatFix, altitude above the ellipsoid), attitude "
-             f"from {imu_topic.name} (Imu orientation read as REP 103: x forward, y left, z up vs East-North-Up)"]
+             f"from {imu_topic.name} (Imu orientation read as REP 103: x forward, y left, z up vs East-North-Up); "
+             "the fixes are taken as the positions of the Imu's frame: a GNSS antenna's offset from it is not applied"]
     return BagTrajectory(trajectory, notes, _one_frame(imu_frames))
 
 
