@@ -21,7 +21,7 @@ from graphcal.recording.poses import PoseTrack
 from graphcal.recording.range_noise import measured_range_noise_m, noisy
 from graphcal.recording.directory import Recording
 from graphcal.recording.sensor import SensorModel
-from graphcal.recording.trajectory_noise import PoseNoise, measured_pose_noise
+from graphcal.recording.trajectory_noise import PoseNoise
 
 STATIC_BELOW_M = 1.0  # a sensor whose positions span less than this is static
 REVISIT_WITHIN_M = 5.0  # a drive revisits a place when it passes within this of where it was ...
@@ -90,7 +90,7 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
     """Read the returns (a random subset of max_points if given) and the INS pose at each one's
     time; control times control_interval_s apart from the trajectory's first pose span them,
     unless given; the head's range noise [m] measured from the first returns (range_noise.measured_range_noise_m)
-    unless given; the trajectory's white noise measured from its poses (trajectory_noise.py).
+    unless given; the white noise left in the trajectory's poses (WorldTrajectory.pose_noise: none once smoothed out).
     points.parquet is read row group by row group: only the subset is held, whatever the recording's length."""
     columns = _read_rows(recording, max_points, rng or np.random.default_rng(0))
     if range_noise_m is None:  # firing order: the first row group's returns
@@ -108,7 +108,7 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
     return ReturnData(recording.sensor, columns["rows"], columns["fibre"].astype(np.int64),
                       columns["range"].astype(np.float64), columns["azimuth"].astype(np.float64),
                       time, rotation.as_matrix(), position - origin, control, alpha, control_times, origin, range_noise_m,
-                      measured_pose_noise(recording.world.poses),
+                      recording.world.pose_noise,
                       np.asarray(recording.extrinsic.lever_arm_m, dtype=np.float64))
 
 

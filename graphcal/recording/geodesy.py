@@ -33,20 +33,33 @@ class WorldTrajectory:
     """T_world_body(t) in the projected CRS, with the map factors at each fix.
 
     poses: body -> world; scale_factor: grid scale k at each fix (dimensionless);
-    convergence_deg: meridian convergence gamma at each fix [deg]; white_noise: the poses' white noise
-    smoothed out of them (PoseNoise.none() where none was).
+    convergence_deg: meridian convergence gamma at each fix [deg]; measured_noise: the white noise measured on
+    the recorded poses (PoseNoise.none() where not measured), smoothed out of them when noise_smoothed_out.
     """
 
     crs: CRS
     poses: PoseTrack
     scale_factor: np.ndarray
     convergence_deg: np.ndarray
-    white_noise: PoseNoise = field(default_factory=PoseNoise.none)
+    measured_noise: PoseNoise = field(default_factory=PoseNoise.none)
+    noise_smoothed_out: bool = False
 
     def smoothed(self) -> WorldTrajectory:
-        """The same trajectory with the white noise of its poses smoothed out (trajectory_noise.smoothed_poses)."""
+        """The same trajectory with the white noise of its poses measured and, above the floor, smoothed out
+        (trajectory_noise.smoothed_poses)."""
         poses, noise = smoothed_poses(self.poses)
-        return replace(self, poses=poses, white_noise=noise)
+        return replace(self, poses=poses, measured_noise=noise, noise_smoothed_out=poses is not self.poses)
+
+    @property
+    def white_noise(self) -> PoseNoise:
+        """The white noise smoothed out of the poses (PoseNoise.none() where none was)."""
+        return self.measured_noise if self.noise_smoothed_out else PoseNoise.none()
+
+    @property
+    def pose_noise(self) -> PoseNoise:
+        """The white noise left in the poses: what was measured, none once smoothed out (what smoothing leaves is
+        not white)."""
+        return PoseNoise.none() if self.noise_smoothed_out else self.measured_noise
 
 
 def resolve_crs(spec: str, trajectory: Trajectory, source: str = "recording.yaml") -> CRS:

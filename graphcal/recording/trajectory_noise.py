@@ -68,47 +68,64 @@ def measured_pose_noise(poses: PoseTrack) -> PoseNoise:
     middle = poses.rotation[windows[:, width // 2]]
     relative = np.stack([(middle.inv() * poses.rotation[windows[:, k]]).as_rotvec() for k in range(width)], axis=1)
     attitude = np.einsum("nki,k->ni", relative, FOURTH_DIFFERENCE)
-    return PoseNoise(float(1.4826 * np.median(np.abs(position))), float(1.4826 * np.median(np.abs(attitude))),
-                     float(np.median(np.diff(time))))
+    return PoseNoise(_robust_sigma(position), _robust_sigma(attitude), float(np.median(np.diff(time))))
 
 
 def smoothed_poses(poses: PoseTrack) -> tuple[PoseTrack, PoseNoise]:
-    """The poses with their white noise smoothed out, and the noise measured before (PoseNoise.none() and the
-    poses unchanged where it is below SMOOTH_ABOVE_M and SMOOTH_ABOVE_RAD, or cannot be measured). Each
+    """The poses with their white noise smoothed out where it is above SMOOTH_ABOVE_M or SMOOTH_ABOVE_RAD (the
+    same object, unchanged, where it is below or cannot be measured), and the noise measured on them. Each
     position axis [m] and attitude angle (roll, pitch, unwrapped yaw [deg]) is a cubic smoothing spline of time
-    (scipy make_smoothing_spline) with the penalty of _discrepancy_penalty for that channel's own noise."""
+    (scipy make_smoothing_spline) with penalties chosen for that channel's own noise (_smoothed_channel)."""
     noise = measured_pose_noise(poses)
     if not (noise.position_m > SMOOTH_ABOVE_M or noise.attitude_rad > SMOOTH_ABOVE_RAD):
-        return poses, PoseNoise.none()
+        return poses, noise
     rpy_deg = poses.rpy_deg
     rpy_deg[:, 2] = unwrap_deg(rpy_deg[:, 2])
     channels = np.column_stack([poses.position_m, rpy_deg])
-    smooth = np.column_stack([_smoothed_channel(poses.time, channels[:, k]) for k in range(channels.shape[1])])
+    windows = _PenaltyWindows.of(poses.time)
+    smooth = np.column_stack([windows.smoothed(channels[:, k]) for k in range(channels.shape[1])])
     return PoseTrack(poses.time, smooth[:, :3], rotation_from_rpy_deg(smooth[:, 3:])), noise
 
 
-def _smoothed_channel(time_s: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """One channel smoothed for its own white noise (1.4826 x the median absolute fourth difference over even
-    runs); unchanged where the noise is nil. The smoothing follows the motion: a penalty is chosen on each window
-    of PENALTY_WINDOW_S (at most PENALTY_SPAN decades above the smallest), and the spline's weights make each
-    window's penalty its own (weight = the largest penalty over this window's, log-interpolated between window
-    centres). One penalty for the whole drive cuts
-    the corners of the turns by several noise sigmas, a lateral error that the lever arm's height then takes up
-    against the roll in the turn."""
-    runs = _even_runs(time_s)
-    sigma = 1.4826 * float(np.median(np.abs(values[runs] @ FOURTH_DIFFERENCE))) if len(runs) else 0.0
-    if not sigma > 0:
-        return values
-    offset = values[0]
-    size = max(int(round(PENALTY_WINDOW_S / float(np.median(np.diff(time_s))))), 20)
-    starts = np.arange(0, max(len(values) - size, 0) + 1, size)
-    log_penalty = np.array([_discrepancy_penalty(time_s[a:a + size], values[a:a + size] - offset, sigma)
-                            for a in starts])
-    log_penalty = np.minimum(log_penalty, log_penalty.min() + PENALTY_SPAN)
-    centres_s = time_s[np.minimum(starts + size // 2, len(time_s) - 1)]
-    log_weight = log_penalty.max() - np.interp(time_s, centres_s, log_penalty)
-    spline = make_smoothing_spline(time_s, values - offset, w=10.0 ** log_weight, lam=10.0 ** log_penalty.max())
-    return spline(time_s) + offset
+def _robust_sigma(differences: np.ndarray) -> float:
+    """1-sigma of white noise from its fourth differences: 1.4826 x their median absolute value."""
+    return float(1.4826 * np.median(np.abs(differences)))
+
+
+@dataclass(frozen=True)
+class _PenaltyWindows:
+    """The windows of PENALTY_WINDOW_S [s] (at least 20 samples) where the penalties of every channel of one
+    trajectory are chosen: their first samples (starts), their length in samples (size), the trajectory's time
+    [s] and its runs of five evenly spaced samples (runs: the noise's fourth differences)."""
+
+    time_s: np.ndarray
+    runs: np.ndarray
+    starts: np.ndarray
+    size: int
+
+    @classmethod
+    def of(cls, time_s: np.ndarray) -> _PenaltyWindows:
+        size = max(int(round(PENALTY_WINDOW_S / float(np.median(np.diff(time_s))))), 20)
+        return cls(time_s, _even_runs(time_s), np.arange(0, max(len(time_s) - size, 0) + 1, size), size)
+
+    def smoothed(self, values: np.ndarray) -> np.ndarray:
+        """One channel smoothed for its own white noise (_robust_sigma of its fourth differences over the even
+        runs); unchanged where the noise is nil. The smoothing follows the motion: a penalty is chosen on each
+        window (at most PENALTY_SPAN decades above the smallest), and the spline's weights make each window's
+        penalty its own (weight = the largest penalty over this window's, log-interpolated between window
+        centres). One penalty for the whole drive cuts the corners of the turns by several noise sigmas, a
+        lateral error that the lever arm's height then takes up against the roll in the turn."""
+        sigma = _robust_sigma(values[self.runs] @ FOURTH_DIFFERENCE) if len(self.runs) else 0.0
+        if not sigma > 0:
+            return values
+        time_s, size, offset = self.time_s, self.size, values[0]
+        log_penalty = np.array([_discrepancy_penalty(time_s[a:a + size], values[a:a + size] - offset, sigma)
+                                for a in self.starts])
+        log_penalty = np.minimum(log_penalty, log_penalty.min() + PENALTY_SPAN)
+        centres_s = time_s[np.minimum(self.starts + size // 2, len(time_s) - 1)]
+        log_weight = log_penalty.max() - np.interp(time_s, centres_s, log_penalty)
+        spline = make_smoothing_spline(time_s, values - offset, w=10.0 ** log_weight, lam=10.0 ** log_penalty.max())
+        return spline(time_s) + offset
 
 
 def _discrepancy_penalty(time_s: np.ndarray, values: np.ndarray, sigma: float) -> float:
