@@ -80,3 +80,20 @@ def test_the_smoothing_does_not_cut_the_corner_of_a_turn():
     assert np.abs(smooth.position_m - position).max() < 0.005
     attitude_error_rad = np.sqrt(np.mean((truth.inv() * smooth.rotation).as_rotvec() ** 2, axis=0))
     assert np.all(attitude_error_rad < 0.4 * np.radians(0.005)), np.degrees(attitude_error_rad)
+
+
+def test_roughness_eigenbasis_gives_scipys_smoothing_spline():
+    """The penalty search's residual (Demmler-Reinsch eigenbasis of K = Q R^-1 Q^T) equals the residual of
+    scipy's make_smoothing_spline at the same penalty, on unevenly spaced times."""
+    from scipy.interpolate import make_smoothing_spline
+
+    from graphcal.recording.trajectory_noise import _roughness
+
+    rng = np.random.default_rng(5)
+    t = 345600.0 + np.cumsum(rng.uniform(0.004, 0.006, 150))
+    y = np.sin(3 * (t - t[0])) + rng.normal(0, 0.01, len(t))
+    d, u = np.linalg.eigh(_roughness(t))
+    for lam in (1e-8, 1e-5, 1e-2):
+        shrink = lam * np.maximum(d, 0)
+        residual = u @ (shrink / (1 + shrink) * (u.T @ y))
+        np.testing.assert_allclose(residual, y - make_smoothing_spline(t, y, lam=lam)(t), atol=1e-9)

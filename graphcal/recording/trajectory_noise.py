@@ -82,8 +82,7 @@ def smoothed_poses(poses: PoseTrack) -> tuple[PoseTrack, PoseNoise]:
     rpy_deg = poses.rpy_deg
     rpy_deg[:, 2] = unwrap_deg(rpy_deg[:, 2])
     channels = np.column_stack([poses.position_m, rpy_deg])
-    windows = _PenaltyWindows.of(poses.time)
-    smooth = np.column_stack([windows.smoothed(channels[:, k]) for k in range(channels.shape[1])])
+    smooth = _PenaltyWindows.of(poses.time).smoothed(channels)
     return PoseTrack(poses.time, smooth[:, :3], rotation_from_rpy_deg(smooth[:, 3:])), noise
 
 
@@ -108,32 +107,60 @@ class _PenaltyWindows:
         size = max(int(round(PENALTY_WINDOW_S / float(np.median(np.diff(time_s))))), 20)
         return cls(time_s, _even_runs(time_s), np.arange(0, max(len(time_s) - size, 0) + 1, size), size)
 
-    def smoothed(self, values: np.ndarray) -> np.ndarray:
-        """One channel smoothed for its own white noise (_robust_sigma of its fourth differences over the even
-        runs); unchanged where the noise is nil. The smoothing follows the motion: a penalty is chosen on each
-        window (at most PENALTY_SPAN decades above the smallest), and the spline's weights make each window's
-        penalty its own (weight = the largest penalty over this window's, log-interpolated between window
-        centres). One penalty for the whole drive cuts the corners of the turns by several noise sigmas, a
-        lateral error that the lever arm's height then takes up against the roll in the turn."""
-        sigma = _robust_sigma(values[self.runs] @ FOURTH_DIFFERENCE) if len(self.runs) else 0.0
-        if not sigma > 0:
-            return values
-        time_s, size, offset = self.time_s, self.size, values[0]
-        log_penalty = np.array([_discrepancy_penalty(time_s[a:a + size], values[a:a + size] - offset, sigma)
-                                for a in self.starts])
-        log_penalty = np.minimum(log_penalty, log_penalty.min() + PENALTY_SPAN)
+    def smoothed(self, channels: np.ndarray) -> np.ndarray:
+        """(N,C) channels, each smoothed for its own white noise (_robust_sigma of its fourth differences over
+        the even runs); a channel whose noise is nil is returned unchanged. The smoothing follows the motion: a
+        penalty is chosen on each window (_discrepancy_log_penalties, at most PENALTY_SPAN decades above the
+        channel's smallest), and the spline's weights make each window's penalty its own (weight = the largest
+        penalty over this window's, log-interpolated between window centres). One penalty for the whole drive
+        cuts the corners of the turns by several noise sigmas, a lateral error that the lever arm's height then
+        takes up against the roll in the turn."""
+        sigma = (np.array([_robust_sigma(channels[self.runs, k] @ FOURTH_DIFFERENCE)
+                           for k in range(channels.shape[1])]) if len(self.runs) else np.zeros(channels.shape[1]))
+        noisy = np.flatnonzero(sigma > 0)
+        if not len(noisy):
+            return channels
+        time_s, size = self.time_s, self.size
+        log_penalty = np.array([_discrepancy_log_penalties(time_s[a:a + size], channels[a:a + size, noisy],
+                                                           sigma[noisy]) for a in self.starts])
+        log_penalty = np.minimum(log_penalty, log_penalty.min(axis=0) + PENALTY_SPAN)
         centres_s = time_s[np.minimum(self.starts + size // 2, len(time_s) - 1)]
-        log_weight = log_penalty.max() - np.interp(time_s, centres_s, log_penalty)
-        spline = make_smoothing_spline(time_s, values - offset, w=10.0 ** log_weight, lam=10.0 ** log_penalty.max())
-        return spline(time_s) + offset
+        smooth = channels.copy()
+        for column, k in enumerate(noisy):
+            log_weight = log_penalty[:, column].max() - np.interp(time_s, centres_s, log_penalty[:, column])
+            offset = channels[0, k]
+            spline = make_smoothing_spline(time_s, channels[:, k] - offset, w=10.0 ** log_weight,
+                                           lam=10.0 ** log_penalty[:, column].max())
+            smooth[:, k] = spline(time_s) + offset
+        return smooth
 
 
-def _discrepancy_penalty(time_s: np.ndarray, values: np.ndarray, sigma: float) -> float:
-    """log10 of the smoothing spline's penalty whose residual RMS equals sigma (the discrepancy principle:
-    the residual grows with the penalty; bisection on its log over [-12, 6])."""
-    low, high = -12.0, 6.0
+def _roughness(time_s: np.ndarray) -> np.ndarray:
+    """(n,n) K with g^T K g = the integral of g''^2 [units^2/s^3] for the natural cubic spline through the values
+    g at time_s [s] (Green and Silverman 1994, Nonparametric Regression and Generalized Linear Models, eq. 2.3:
+    K = Q R^-1 Q^T). The unweighted smoothing spline of values y with penalty lam is (I + lam K)^-1 y, the same
+    objective as scipy's make_smoothing_spline."""
+    h = np.diff(time_s)
+    n, inner = len(time_s), np.arange(len(time_s) - 2)
+    q = np.zeros((n, n - 2))
+    q[inner, inner], q[inner + 1, inner], q[inner + 2, inner] = 1 / h[:-1], -1 / h[:-1] - 1 / h[1:], 1 / h[1:]
+    r = np.diag((h[:-1] + h[1:]) / 3) + np.diag(h[1:-1] / 6, 1) + np.diag(h[1:-1] / 6, -1)
+    return q @ np.linalg.solve(r, q.T)
+
+
+def _discrepancy_log_penalties(time_s: np.ndarray, values: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """log10 of each column's smoothing-spline penalty whose residual RMS equals that column's sigma (the
+    discrepancy principle; bisection on the log over [-12, 6], PENALTY_BISECTIONS halvings). In the eigenbasis
+    of the roughness (Demmler-Reinsch: K = U diag(d) U^T) the residual of penalty lam is
+    U diag(lam d / (1 + lam d)) U^T y, so one eigendecomposition serves every penalty and column."""
+    d, u = np.linalg.eigh(_roughness(time_s))
+    z2 = (u.T @ (values - values.mean(axis=0))) ** 2
+    d = np.maximum(d, 0.0)[:, None]
+    low, high = np.full(values.shape[1], -12.0), np.full(values.shape[1], 6.0)
     for _ in range(PENALTY_BISECTIONS):
         middle = 0.5 * (low + high)
-        residual = values - make_smoothing_spline(time_s, values, lam=10.0 ** middle)(time_s)
-        low, high = (middle, high) if np.sqrt(np.mean(residual ** 2)) < sigma else (low, middle)
+        shrink = 10.0 ** middle * d
+        residual_rms = np.sqrt(np.sum((shrink / (1 + shrink)) ** 2 * z2, axis=0) / len(time_s))
+        below = residual_rms < sigma
+        low, high = np.where(below, middle, low), np.where(below, high, middle)
     return 0.5 * (low + high)
