@@ -11,6 +11,7 @@ settings and run with GRAPHCAL_SLOW_TESTS=1 (1-2 min each).
 
 import json
 import os
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -72,6 +73,35 @@ def test_clean_recording_gets_no_discovery_with_the_generic_models_on(clean):
     assert {"range", "intensity", "azimuth", "time", "incidence", "fibre"} <= regressors
     assert not any(c["significant"] for c in tried)
     assert f"{len(tried)} generic discrepancies" in diagnosis.summary() and "~" not in diagnosis.summary()
+
+
+def test_streamed_linearisation_equals_the_whole_graphs_hessian(clean):
+    """score.linearise makes the pairs' blocks one at a time and takes only the priors from gtsam: its information
+    and vector equal gtsam's Hessian of the whole graph (every block factor, every candidate), in named coordinates."""
+    import gtsam
+
+    from graphcal.calibration.keys import E
+    from graphcal.calibration.observability import tangent_to_axes
+    from graphcal.diagnosis.diagnose import candidate_names, discrepancies
+    from graphcal.diagnosis.fit import baseline
+    from graphcal.diagnosis.score import linearise
+
+    fit, _ = baseline(clean, config(max_points=20_000, iterations=2))
+    names = candidate_names(fit, None, discrepancies(fit))
+    problem = replace(fit.problem, effects=fit.with_candidates(names), lock=None)
+    cluster, block = fit.clusters()
+    lin = linearise(problem, fit.estimate, fit.pairs, cluster, block)
+    graph, values = problem.graph(fit.estimate, fit.pairs, damped=False)
+    keys = list(values.keys())
+    information, vector = graph.linearize(values).hessian(gtsam.Ordering(keys))
+    widths = [len(values.zeroVectors().at(k)) for k in keys]
+    to_named = np.eye(sum(widths))
+    s = int(np.sum(widths[:keys.index(E(0))]))
+    to_named[s:s + 6, s:s + 6] = tangent_to_axes(fit.estimate.extrinsic.rotation().matrix())
+    scale = np.abs(information).max()
+    np.testing.assert_allclose(lin.information, to_named @ information @ to_named.T, atol=1e-9 * scale)
+    np.testing.assert_allclose(lin.vector, to_named @ vector, atol=1e-9 * np.abs(vector).max())
+    assert len(names) > 40 and len(lin.names) == len(lin.vector)
 
 
 def test_clean_recording_gets_no_false_alarm_from_the_named_candidates(clean):

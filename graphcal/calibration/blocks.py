@@ -5,6 +5,7 @@ at most MAX_BLOCK_ROWS pairs each, with each pair's sigma."""
 from __future__ import annotations
 
 import itertools
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -19,9 +20,9 @@ MAX_BLOCK_ROWS = 20_000
 
 
 def make_blocks(data: ReturnData, estimate: Estimate, pairs: Correspondences, config: CalibrationConfig,
-                estimated: tuple[bool, bool, bool], effects=None) -> list[tuple[np.ndarray, Block]]:
-    """The block factors' data, each with its rows in pairs; effects.terms(p_rows, m_rows) gives each
-    block's candidate effects (graphcal.diagnosis; None: none)."""
+                estimated: tuple[bool, bool, bool], effects=None) -> Iterator[tuple[np.ndarray, Block]]:
+    """The block factors' data, one block at a time, each with its rows in pairs; effects.terms(p_rows, m_rows)
+    gives each block's candidate effects (graphcal.diagnosis; None: none)."""
     est_int, est_ext, est_traj = estimated
     pose = config.trajectory.pose_corrections
     ref = data.sensor.reference_fibre
@@ -33,7 +34,6 @@ def make_blocks(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
     intrinsic_key = np.array([NO_KEY if f == ref else I(f) for f in range(data.sensor.n_fibres)], np.int64)
     control_key = np.array([X(c) for c in range(len(data.control_times_s))], np.int64)
     window = cp // config.trajectory.block_controls if est_traj else 0 * cp
-    blocks = []
     for rows in block_rows(fi if est_int else np.zeros_like(fi), window):
         p, m = pairs.index_p[rows], pairs.index_m[rows]
         keys = BlockKeys.of(len(rows), extrinsic=E(0) if est_ext else None,
@@ -56,8 +56,7 @@ def make_blocks(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
                       fixed=FixedValues(offsets_p, offsets_m, estimate.extrinsic),
                       sigma0_m=sigma[rows], effects=None if effects is None else effects.terms(p, m),
                       p_held_l=held[0], m_held_l=held[1])
-        blocks.append((rows, block))
-    return blocks
+        yield rows, block
 
 
 def pair_sigma_m(data: ReturnData, estimate: Estimate, pairs: Correspondences, config: CalibrationConfig) -> np.ndarray:

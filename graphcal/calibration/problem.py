@@ -11,13 +11,14 @@ balance of data and rigidity does not depend on how many pairs are drawn.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
 
 from graphcal.calibration.association import Correspondences, Features, Sight
-from factors.point_to_plane import make_factor
+from factors.point_to_plane import Block, make_factor
 from graphcal.calibration.blocks import make_blocks
 from graphcal.calibration.config import ESTIMATES, STAGES, CalibrationConfig, Phase, PhaseGates, held_names
 from graphcal.calibration.keys import E, I, X
@@ -211,6 +212,11 @@ class Problem:
 
     # --- the factor graph ----------------------------------------------------------------------------
     def blocks(self, estimate: Estimate, pairs: Correspondences) -> list:
+        return list(self.each_block(estimate, pairs))
+
+    def each_block(self, estimate: Estimate, pairs: Correspondences) -> Iterator[tuple[np.ndarray, Block]]:
+        """The block factors' data one at a time (rows in pairs, Block): a pass over the pairs that holds one
+        block's per-row data, not every block's."""
         return make_blocks(self.data, estimate, pairs, self.config, self.estimated, self.effects)
 
     def graph(self, estimate: Estimate, pairs: Correspondences, damped: bool = True,

@@ -39,7 +39,7 @@ from graphcal.diagnosis.rescan import with_controls
 from graphcal.diagnosis.score import (
     Linearisation,
     linearisation_of_rows,
-    score_candidate,
+    score_candidates,
     separation,
 )
 from graphcal.recording.directory import Recording
@@ -80,7 +80,7 @@ def compare(recording: Recording, simulation: Recording, max_points: int | None 
     findings, not_separable, first, active, named = [], [], None, [], []
     while len(active) < MAX_EFFECTS:  # DIA without refits: the problem is linear, conditioning is exact
         remaining = [n for n in names if n not in active]
-        tests = {n: score_candidate(lin, n, remaining) for n in remaining}
+        tests = score_candidates(lin, remaining, remaining)
         if first is None:
             first = [_row(t, recording, len(names)) for t in sorted(tests.values(), key=lambda t: t.log10_p)]
         significant = [t for t in tests.values() if t.identifiable and t.significant(len(names))]

@@ -38,6 +38,7 @@ from graphcal.diagnosis.score import (
     CandidateTest,
     linearise,
     score_candidate,
+    score_candidates,
     separation,
     wald_at_refit,
 )
@@ -285,7 +286,7 @@ def score_all(fit: Fit, names: list[str]) -> tuple[dict, object]:
     cluster, block = fit.clusters()
     lin = linearise(replace(fit.problem, effects=fit.with_candidates(names), lock=None), fit.estimate, fit.pairs,
                     cluster, block)
-    return {n: score_candidate(lin, n, names) for n in names}, lin
+    return score_candidates(lin, names, names), lin
 
 
 def diagnose(recording: Recording, config: CalibrationConfig | None = None, candidates: list[str] | None = None,

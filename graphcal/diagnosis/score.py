@@ -23,6 +23,7 @@ Concealment R^2 = 1 - S / L_kk: the share of the candidate's signature the base 
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import gtsam
@@ -74,7 +75,8 @@ def noncentrality(dof: int, alpha: float = ALPHA, power: float = POWER) -> float
 class Linearisation:
     """The graph at a fit, in named coordinates: information (n,n) and vector (n,) of the whole graph
     (data and priors), the parameter name of each column, the columns of each effect, the data's rows
-    in blocks (cluster id (N,), Jacobian (N, w), whitened residual (N,), global columns (w,)), the
+    in blocks made again at each call of row_blocks (cluster id (N,), Jacobian (N, w), whitened residual (N,),
+    global columns (w,): kept, every block's Jacobian of every candidate's columns would hold gigabytes), the
     number of clusters, and per fold of the drive's time blocks (block index modulo FOLDS: a fold's blocks
     share the parity that makes the halves of the held-out tests) the data's information, vector, cost sum r^2
     and weight sum."""
@@ -83,7 +85,7 @@ class Linearisation:
     vector: np.ndarray
     names: list[str]
     effect_columns: dict
-    rows: list
+    row_blocks: Callable[[], Iterator[tuple]]
     n_clusters: int
     fold_information: np.ndarray
     fold_vector: np.ndarray
@@ -135,8 +137,8 @@ def linearisation_of_rows(r: np.ndarray, A: np.ndarray, names: list[str], effect
     cost = np.bincount(fold, weights=r * r, minlength=FOLDS)
     weight = np.bincount(fold, minlength=FOLDS).astype(np.float64)
     return Linearisation(info.sum(axis=0), vector.sum(axis=0), names, effect_columns,
-                         [(cluster, A, r, np.arange(A.shape[1]))], int(cluster.max()) + 1, info, vector, cost,
-                         weight, sigma0_m)
+                         lambda: iter([(cluster, A, r, np.arange(A.shape[1]))]), int(cluster.max()) + 1, info, vector,
+                         cost, weight, sigma0_m)
 
 
 def _key_names(key: int, width: int, model: EffectModel, pose: bool) -> list[str]:
@@ -155,33 +157,38 @@ def _key_names(key: int, width: int, model: EffectModel, pose: bool) -> list[str
 def linearise(problem: Problem, estimate: Estimate, pairs: Correspondences, cluster: np.ndarray,
               block: np.ndarray) -> Linearisation:
     """Linearise the undamped graph with the problem's effects (candidates at zero, no prior on them) at
-    the estimate; cluster (K,) and time block (K,) label each pair (its fold: the block modulo FOLDS)."""
+    the estimate; cluster (K,) and time block (K,) label each pair (its fold: the block modulo FOLDS). The
+    pairs' blocks are made and linearised one at a time (every candidate's basis for every pair, kept, would
+    hold gigabytes); the priors come from the graph without them."""
     fold = (block - (block.min() if len(block) else 0)) % FOLDS
-    graph, values = problem.graph(estimate, pairs, damped=False)
-    model, config, data = problem.effects, problem.config, problem.data
+    graph, values = problem.graph(estimate, pairs, damped=False, blocks=[])
+    model, config = problem.effects, problem.config
     keys = list(values.keys())
     zero = values.zeroVectors()
-    widths = [len(zero.at(k)) for k in keys]
-    starts = np.r_[0, np.cumsum(widths)]
-    column = {k: s for k, s in zip(keys, starts[:-1])}
-    n = int(starts[-1])
-    information, vector = graph.linearize(values).hessian(gtsam.Ordering(keys))
+    widths = {k: len(zero.at(k)) for k in keys}
+    column = dict(zip(keys, np.r_[0, np.cumsum([widths[k] for k in keys])][:-1]))
+    n = sum(widths.values())
+
+    def columns_of(factor_keys) -> np.ndarray:
+        return np.concatenate([np.arange(column[k], column[k] + widths[k]) for k in factor_keys])
+
     # tangent -> named coordinates: the extrinsic's tangent turned into body axes (orthogonal)
     to_named = np.eye(n)
     if E(0) in column:
         s = column[E(0)]
         to_named[s:s + 6, s:s + 6] = tangent_to_axes(estimate.extrinsic.rotation().matrix())
-    names = [name for k, w in zip(keys, widths) for name in _key_names(k, w, model, config.trajectory.pose_corrections)]
-    n_clusters = int(cluster.max()) + 1 if len(cluster) else 0
-    blocks = []
+    names = [name for k in keys for name in _key_names(k, widths[k], model, config.trajectory.pose_corrections)]
+
+    def row_blocks() -> Iterator[tuple]:
+        """Each block's pairs: their rows in pairs, Jacobian in named coordinates, whitened residuals, columns."""
+        for rows, factor_block in problem.each_block(estimate, pairs):
+            r, A = residuals(factor_block, values)
+            cols = columns_of(jacobian_by_key(factor_block, A))
+            yield rows, A @ to_named[np.ix_(cols, cols)].T, r, cols  # block-diagonal: the block's columns stay its own
+
     fold_information, fold_vector = np.zeros((FOLDS, n, n)), np.zeros((FOLDS, n))
     fold_cost, fold_weight = np.zeros(FOLDS), np.zeros(FOLDS)
-    for rows, factor_block in problem.blocks(estimate, pairs):
-        r, A = residuals(factor_block, values)
-        cols = np.concatenate([np.arange(column[k], column[k] + J.shape[1])
-                               for k, J in jacobian_by_key(factor_block, A).items()])
-        A = A @ to_named[np.ix_(cols, cols)].T  # block-diagonal: the block's own columns stay its own
-        blocks.append((cluster[rows], A, r, cols))
+    for rows, A, r, cols in row_blocks():
         g = -A * r[:, None]  # each pair's contribution to eta
         for f in np.unique(fold[rows]):
             of = fold[rows] == f
@@ -189,9 +196,19 @@ def linearise(problem: Problem, estimate: Estimate, pairs: Correspondences, clus
             fold_vector[f, cols] += g[of].sum(axis=0)
         fold_cost += np.bincount(fold[rows], weights=r * r, minlength=FOLDS)
         fold_weight += np.bincount(fold[rows], weights=pairs.weight[rows], minlength=FOLDS)
+    information, vector = fold_information.sum(axis=0), fold_vector.sum(axis=0)
+    linear = graph.linearize(values)  # the priors (and lock, effects' priors): A^T A and A^T b in tangent coordinates
+    for i in range(linear.size()):
+        factor = linear.at(i)
+        A, b = factor.jacobian()
+        cols = columns_of(factor.keys())
+        information[np.ix_(cols, cols)] += to_named[np.ix_(cols, cols)] @ A.T @ A @ to_named[np.ix_(cols, cols)].T
+        vector[cols] += to_named[np.ix_(cols, cols)] @ A.T @ b
     effect_columns = {name: np.arange(column[k], column[k] + model.dim(name)) for k, name in zip(model.keys, model.names)}
-    return Linearisation(to_named @ information @ to_named.T, to_named @ vector, names, effect_columns, blocks,
-                         n_clusters, fold_information, fold_vector, fold_cost, fold_weight, config.weighting.sigma0_m)
+    n_clusters = int(cluster.max()) + 1 if len(cluster) else 0
+    return Linearisation(information, vector, names, effect_columns,
+                         lambda: ((cluster[rows], A, r, cols) for rows, A, r, cols in row_blocks()), n_clusters,
+                         fold_information, fold_vector, fold_cost, fold_weight, config.weighting.sigma0_m)
 
 
 def _solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -287,61 +304,109 @@ def wald_at_refit(value: np.ndarray, test: CandidateTest) -> tuple[float, float]
     return statistic, float(stats.chi2.sf(statistic, len(value)))
 
 
+@dataclass(frozen=True)
+class _Projection:
+    """A candidate's columns k projected off the base columns at a fit: Xs = L_bb^-1 L_bk, the information left
+    S, the projected score u, the concealment R^2 and theta = S^-1 u (None where nothing is left to test)."""
+
+    name: str
+    base: np.ndarray
+    k: np.ndarray
+    Xs: np.ndarray
+    S: np.ndarray
+    u: np.ndarray
+    r2: float
+    blind: bool
+
+    @classmethod
+    def of(cls, lin: Linearisation, name: str, candidates: list[str]) -> _Projection:
+        k = lin.effect_columns[name]
+        others = np.concatenate([lin.effect_columns[c] for c in candidates]) if candidates else np.zeros(0, int)
+        base = np.setdiff1d(np.arange(len(lin.names)), others)
+        L, eta = lin.information, lin.vector
+        Xs = _solve(L[np.ix_(base, base)], L[np.ix_(base, k)])
+        S = L[np.ix_(k, k)] - L[np.ix_(k, base)] @ Xs
+        r2 = float(np.mean(1.0 - np.diag(S) / np.maximum(np.diag(L[np.ix_(k, k)]), 1e-300)))
+        blind = bool(np.diag(L[np.ix_(k, k)]).max() <= BLIND_INFORMATION * np.median(np.diag(L)))
+        return cls(name, base, k, Xs, S, eta[k] - Xs.T @ eta[base], r2, blind)
+
+    @property
+    def testable(self) -> bool:
+        return not self.blind and self.r2 <= IDENTIFIABLE_R2
+
+    @functools.cached_property
+    def S_inv(self) -> np.ndarray:
+        return np.linalg.pinv(self.S)
+
+    @property
+    def theta(self) -> np.ndarray:
+        return self.S_inv @ self.u
+
+    def untestable(self, lin: Linearisation) -> CandidateTest:
+        """The test of a candidate the data are blind to (a time offset seen from a static sensor: absorbed by
+        nothing) or that the base parameters mimic entirely (nothing left to test)."""
+        d = len(self.k)
+        nan = np.full(d, np.nan)
+        absorbed = [] if self.blind else _absorbing(lin.information, self.base, self.k, self.Xs, self.S_inv,
+                                                    np.ones(d), lin.names)
+        return CandidateTest(self.name, d, 0.0, 1.0, 0.0, nan, np.full((d, d), np.nan), np.nan, np.nan, np.inf,
+                             1.0 if self.blind else self.r2, absorbed, (np.nan, np.nan), lin.n_clusters)
+
+    def test(self, lin: Linearisation, V: np.ndarray) -> CandidateTest:
+        """The test with V, the cluster-robust variance of the projected score (_cluster_variances)."""
+        S_inv, theta, u, d = self.S_inv, self.theta, self.u, len(self.k)
+        factor = max(float(np.trace(S_inv @ V)) / d, 1e-12)
+        statistic = float(u @ S_inv @ u) / factor
+        covariance = S_inv * factor
+        sigma, mdb = _headline_sigma(self.name, theta, covariance)
+        held_out, held_out_se = _held_out(lin, self.base, self.k)
+        # the fall of J (m^2, whitened cost x sigma0^2 over the weight sum) the projected candidate explains
+        explained_rms_m = lin.sigma0_m * float(np.sqrt(max(theta @ self.S @ theta, 0.0)
+                                                       / max(lin.half_weight.sum(), 1e-300)))
+        return CandidateTest(self.name, d, statistic, float(stats.chi2.sf(statistic, d)), float(u @ S_inv @ u),
+                             theta, covariance, candidate(self.name).magnitude_of(theta), sigma, mdb, self.r2,
+                             _absorbing(lin.information, self.base, self.k, self.Xs, S_inv, theta, lin.names),
+                             held_out, lin.n_clusters, explained_rms_m, lin.sigma0_m, held_out_se)
+
+
+def score_candidates(lin: Linearisation, names: list[str], candidates: list[str]) -> dict[str, CandidateTest]:
+    """The score test of each of names against a base of every parameter but the candidates'. The data's rows
+    are made once for all of them (_cluster_variances)."""
+    projections = [_Projection.of(lin, name, candidates) for name in names]
+    testable = [p for p in projections if p.testable]
+    variances = _cluster_variances(lin, testable)
+    return {p.name: p.test(lin, variances[p.name]) if p.testable else p.untestable(lin) for p in projections}
+
+
 def score_candidate(lin: Linearisation, name: str, candidates: list[str]) -> CandidateTest:
     """The score test of one candidate against a base of every parameter but the candidates'."""
-    k = lin.effect_columns[name]
-    others = np.concatenate([lin.effect_columns[c] for c in candidates]) if candidates else np.zeros(0, int)
-    base = np.setdiff1d(np.arange(len(lin.names)), others)
-    L, eta = lin.information, lin.vector
-    Xs = _solve(L[np.ix_(base, base)], L[np.ix_(base, k)])
-    S = L[np.ix_(k, k)] - L[np.ix_(k, base)] @ Xs
-    u = eta[k] - Xs.T @ eta[base]
-    r2 = float(np.mean(1.0 - np.diag(S) / np.maximum(np.diag(L[np.ix_(k, k)]), 1e-300)))
-    blind = np.diag(L[np.ix_(k, k)]).max() <= BLIND_INFORMATION * np.median(np.diag(L))
-    if blind:  # no information at all (a time offset seen from a static sensor): absorbed by nothing
-        nan = np.full(len(k), np.nan)
-        return CandidateTest(name, len(k), 0.0, 1.0, 0.0, nan, np.full((len(k), len(k)), np.nan), np.nan, np.nan,
-                             np.inf, 1.0, [], (np.nan, np.nan), lin.n_clusters)
-    if r2 > IDENTIFIABLE_R2:  # the base parameters mimic it entirely: nothing left to test
-        nan = np.full(len(k), np.nan)
-        return CandidateTest(name, len(k), 0.0, 1.0, 0.0, nan, np.full((len(k), len(k)), np.nan), np.nan, np.nan,
-                             np.inf, r2, _absorbing(L, base, k, Xs, np.linalg.pinv(S), np.ones(len(k)), lin.names),
-                             (np.nan, np.nan), lin.n_clusters)
-    S_inv = np.linalg.pinv(S)
-    theta = S_inv @ u
-    V = _cluster_variance(lin, base, k, Xs, theta)
-    factor = max(float(np.trace(S_inv @ V)) / len(k), 1e-12)
-    statistic = float(u @ S_inv @ u) / factor
-    covariance = S_inv * factor
-    sigma, mdb = _headline_sigma(name, theta, covariance)
-    # the fall of J (m^2, whitened cost x sigma0^2 over the weight sum) the projected candidate explains
-    held_out, held_out_se = _held_out(lin, base, k)
-    explained_rms_m = lin.sigma0_m * float(np.sqrt(max(theta @ S @ theta, 0.0) / max(lin.half_weight.sum(), 1e-300)))
-    return CandidateTest(name, len(k), statistic, float(stats.chi2.sf(statistic, len(k))), float(u @ S_inv @ u),
-                         theta, covariance, candidate(name).magnitude_of(theta), sigma, mdb, r2,
-                         _absorbing(L, base, k, Xs, S_inv, theta, lin.names), held_out, lin.n_clusters,
-                         explained_rms_m, lin.sigma0_m, held_out_se)
+    return score_candidates(lin, [name], candidates)[name]
 
 
-def _cluster_variance(lin: Linearisation, base: np.ndarray, k: np.ndarray, Xs: np.ndarray,
-                      theta: np.ndarray) -> np.ndarray:
-    """Cluster-robust variance (d, d) of the candidate's projected score, with the candidate fitted
+def _cluster_variances(lin: Linearisation, projections: list[_Projection]) -> dict[str, np.ndarray]:
+    """Cluster-robust variance (d, d) of each candidate's projected score, with the candidate fitted
     (theta): sum over clusters of u_c u_c^T, u_c = -J~_c^T (r_c + J~_c theta), J~ = J_k - J_b Xs the
     candidate's Jacobian projected off the base. At theta the candidate's own signal is out of the
-    scores: their spread is the noise's, correlated within clusters, not the effect's."""
-    position = np.full(len(lin.names), -1)
-    position[base] = np.arange(len(base))
-    where_k = {c: j for j, c in enumerate(k)}
-    scores = np.zeros((lin.n_clusters, len(k)))
-    for cluster, A, r, cols in lin.rows:
-        in_base = position[cols] >= 0
-        in_k = np.array([c in where_k for c in cols])
-        order = np.array([where_k[c] for c in cols[in_k]])
-        J = np.zeros((len(r), len(k)))
-        J[:, order] = A[:, in_k]
-        J -= A[:, in_base] @ Xs[position[cols[in_base]]]
-        np.add.at(scores, cluster, -J * (r + J @ theta)[:, None])
-    return scores.T @ scores
+    scores: their spread is the noise's, correlated within clusters, not the effect's. One pass over the
+    data's rows for every candidate."""
+    scores = {p.name: np.zeros((lin.n_clusters, len(p.k))) for p in projections}
+    if not projections:
+        return {}
+    places = []
+    for p in projections:
+        position = np.full(len(lin.names), -1)
+        position[p.base] = np.arange(len(p.base))
+        where_k = np.full(len(lin.names), -1)
+        where_k[p.k] = np.arange(len(p.k))
+        places.append((position, where_k))
+    for cluster, A, r, cols in lin.row_blocks():
+        for p, (position, where_k) in zip(projections, places):
+            in_base, in_k = position[cols] >= 0, where_k[cols] >= 0
+            J = np.zeros((len(r), len(p.k)))
+            J[:, where_k[cols[in_k]]] = A[:, in_k]
+            J -= A[:, in_base] @ p.Xs[position[cols[in_base]]]
+            np.add.at(scores[p.name], cluster, -J * (r + J @ p.theta)[:, None])
+    return {name: c.T @ c for name, c in scores.items()}
 
 
 def _absorbing(L, base, k, Xs, S_inv, theta, names, top: int = 3) -> list:
