@@ -273,6 +273,31 @@ def test_tf_static_chain_becomes_the_extrinsic_unless_one_is_given(tmp_path):
     assert any("extrinsic as given" in n for n in given.source["notes"])
 
 
+def test_body_frame_reads_the_tf_with_a_trajectory_file(tmp_path):
+    """With a trajectory file the body frame has no name in the bag: without --body-frame the tf is not read (the
+    note says how to read it); with --body-frame base_link the extrinsic is T_base_link_velodyne from /tf_static."""
+    model = synth.sensor(with_offsets=False)
+    scans = synth.scans(model, n_scans=2, seed=9)
+    t0 = synth.START_UTC - 0.05
+    bag = _write(tmp_path / "drive", "rosbag2", scans, VELODYNE, model, "odometry", frame="velodyne",
+                 tf=[("/tf_static", t0, [BASE_ROOF, ROOF_VELODYNE])])
+    trajectory = tmp_path / "trajectory.csv"
+    import_pointcloud2(bag, tmp_path / "from_bag", quiet=True).trajectory.save_csv(trajectory)
+    args = ["import", "pointcloud2", str(bag), "--trajectory", str(trajectory), "--crs", "EPSG:32631", "-q"]
+    result = CliRunner().invoke(app, [*args, "--out", str(tmp_path / "unnamed")])
+    assert result.exit_code == 0, result.output
+    unnamed = Recording.load(tmp_path / "unnamed")
+    assert unnamed.extrinsic.lever_arm_m == (0.0, 0.0, 0.0)
+    assert any("--body-frame" in n for n in unnamed.source["notes"])
+    result = CliRunner().invoke(app, [*args, "--body-frame", "/base_link", "--out", str(tmp_path / "named")])
+    assert result.exit_code == 0, result.output
+    named = Recording.load(tmp_path / "named")
+    (_, _, t_a, rpy_a), (_, _, t_b, _) = BASE_ROOF, ROOF_VELODYNE
+    R_base_roof = Rotation.from_euler("ZYX", rpy_a[::-1], degrees=True)
+    np.testing.assert_allclose(named.extrinsic.lever_arm_m, R_base_roof.apply(t_b) + np.array(t_a), atol=1e-12)
+    assert any("from the bag's tf: base_link -> roof -> velodyne" in n for n in named.source["notes"])
+
+
 def test_broken_tf_chain_is_named_and_the_extrinsic_stays_identity(tmp_path):
     """A ROS 1 bag (frames with tf's leading '/') whose static transforms do not link base_link to velodyne: the
     extrinsic is identity, as without tf, and the notes name both frames and the transforms found."""

@@ -444,16 +444,12 @@ def import_pcap_command(
 
     Example: graphcal import pcap drive.pcap --trajectory sbet.out --lever-arm 0.8,0,1.9 --boresight 0,0,90
     """
-    from graphcal.recording.extrinsic import Extrinsic
     from graphcal.importers.velodyne_calibration import read_velodyne_calibration
     from graphcal.importers.velodyne_pcap import import_pcap
 
     if out is not None:  # before the import's work
         _not_taken(out)
-    extrinsic = None
-    if lever_arm is not None or boresight is not None:
-        extrinsic = Extrinsic(lever_arm_m=_numbers(lever_arm, "--lever-arm") or (0.0, 0.0, 0.0),
-                              boresight_deg=_numbers(boresight, "--boresight") or (0.0, 0.0, 0.0))
+    extrinsic = _extrinsic(lever_arm, boresight)
     options = {"model": model, "calibration": read_velodyne_calibration(calibration) if calibration else None,
                "trajectory": _read_trajectory(trajectory) if trajectory else None,
                "position": _numbers(position, "--position"), "attitude_deg": _numbers(attitude, "--attitude"),
@@ -516,18 +512,13 @@ def import_ouster_command(
     """
     from graphcal.importers.ouster_metadata import read_ouster_metadata
     from graphcal.importers.ouster_pcap import import_ouster
-    from graphcal.recording.extrinsic import Extrinsic
 
     if out is not None:  # before the import's work
         _not_taken(out)
-    mount = None
-    if lever_arm is not None or boresight is not None:
-        mount = Extrinsic(lever_arm_m=_numbers(lever_arm, "--lever-arm") or (0.0, 0.0, 0.0),
-                          boresight_deg=_numbers(boresight, "--boresight") or (0.0, 0.0, 0.0))
     recording = import_ouster(pcap, read_ouster_metadata(metadata),
                               trajectory=_read_trajectory(trajectory) if trajectory else None,
                               position=_numbers(position, "--position"), attitude_deg=_numbers(attitude, "--attitude"),
-                              mount=mount)
+                              mount=_extrinsic(lever_arm, boresight))
     recording.crs = crs
     _save_import(recording, out, pcap, quiet)
 
@@ -663,6 +654,9 @@ def import_pointcloud2_command(
                                                            "/tf_static, else 0")] = None,
         boresight: Annotated[str | None, typer.Option(help="lidar -> body ROLL,PITCH,YAW (deg); default: the bag's "
                                                            "/tf_static, else 0")] = None,
+        body_frame: Annotated[str | None, typer.Option(help="the body's frame in the bag's tf, where the extrinsic "
+                                                            "is read from (default: the bag trajectory's frame; "
+                                                            "needed with --trajectory)")] = None,
         quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
     """ROS PointCloud2 scans with ring and per-point time -> recording (docs/howto/import-pointcloud2.md).
 
@@ -676,7 +670,7 @@ def import_pointcloud2_command(
                                    if calibration else None, trajectory=_read_trajectory(trajectory)
                                    if trajectory else None, crs=crs, pose_topic=pose_topic,
                                    extrinsic=_extrinsic(lever_arm, boresight), origin=_numbers(origin, "--origin", 2),
-                                   quiet=quiet)
+                                   body_frame=body_frame, quiet=quiet)
     _print_import(recording, out, quiet)
 
 

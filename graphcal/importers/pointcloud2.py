@@ -90,18 +90,19 @@ def import_pointcloud2(bag: str | Path, out: str | Path, *, topic: str | None = 
                        calibration: VelodyneCalibration | None = None, trajectory: Trajectory | None = None,
                        crs: str = "auto", pose_topic: str | None = None, extrinsic: Extrinsic | None = None,
                        origin: tuple[float, float] = (0.0, 0.0), model: str = "lidar", name: str | None = None,
-                       quiet: bool = False) -> Recording:
+                       body_frame: str | None = None, quiet: bool = False) -> Recording:
     """A bag's PointCloud2 scans as the recording folder `out` (written whole, message by message; an existing
     folder is replaced). trajectory: GPS seconds of week (SBET, CSV) in the world CRS `crs`, else from the bag.
-    extrinsic: lidar -> body (the trajectory's frame); when not given, from the bag's tf, else identity."""
+    extrinsic: lidar -> body (the trajectory's frame); when not given, from the bag's tf (T_body_frame_lidar, body_frame
+    by default the frame of the bag's trajectory: give it with a trajectory file), else identity."""
     bag = Path(bag)
     with open_bag(bag) as opened:
         cloud = cloud_topic(opened, topic)
         notes = [f"scans: {cloud.name} (PointCloud2, one message per scan, header stamps read as UTC)"]
-        body_frame = None
         if trajectory is None:
             from_bag = bag_trajectory(opened, pose_topic)
-            trajectory, body_frame, crs = from_bag.trajectory, from_bag.body_frame, "auto"
+            trajectory, crs = from_bag.trajectory, "auto"
+            body_frame = body_frame or from_bag.body_frame
             notes.extend(from_bag.notes)
             if not trajectory.geodetic:
                 crs = local_crs(*origin)

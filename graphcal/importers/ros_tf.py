@@ -116,7 +116,9 @@ def tf_extrinsic(bag: RosBag, body_frame: str | None, lidar_frame: str) -> tuple
     from; None (and a note naming the frames found) when the bag has no transforms, no body frame is known
     (body_frame None) or the transforms do not link the body frame to lidar_frame."""
     if body_frame is None:
-        return None, "the bag's tf is not read: the trajectory's body frame has no name in the bag"
+        return None, ("the bag's tf is not read: the trajectory's body frame has no name in the bag (give it with "
+                      "--body-frame)")
+    body_frame = body_frame.lstrip("/")
     tree = read_frame_tree(bag)
     if tree is None:
         return None, f"no {TFMESSAGE} in the bag"
