@@ -35,13 +35,13 @@ HEIGHTS_FREE = ("fibre_*.d_elevation_deg", "fibre_*.d_range_m", "fibre_*.d_azimu
 
 
 @pytest.fixture(scope="module")
-def monterey_recording():
+def monterey_recording(tmp_path_factory):
     """The real static HDL-32E recording (VeloView's monterey pcap, 100 packets), imported."""
     from graphcal.importers.velodyne_pcap import import_pcap
 
     if not MONTEREY.is_file():
         pytest.skip("shared real data absent")
-    return import_pcap(MONTEREY, quiet=True)
+    return import_pcap(MONTEREY, tmp_path_factory.mktemp("monterey") / "rec", quiet=True)
 
 
 def level_box_street(folder: Path, duration_s: float) -> Path:

@@ -109,9 +109,8 @@ def test_model_reproduces_velodyne_decoder_xyz(case, tmp_path):
         calibration_path.write_text(yaml.safe_dump(data))
     capture = spinning_capture(n_packets=60, seed=3, **settings)
     pcap = _write(tmp_path, capture)
-    recording = import_pcap(pcap, calibration=read_velodyne_calibration(calibration_path), position=(45.0, 6.0, 300.0),
-                            quiet=True)
-    recording.save(tmp_path / "rec")
+    recording = import_pcap(pcap, tmp_path / "rec", calibration=read_velodyne_calibration(calibration_path),
+                            position=(45.0, 6.0, 300.0), quiet=True)
     stored = Recording.load(tmp_path / "rec").points.read()
     fibre, range_m = stored["fibre"].astype(int), stored["range"].astype(np.float64)
     centi_deg = np.degrees(stored["azimuth"].astype(np.float64)) * 100
@@ -144,7 +143,7 @@ def test_gprmc_time_base_is_gps_seconds_of_week(tmp_path):
     other = (1614853025.1, udp_frame(b"\x00" * 100, 9999))  # neither lidar data nor a position packet
     capture = spinning_capture(n_packets=20, packet_us=552.96, block_step=19.9, start_us=int(stamp_s * 1e6),
                                extra=[fix, other])
-    recording = import_pcap(_write(tmp_path, capture), quiet=True)
+    recording = import_pcap(_write(tmp_path, capture), tmp_path / "rec", quiet=True)
     utc = calendar.timegm((2021, 3, 4, 10, 0, 0)) + _first_return_us(capture) * 1e-6
     gps = utc - calendar.timegm((1980, 1, 6, 0, 0, 0)) + 18.0
     week = int(gps // 604800)
@@ -163,8 +162,10 @@ def test_no_fix_needs_a_position_and_uses_the_host_clock_hour(tmp_path):
     capture = spinning_capture(n_packets=10, packet_us=552.96, block_step=19.9, host_start_s=1614853000.0)
     pcap = _write(tmp_path, capture)
     with pytest.raises(RecordingError, match="--position"):
-        import_pcap(pcap, quiet=True)
-    recording = import_pcap(pcap, position=(48.0, 2.0, 50.0), attitude_deg=(0.0, 0.0, 30.0), quiet=True)
+        import_pcap(pcap, tmp_path / "rec", quiet=True)
+    assert not (tmp_path / "rec").exists()
+    recording = import_pcap(pcap, tmp_path / "rec", position=(48.0, 2.0, 50.0), attitude_deg=(0.0, 0.0, 30.0),
+                            quiet=True)
     host_hour = 3600 * np.round(1614853000.0 / 3600)  # first packet: host clock 1614853000 s + its sensor time
     gps = host_hour + _first_return_us(capture) * 1e-6 - calendar.timegm((1980, 1, 6, 0, 0, 0)) + 18
     assert recording.points.read(["time"])["time"][0] == pytest.approx(gps % 604800, abs=1e-6)
@@ -198,7 +199,7 @@ def test_bad_captures_get_one_clear_error(tmp_path):
         decode_pcap(good, model="HDL-16", quiet=True)
     with pytest.raises(RecordingError, match="HDL-64E packets and no calibration"):
         hdl64 = spinning_capture(n_packets=5, packet_us=288.0, block_step=17.3, pair_blocks=2, flags=[0xEEFF, 0xDDFF] * 6)
-        import_pcap(_write(tmp_path, hdl64, "64.pcap"), position=(0.0, 0.0, 0.0), quiet=True)
+        import_pcap(_write(tmp_path, hdl64, "64.pcap"), tmp_path / "rec", position=(0.0, 0.0, 0.0), quiet=True)
 
 
 # --- real samples ---------------------------------------------------------------------------------------
@@ -267,8 +268,8 @@ def test_monterey_matches_velodyne_decoder():
 
 @needs_real
 def test_monterey_import_writes_a_valid_recording(tmp_path):
-    recording = import_pcap(MONTEREY, calibration=read_velodyne_calibration(VELOVIEW / "calib/HDL-32.xml"), quiet=True)
-    recording.save(tmp_path / "monterey")
+    import_pcap(MONTEREY, tmp_path / "monterey", calibration=read_velodyne_calibration(VELOVIEW / "calib/HDL-32.xml"),
+                quiet=True)
     loaded = Recording.load(tmp_path / "monterey")
     summary = loaded.validate()
     assert summary.n_points == 872800 and loaded.sensor.model == "HDL-32E"
@@ -356,8 +357,8 @@ def test_rosbag_vlp16_dual_return_matches_velodyne_decoder(tmp_path):
         error = np.minimum(error, tree.query(xyz)[0])
     assert error.max() < 1e-4
     with pytest.raises(RecordingError, match="--position"):
-        import_rosbag(bag, quiet=True)
-    recording = import_rosbag(bag, position=(35.6, 139.7, 40.0), quiet=True)
+        import_rosbag(bag, tmp_path / "rec", quiet=True)
+    recording = import_rosbag(bag, tmp_path / "rec", position=(35.6, 139.7, 40.0), quiet=True)
     assert recording.source["importer"] == "velodyne-rosbag" and any("ROS packet stamps" in n for n in
                                                                      recording.source["notes"])
     with pytest.raises(RecordingError, match=r"no velodyne_msgs/msg/VelodyneScan topic named /points"):
@@ -375,3 +376,49 @@ def test_dual_return_duplicates_are_one_return(tmp_path):
     decoded = decode_pcap(_write(tmp_path, pcap_file(records)), quiet=True)
     duplicates = np.count_nonzero(capture.distance[:, 1::2, :8])
     assert duplicates > 0 and len(decoded.returns["range"]) == np.count_nonzero(capture.distance) - duplicates
+
+
+def _same_recordings(first: Path, second: Path) -> None:
+    """Two recording folders with equal points.parquet columns and equal files beside them."""
+    a, b = Recording.load(first).points.read(), Recording.load(second).points.read()
+    assert list(a) == list(b)
+    for name in a:
+        np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+    for name in ("sensor.yaml", "extrinsic.yaml", "recording.yaml", "trajectory.csv"):
+        assert (first / name).read_text() == (second / name).read_text(), name
+
+
+def test_pcap_read_a_record_at_a_time_gives_the_same_recording(tmp_path, monkeypatch):
+    """A dual-return capture across the top of the hour, GPRMC packets before the first data packet and between
+    data packets, read 1,300 bytes (one record or none) at a time: chunks without a data packet, each packet's
+    successor in the next chunk. points.parquet (row groups of 5,000 rows) and the files beside it are those of
+    the whole file read at once."""
+    monkeypatch.setattr("graphcal.recording.points.BATCH_ROWS", 5000)
+    capture = spinning_capture(n_packets=60, packet_us=276.48, block_step=19.9, pair_blocks=2, mode=0x39)
+    start_us = 3_600_000_000 - 30 * 276  # the sensor's hour turns after 30 packets
+    stamps = (start_us + capture.stamp_us - capture.stamp_us[0]).astype(np.int64)
+    host_s = 1614855600.0 - 30 * 276e-6  # 2021-03-04 11:00:00 UTC at the turn
+    records = [(host_s + (stamps[p] - start_us) * 1e-6,
+                udp_frame(data_packet(capture.azimuth[p], capture.distance[p], capture.intensity[p],
+                                      int(stamps[p] % 3_600_000_000), mode=0x39), 2368)) for p in range(60)]
+    for host, stamp_us, sentence in ((host_s - 0.5, start_us - 500_000, "$GPRMC,105958,A,4851.3000,N,00221.0000,E,"
+                                                                        "000.0,000.0,040321,,,A"),
+                                     (host_s + 0.012, 3000, "$GPRMC,110000,A,4851.3020,N,00221.0010,E,000.0,000.0,"
+                                                            "040321,,,A")):
+        records.append((host, udp_frame(position_packet(stamp_us, sentence), 8308)))
+    pcap = _write(tmp_path, pcap_file(sorted(records, key=lambda record: record[0])))
+    import_pcap(pcap, tmp_path / "chunked", chunk_bytes=1300, quiet=True)
+    whole = import_pcap(pcap, tmp_path / "whole", chunk_bytes=None, quiet=True)
+    _same_recordings(tmp_path / "chunked", tmp_path / "whole")
+    assert len(whole.points) == np.count_nonzero(capture.distance) and whole.points._file.metadata.num_row_groups > 2
+    assert any("mean of 2 GPRMC fixes" in note for note in whole.source["notes"])
+    time = whole.points.read(["time"])["time"]
+    assert np.all(np.diff(time) >= 0) and np.ptp(time) < 0.02  # no hour lost at the turn
+
+
+@needs_real
+def test_monterey_read_in_small_chunks_gives_the_same_recording(tmp_path):
+    """The real capture read 4,000 bytes (three records) at a time: the same recording as the whole file at once."""
+    import_pcap(MONTEREY, tmp_path / "chunked", chunk_bytes=4000, quiet=True)
+    import_pcap(MONTEREY, tmp_path / "whole", chunk_bytes=None, quiet=True)
+    _same_recordings(tmp_path / "chunked", tmp_path / "whole")

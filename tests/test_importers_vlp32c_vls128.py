@@ -223,3 +223,19 @@ def test_import_cli_vls128_128_fibres_and_vlp32c_needs_a_calibration(tmp_path):
     refused = runner.invoke(app, ["import", "pcap", str(NEBULA / CASES["VLP-32C"][0]), "--out", str(tmp_path / "x")])
     assert refused.exit_code == 2 and "VLP-32C packets and no calibration file" in refused.output
     assert "VLP32.yaml" in refused.output and "Traceback" not in refused.output
+
+
+def test_vlp32c_decoded_one_packet_at_a_time_equals_all_at_once(monkeypatch):
+    """The blocks after a field-of-view gap are timed back from the next packet: decoded one packet at a time (each
+    packet's successor in the next chunk), every return and the spin rate are those of the bag as one chunk."""
+    pytest.importorskip("rosbags")
+    from graphcal.importers import velodyne_rosbag
+
+    bag = NEBULA / CASES["VLP-32C"][0]
+    monkeypatch.setattr(velodyne_rosbag, "CHUNK_PACKETS", 10**9)
+    whole = velodyne_rosbag.decode_rosbag(bag, quiet=True)
+    monkeypatch.setattr(velodyne_rosbag, "CHUNK_PACKETS", 1)
+    single = velodyne_rosbag.decode_rosbag(bag, quiet=True)
+    assert single.rotation_hz == whole.rotation_hz and list(single.returns) == list(whole.returns)
+    for name, values in whole.returns.items():
+        np.testing.assert_array_equal(single.returns[name], values, err_msg=name)

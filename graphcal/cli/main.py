@@ -447,21 +447,19 @@ def import_pcap_command(
     from graphcal.importers.velodyne_calibration import read_velodyne_calibration
     from graphcal.importers.velodyne_pcap import import_pcap
 
-    if out is not None:  # before the import's work
-        _not_taken(out)
+    out = _imported_recording_folder(out, pcap.stem)  # before the import's work
     extrinsic = _extrinsic(lever_arm, boresight)
     options = {"model": model, "calibration": read_velodyne_calibration(calibration) if calibration else None,
                "trajectory": _read_trajectory(trajectory) if trajectory else None,
                "position": _numbers(position, "--position"), "attitude_deg": _numbers(attitude, "--attitude"),
-               "extrinsic": extrinsic, "interpolate_azimuth": not block_azimuth, "quiet": quiet}
+               "extrinsic": extrinsic, "interpolate_azimuth": not block_azimuth, "crs": crs, "quiet": quiet}
     if pcap.is_dir() or pcap.suffix.lower() in (".bag", ".db3", ".mcap"):
         from graphcal.importers.velodyne_rosbag import import_rosbag
 
-        recording = import_rosbag(pcap, topic=topic, **options)
+        recording = import_rosbag(pcap, out, topic=topic, **options)
     else:
-        recording = import_pcap(pcap, **options)
-    recording.crs = crs
-    _save_import(recording, out, pcap, quiet)
+        recording = import_pcap(pcap, out, **options)
+    _print_import(recording, out, quiet)
 
 
 def _imported_recording_folder(out: Path | None, name: str) -> Path:

@@ -65,12 +65,13 @@ class ReturnWriter:
         self.intensity, self.misfit = IntensityRange(), MisfitSpread()
         self.n_returns = 0
 
-    def add(self, columns: dict[str, np.ndarray], misfit_m: np.ndarray) -> None:
+    def add(self, columns: dict[str, np.ndarray], misfit_m: np.ndarray | None = None) -> None:
         """A chunk of returns: RECORDING.md's columns (time in the recording's time base [s], intensity as stored)
-        and their model misfit [m]."""
+        and their model misfit [m] (None for raw returns read as the sensor sent them)."""
         intensity = np.maximum(np.asarray(columns["intensity"], dtype=np.float64), 0.0)
         self.intensity.add(intensity)
-        self.misfit.add(misfit_m)
+        if misfit_m is not None:
+            self.misfit.add(misfit_m)
         self.n_returns += len(intensity)
         self._write({**columns, "intensity": intensity})
 

@@ -124,17 +124,39 @@ LAYOUTS = {
 }
 
 
-def unwrap_hour_us(stamp_us: np.ndarray) -> np.ndarray:
-    """Microseconds past the top of the hour -> microseconds past the first stamp's hour (float64)."""
-    stamp = np.asarray(stamp_us, dtype=np.float64)
-    wraps = np.concatenate([[0.0], np.cumsum(np.diff(stamp) < -1800e6)])
-    return stamp + 3600e6 * wraps
+class HourUnwrap:
+    """Microseconds past the top of the hour -> microseconds past the first stamp's hour (float64), for the
+    stamps of consecutive packets given chunk after chunk (a step back of more than half an hour is a new hour)."""
+
+    def __init__(self):
+        self._last_us: float | None = None
+        self._hours = 0
+
+    def __call__(self, stamp_us: np.ndarray) -> np.ndarray:
+        stamp = np.asarray(stamp_us, dtype=np.float64)
+        if not len(stamp):
+            return stamp
+        before = stamp[:1] if self._last_us is None else [self._last_us]
+        hours = self._hours + np.cumsum(np.diff(np.concatenate([before, stamp])) < -1800e6)
+        self._last_us, self._hours = float(stamp[-1]), int(hours[-1])
+        return stamp + 3600e6 * hours
 
 
-def revolution_counter(packets: np.ndarray) -> np.ndarray:
-    """(n, 12) revolution index of each block: +1 each time the block azimuth decreases (wraps)."""
-    azimuth = packets["blocks"]["azimuth"].astype(np.int64).ravel()
-    return np.concatenate([[0], np.cumsum(np.diff(azimuth) < 0)]).reshape(-1, 12).astype(np.int32)
+class RevolutionCounter:
+    """(n, 12) revolution index of each block of consecutive packets given chunk after chunk: +1 each time the
+    block azimuth decreases (wraps), from 0 at the first block."""
+
+    def __init__(self):
+        self._last: tuple[int, int] | None = None  # (block azimuth [0.01 deg], revolution) of the last block
+
+    def __call__(self, packets: np.ndarray) -> np.ndarray:
+        azimuth = packets["blocks"]["azimuth"].astype(np.int64).ravel()
+        if not len(azimuth):
+            return np.zeros((0, 12), dtype=np.int32)
+        last_azimuth, last_scan = self._last or (int(azimuth[0]), 0)
+        scan = last_scan + np.cumsum(np.diff(np.concatenate([[last_azimuth], azimuth])) < 0)
+        self._last = (int(azimuth[-1]), int(scan[-1]))
+        return scan.reshape(-1, 12).astype(np.int32)
 
 
 def returned(packets: np.ndarray, layout: PacketLayout, dual: bool) -> np.ndarray:

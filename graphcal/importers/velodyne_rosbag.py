@@ -2,9 +2,10 @@
 
 The bag is read with rosbags (optional: `pip install "graphcal[rosbag]"`), also an early ROS 2
 bag whose metadata leaves the serialization format empty (read as CDR); the 1206-byte
-packets go through the same decoder as pcap captures (velodyne_pcap.decode_packets), and the
-packets' ROS stamps stand for the capture host clock (the hour of the sensor timestamps). A bag
-carries no $GPRMC: give a position or a trajectory. docs/howto/import.md has the details.
+packets, sorted by their ROS stamps, go through the same survey and chunk decoder as pcap captures
+(velodyne_recording), and the packets' ROS stamps stand for the capture host clock (the hour of the sensor
+timestamps). The packets are held in memory (a tenth of their returns); the returns are written as they are
+decoded. A bag carries no $GPRMC: give a position or a trajectory. docs/howto/import.md has the details.
 """
 
 from __future__ import annotations
@@ -15,18 +16,23 @@ from pathlib import Path
 
 import numpy as np
 
+from graphcal.common.progress import progress
 from graphcal.common.errors import ConfigError, GraphcalError, RecordingError
 from graphcal.common.yamlfile import read_yaml
 from graphcal.importers.velodyne_calibration import VelodyneCalibration
 from graphcal.importers.velodyne_packets import PACKET, PACKET_BYTES
-from graphcal.importers.velodyne_pcap import (
+from graphcal.importers.velodyne_recording import (
+    SurveyedCapture,
     VelodyneReturns,
-    decode_packets,
-    recording_from_returns,
+    decoded_capture,
+    surveyed_capture,
+    write_velodyne_recording,
 )
+from graphcal.importers.velodyne_survey import PacketSurvey
 from graphcal.recording.directory import Recording
 
 SCAN_TYPE = "velodyne_msgs/msg/VelodyneScan"
+CHUNK_PACKETS = 1024  # packets decoded at a time (about 0.35 M returns)
 # ROS 2 bags do not carry message definitions: velodyne_msgs' own
 _DEFINITIONS = {"velodyne_msgs/msg/VelodynePacket": "builtin_interfaces/Time stamp\nuint8[1206] data",
                 SCAN_TYPE: "std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets"}
@@ -115,18 +121,38 @@ def _unnamed_cdr(bag: Path) -> bool:
 def decode_rosbag(bag: str | Path, topic: str | None = None, model: str | None = None,
                   distance_resolution_m: float | None = None, interpolate_azimuth: bool = True,
                   quiet: bool = False) -> VelodyneReturns:
-    """Raw returns of the Velodyne packets of a bag (see velodyne_pcap.decode_packets)."""
+    """Every raw return of the Velodyne packets of a bag in memory (a bag small enough to hold); arguments as
+    survey_rosbag."""
+    return decoded_capture(survey_rosbag(bag, topic, model, distance_resolution_m, interpolate_azimuth, quiet))
+
+
+def survey_rosbag(bag: str | Path, topic: str | None = None, model: str | None = None,
+                  distance_resolution_m: float | None = None, interpolate_azimuth: bool = True,
+                  quiet: bool = False) -> SurveyedCapture:
+    """The Velodyne packets of a bag, sorted by their ROS stamps and surveyed (velodyne_pcap.survey_pcap), ready to
+    decode CHUNK_PACKETS at a time. The packets are held (1206 bytes each, a tenth of their returns)."""
     packets, stamps = read_velodyne_packets(bag, topic)
     order = np.argsort(stamps, kind="stable")
-    return decode_packets(Path(bag), packets[order], stamps[order], order, model, distance_resolution_m,
-                          interpolate_azimuth, quiet)
+    packets = packets[order]
+    survey = PacketSurvey()
+    survey.add(packets, stamps[order], order)
+    bag, chunks = Path(bag), range(0, len(packets), CHUNK_PACKETS)
+
+    def chunked() -> Iterator[np.ndarray]:
+        return progress((packets[s:s + CHUNK_PACKETS] for s in chunks), f"decoding {bag.name}", total=len(chunks),
+                        quiet=quiet)
+
+    return surveyed_capture(survey, chunked, path=bag,
+                            model=model, distance_resolution_m=distance_resolution_m,
+                            interpolate_azimuth=interpolate_azimuth)
 
 
-def import_rosbag(bag: str | Path, *, topic: str | None = None, model: str | None = None,
-                  calibration: VelodyneCalibration | None = None, **options) -> Recording:
-    """A bag's Velodyne packets as a recording; options as velodyne_pcap.import_pcap (trajectory,
-    position, attitude_deg, extrinsic, interpolate_azimuth, name, quiet)."""
-    quiet = options.pop("quiet", False)
-    decoded = decode_rosbag(bag, topic, model, calibration.distance_resolution_m if calibration else None,
-                            options.pop("interpolate_azimuth", True), quiet)
-    return recording_from_returns(decoded, "velodyne-rosbag", calibration=calibration, **options)
+def import_rosbag(bag: str | Path, out: str | Path, *, topic: str | None = None, model: str | None = None,
+                  calibration: VelodyneCalibration | None = None, interpolate_azimuth: bool = True,
+                  quiet: bool = False, **options) -> Recording:
+    """A bag's Velodyne packets as the recording folder `out` (written whole or not at all, CHUNK_PACKETS packets
+    at a time); options as velodyne_recording.write_velodyne_recording (trajectory, position, attitude_deg,
+    extrinsic, crs, name)."""
+    surveyed = survey_rosbag(bag, topic, model, calibration.distance_resolution_m if calibration else None,
+                             interpolate_azimuth, quiet)
+    return write_velodyne_recording(surveyed, out, "velodyne-rosbag", calibration=calibration, **options)

@@ -143,7 +143,8 @@ class PointTable:
 
     def __init__(self, arrays: dict[str, np.ndarray] | None = None, path: Path | None = None):
         self._arrays, self.path = arrays, path
-        self._file = pq.ParquetFile(path) if path is not None else None
+        # pre_buffer off: with it, Arrow keeps every column chunk read so far (the whole file after a pass)
+        self._file = pq.ParquetFile(path, pre_buffer=False) if path is not None else None
 
     @classmethod
     def from_arrays(cls, **arrays) -> PointTable:
