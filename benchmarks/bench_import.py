@@ -1,14 +1,17 @@
-"""Benchmark: decode and import Velodyne captures (graphcal's parser and velodyne-decoder).
+"""Benchmark: import and decode Velodyne captures (graphcal's parser and velodyne-decoder).
 
-Cases: the real HDL-32E sample (monterey, 2702 packets, 872,800 returns) and a longer capture
-made of `--repeat` copies of it, each copy's sensor timestamps moved on by the sample's span
-(the same returns, one after the other). Each stage runs in its own process (its own peak
-memory). Prints the figures and writes benchmarks/results/import.json.
+Cases: the real HDL-32E sample (monterey, 2702 packets, 872,800 returns) and longer captures made
+of `--repeat` copies of it, each copy's sensor timestamps moved on by the sample's span (the same
+returns, one after the other). Stages, each in its own process (its own peak memory): graphcal's
+import into a recording folder (streamed: its peak should not grow with the capture), graphcal's
+decode of every return into arrays held in memory (decode_pcap), velodyne-decoder's read. Prints
+the figures and writes benchmarks/results/import.json with the machine and the date.
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime
 import multiprocessing as mp
 import platform
 import struct
@@ -46,21 +49,27 @@ def _repeated_capture(source: Path, copies: int, out: Path) -> None:
                 file.write(record)
 
 
-def _graphcal(path: str, queue) -> None:
-    from graphcal.importers.velodyne_pcap import decode_pcap, import_pcap
+def _graphcal_import(path: str, queue) -> None:
+    from graphcal.importers.velodyne_pcap import import_pcap
+
+    with tempfile.TemporaryDirectory() as tmp:
+        started = time.perf_counter()
+        recording = import_pcap(path, Path(tmp) / "rec", quiet=True)
+        seconds = time.perf_counter() - started
+        returns = len(recording.points)
+    queue.put({"returns": returns, "graphcal_import_s": seconds, "graphcal_import_returns_per_s": returns / seconds,
+               "graphcal_import_peak_gib": peak_gib()})
+
+
+def _graphcal_decode(path: str, queue) -> None:
+    from graphcal.importers.velodyne_pcap import decode_pcap
 
     started = time.perf_counter()
     decoded = decode_pcap(path, quiet=True)
-    decoded_s = time.perf_counter() - started
-    started = time.perf_counter()
-    recording = import_pcap(path, quiet=True)
-    with tempfile.TemporaryDirectory() as tmp:
-        recording.save(Path(tmp) / "rec")
-        import_s = time.perf_counter() - started
+    seconds = time.perf_counter() - started
     returns = len(decoded.returns["time_s"])
-    queue.put({"returns": returns, "packets": decoded.n_data_packets, "graphcal_decode_s": decoded_s,
-               "graphcal_returns_per_s": returns / decoded_s, "graphcal_import_and_save_s": import_s,
-               "graphcal_peak_gib": peak_gib()})
+    queue.put({"packets": decoded.n_data_packets, "graphcal_decode_s": seconds,
+               "graphcal_decode_returns_per_s": returns / seconds, "graphcal_decode_peak_gib": peak_gib()})
 
 
 def _velodyne_decoder(path: str, queue) -> None:
@@ -77,18 +86,23 @@ def _velodyne_decoder(path: str, queue) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=40, help="copies of the sample in the long capture")
+    parser.add_argument("--repeat", type=int, nargs="+", default=[5, 20, 40],
+                        help="copies of the sample in each longer capture")
     args = parser.parse_args()
     if not MONTEREY.is_file():
         raise SystemExit(f"{MONTEREY} is absent")
-    results = {"benchmark": "import_velodyne_pcap", "cpus": mp.cpu_count(), "python": platform.python_version()}
+    results = {"benchmark": "import_velodyne_pcap",
+               "machine": {"cpus": mp.cpu_count(), "python": platform.python_version(), "platform": platform.platform()},
+               "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
     with tempfile.TemporaryDirectory() as tmp:
-        long_capture = Path(tmp) / "long.pcap"
-        _repeated_capture(MONTEREY, args.repeat, long_capture)
-        for name, path in (("monterey", MONTEREY), (f"monterey_x{args.repeat}", long_capture)):
+        cases = {"monterey": MONTEREY}
+        for copies in args.repeat:
+            cases[f"monterey_x{copies}"] = Path(tmp) / f"x{copies}.pcap"
+            _repeated_capture(MONTEREY, copies, cases[f"monterey_x{copies}"])
+        for name, path in cases.items():
             figures = {"file_mib": path.stat().st_size / 2**20}
-            figures.update(run_in_process(_graphcal, str(path)))
-            figures.update(run_in_process(_velodyne_decoder, str(path)))
+            for stage in (_graphcal_import, _graphcal_decode, _velodyne_decoder):
+                figures.update(run_in_process(stage, str(path)))
             results[name] = figures
     report(results, RESULTS / "import.json")
 

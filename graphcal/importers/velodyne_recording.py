@@ -21,7 +21,7 @@ from graphcal.importers.gpstime import seconds_of_week
 from graphcal.importers.return_stream import POINTS, return_writer, save_imported
 from graphcal.importers.trajectory_span import capture_trajectory
 from graphcal.importers.velodyne_calibration import VelodyneCalibration
-from graphcal.importers.velodyne_packets import LAYOUTS
+from graphcal.importers.velodyne_packets import LAYOUTS, PacketLayout
 from graphcal.importers.velodyne_stream import PacketDecoder, VelodyneCapture, all_returns, decoded_returns
 from graphcal.importers.velodyne_survey import PacketSurvey, layout
 from graphcal.recording.directory import Recording
@@ -46,18 +46,23 @@ class VelodyneReturns(VelodyneCapture):
 
 @dataclass(frozen=True)
 class SurveyedCapture:
-    """A surveyed capture (capture: rotation_hz 0 until decoded), its decoder, and its data packets again, chunk by
-    chunk (PACKET arrays, in capture order)."""
+    """A surveyed capture (capture: rotation_hz 0 until decoded), its packet layout, and its data packets again,
+    chunk by chunk (PACKET arrays, in capture order)."""
 
     capture: VelodyneCapture
-    decoder: PacketDecoder
+    layout: PacketLayout
     packets: Callable[[], Iterator[np.ndarray]]
+
+    def decoder(self) -> PacketDecoder:
+        """A decoder of the packets from the first on."""
+        capture = self.capture
+        return PacketDecoder(self.layout, capture.dual_return, capture.distance_m, capture.interpolated_azimuth)
 
 
 def surveyed_capture(survey: PacketSurvey, packets: Callable[[], Iterator[np.ndarray]], *, path: Path,
                      model: str | None = None, distance_resolution_m: float | None = None,
                      interpolate_azimuth: bool = True, **counts) -> SurveyedCapture:
-    """The capture the survey describes: its layout (forced `model` or detected) and decoder. The distance unit is
+    """The capture the survey describes, with its layout (forced `model` or detected). The distance unit is
     the model's (2 or 4 mm); an HDL-64E's calibration file states its own (db.xml distLSB_), which
     distance_resolution_m passes on. counts: VelodyneCapture's fixes, n_other_packets, cut_bytes."""
     chosen, dual = layout(path, survey, model)
@@ -65,14 +70,14 @@ def surveyed_capture(survey: PacketSurvey, packets: Callable[[], Iterator[np.nda
     capture = VelodyneCapture(path=path, model=chosen.model, dual_return=dual, rotation_hz=0.0,
                               interpolated_azimuth=interpolate_azimuth, host_hour_utc_s=survey.host_hour_utc_s,
                               n_data_packets=survey.n_packets, distance_m=unit_m, **counts)
-    return SurveyedCapture(capture, PacketDecoder(chosen, dual, unit_m, interpolate_azimuth), packets)
+    return SurveyedCapture(capture, chosen, packets)
 
 
 def decoded_capture(surveyed: SurveyedCapture) -> VelodyneReturns:
     """Every return of a surveyed capture in memory, sorted by time (a capture small enough to hold)."""
-    returns = all_returns(surveyed.decoder, surveyed.packets())
-    return VelodyneReturns(**{**surveyed.capture.__dict__, "rotation_hz": surveyed.decoder.rotation_hz()},
-                           returns=returns)
+    decoder = surveyed.decoder()
+    returns = all_returns(decoder, surveyed.packets())
+    return VelodyneReturns(**{**surveyed.capture.__dict__, "rotation_hz": decoder.rotation_hz()}, returns=returns)
 
 
 def write_velodyne_recording(surveyed: SurveyedCapture, out: str | Path, importer: str, *,
@@ -98,10 +103,10 @@ def write_velodyne_recording(surveyed: SurveyedCapture, out: str | Path, importe
     where = "the position given"
     if trajectory is None and position is None:
         position, where = _position_of_fixes(capture)
-    span_s, week = [np.inf, -np.inf], None
+    span_s, week, decoder = [np.inf, -np.inf], None, surveyed.decoder()
     with atomic_directory(out) as folder:
         with return_writer(folder, path, _ORDER, list(SCHEMA)) as returns:
-            for decoded in decoded_returns(surveyed.decoder, surveyed.packets()):
+            for decoded in decoded_returns(decoder, surveyed.packets()):
                 if len(decoded["time_s"]):
                     time, week = seconds_of_week(hour_utc_s, decoded["time_s"], week)
                     span_s = [min(span_s[0], float(time.min())), max(span_s[1], float(time.max()))]
@@ -109,7 +114,7 @@ def write_velodyne_recording(surveyed: SurveyedCapture, out: str | Path, importe
         if not returns.n_returns:
             raise RecordingError(path, "no return in the data packets (every distance is 0)",
                                  expected="a capture of a running sensor")
-        rotation_hz = surveyed.decoder.rotation_hz()
+        rotation_hz = decoder.rotation_hz()
         mode = "dual" if capture.dual_return else "single"
         notes = [f"{capture.n_data_packets} {capture.model} data packets ({mode} return), {returns.n_returns} returns, "
                  f"{rotation_hz:.2f} Hz"]
