@@ -2,10 +2,12 @@
 
 The bag is read with rosbags (optional: `pip install "graphcal[rosbag]"`), also an early ROS 2
 bag whose metadata leaves the serialization format empty (read as CDR); the 1206-byte
-packets, sorted by their ROS stamps, go through the same survey and chunk decoder as pcap captures
+packets, in the order of their ROS stamps, go through the same survey and chunk decoder as pcap captures
 (velodyne_recording), and the packets' ROS stamps stand for the capture host clock (the hour of the sensor
-timestamps). The packets are held in memory (a tenth of their returns); the returns are written as they are
-decoded. A bag carries no $GPRMC: give a position or a trajectory. docs/howto/import.md has the details.
+timestamps). The bag is read message by message, twice, when its packets are in stamp order (as a driver records
+them); a bag with packets out of that order is held in memory and sorted (a tenth of its returns). The returns are
+written as they are decoded. A bag carries no $GPRMC: give a position or a trajectory. docs/howto/import.md has
+the details.
 """
 
 from __future__ import annotations
@@ -16,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from graphcal.common.progress import progress
 from graphcal.common.errors import ConfigError, GraphcalError, RecordingError
+from graphcal.common.progress import progress
 from graphcal.common.yamlfile import read_yaml
 from graphcal.importers.velodyne_calibration import VelodyneCalibration
 from graphcal.importers.velodyne_packets import PACKET, PACKET_BYTES
@@ -32,14 +34,22 @@ from graphcal.importers.velodyne_survey import PacketSurvey
 from graphcal.recording.directory import Recording
 
 SCAN_TYPE = "velodyne_msgs/msg/VelodyneScan"
-CHUNK_PACKETS = 1024  # packets decoded at a time (about 0.35 M returns)
+CHUNK_PACKETS = 1024  # packets read and decoded at a time, in whole messages (about 0.35 M returns)
 # ROS 2 bags do not carry message definitions: velodyne_msgs' own
 _DEFINITIONS = {"velodyne_msgs/msg/VelodynePacket": "builtin_interfaces/Time stamp\nuint8[1206] data",
                 SCAN_TYPE: "std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets"}
 
 
 def read_velodyne_packets(bag: str | Path, topic: str | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(packets as a PACKET array, their ROS stamps in s since 1970) of the VelodyneScan messages."""
+    """(packets as a PACKET array, their ROS stamps in s since 1970) of the VelodyneScan messages, all at once."""
+    chunks = list(packet_chunks(bag, topic))
+    return np.concatenate([packets for packets, _, _ in chunks]), np.concatenate([stamps for _, stamps, _ in chunks])
+
+
+def packet_chunks(bag: str | Path, topic: str | None = None) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The packets of the VelodyneScan messages in the bag's order, whole messages of about CHUNK_PACKETS packets at a
+    time: (PACKET array, ROS stamps [s since 1970], index of each packet in the bag). RecordingError naming the bag
+    when it has none."""
     try:
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore
     except ImportError:
@@ -50,7 +60,7 @@ def read_velodyne_packets(bag: str | Path, topic: str | None = None) -> tuple[np
     store = get_typestore(Stores.ROS2_HUMBLE)
     for name, definition in _DEFINITIONS.items():
         store.register(get_types_from_msg(definition, name))
-    data, stamps = [], []
+    data, stamps, before = [], [], 0
     try:
         with _open_bag(bag, store) as (connections, messages, deserialize):
             wanted = SCAN_TYPE.replace("/msg/", "/")
@@ -67,14 +77,23 @@ def read_velodyne_packets(bag: str | Path, topic: str | None = None) -> tuple[np
                                              expected=f"{PACKET_BYTES}-byte Velodyne data packets")
                     data.append(np.asarray(packet.data, dtype=np.uint8))
                     stamps.append(packet.stamp.sec + 1e-9 * packet.stamp.nanosec)
+                if len(data) >= CHUNK_PACKETS:
+                    yield _chunk(data, stamps, before)
+                    data, stamps, before = [], [], before + len(data)
     except GraphcalError:
         raise
     except Exception as error:  # rosbags' own (a folder without metadata.yaml, an empty or damaged bag, a cut message)
         raise RecordingError(bag, f"not a readable ROS bag: {type(error).__name__}: {error}",
                              expected="a rosbag1 file or a rosbag2 folder with its metadata.yaml") from None
-    if not data:
+    if data:
+        yield _chunk(data, stamps, before)
+    elif not before:
         raise RecordingError(bag, "no packet in the VelodyneScan messages", expected="Velodyne data packets")
-    return np.stack(data).view(PACKET).ravel(), np.asarray(stamps)
+
+
+def _chunk(data: list[np.ndarray], stamps: list[float], before: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(PACKET array, stamps, indices in the bag) of packets read after `before` others."""
+    return np.stack(data).view(PACKET).ravel(), np.asarray(stamps), before + np.arange(len(data))
 
 
 @contextmanager
@@ -129,22 +148,38 @@ def decode_rosbag(bag: str | Path, topic: str | None = None, model: str | None =
 def survey_rosbag(bag: str | Path, topic: str | None = None, model: str | None = None,
                   distance_resolution_m: float | None = None, interpolate_azimuth: bool = True,
                   quiet: bool = False) -> SurveyedCapture:
-    """The Velodyne packets of a bag, sorted by their ROS stamps and surveyed (velodyne_pcap.survey_pcap), ready to
-    decode CHUNK_PACKETS at a time. The packets are held (1206 bytes each, a tenth of their returns)."""
+    """The Velodyne packets of a bag surveyed (velodyne_pcap.survey_pcap), ready to decode in their ROS stamps'
+    order: read message by message, twice, when the bag holds them in that order; else held (1206 bytes each, a
+    tenth of their returns), sorted by stamp, and decoded CHUNK_PACKETS at a time."""
+    bag, survey, last_s = Path(bag), PacketSurvey(), -np.inf
+    options = {"path": bag, "model": model, "distance_resolution_m": distance_resolution_m,
+               "interpolate_azimuth": interpolate_azimuth}
+    for packets, stamps, records in packet_chunks(bag, topic):
+        if stamps[0] < last_s or np.any(np.diff(stamps) < 0):
+            return _sorted_survey(bag, topic, quiet, options)
+        survey.add(packets, stamps, records)
+        last_s = stamps[-1]
+
+    def read_again() -> Iterator[np.ndarray]:
+        return progress((packets for packets, _, _ in packet_chunks(bag, topic)), f"decoding {bag.name}", quiet=quiet)
+
+    return surveyed_capture(survey, read_again, **options)
+
+
+def _sorted_survey(bag: Path, topic: str | None, quiet: bool, options: dict) -> SurveyedCapture:
+    """survey_rosbag of a bag whose packets are out of stamp order: held, sorted by stamp (stable)."""
     packets, stamps = read_velodyne_packets(bag, topic)
     order = np.argsort(stamps, kind="stable")
     packets = packets[order]
     survey = PacketSurvey()
     survey.add(packets, stamps[order], order)
-    bag, chunks = Path(bag), range(0, len(packets), CHUNK_PACKETS)
+    chunks = range(0, len(packets), CHUNK_PACKETS)
 
     def chunked() -> Iterator[np.ndarray]:
         return progress((packets[s:s + CHUNK_PACKETS] for s in chunks), f"decoding {bag.name}", total=len(chunks),
                         quiet=quiet)
 
-    return surveyed_capture(survey, chunked, path=bag,
-                            model=model, distance_resolution_m=distance_resolution_m,
-                            interpolate_azimuth=interpolate_azimuth)
+    return surveyed_capture(survey, chunked, **options)
 
 
 def import_rosbag(bag: str | Path, out: str | Path, *, topic: str | None = None, model: str | None = None,
