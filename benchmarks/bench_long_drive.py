@@ -30,21 +30,34 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def _trajectory_errors_cm(result, recording) -> dict:
+    """RMS [cm] of the INS error and of the estimated corrections less it at the control times, each less its
+    mean (the common translation), over every control and over the revisited ones (a position within
+    REVISIT_WITHIN_M of one held at least REVISIT_AFTER_S apart, as calibrate's mode auto decides)."""
     import numpy as np
+    from scipy.spatial import cKDTree
 
+    from graphcal.calibration.returns import REVISIT_AFTER_S, REVISIT_WITHIN_M
     from graphcal.recording.geodesy import to_world
 
     times = np.asarray(result.calibration.control_times_s)
     recorded, true = recording.world.poses, to_world(recording.truth.trajectory, recording.crs).poses
     inside = (times >= max(recorded.span[0], true.span[0])) & (times <= min(recorded.span[1], true.span[1]))
-    ins_error = true.interpolate(times[inside])[0] - recorded.interpolate(times[inside])[0]
+    position_m = true.interpolate(times[inside])[0]
+    ins_error = position_m - recorded.interpolate(times[inside])[0]
     corrections = np.array([c.translation() for c in result.calibration.estimate.corrections])[inside]
     left = corrections - ins_error
     left -= left.mean(axis=0)
     drift = ins_error - ins_error.mean(axis=0)
-    return {"controls": int(inside.sum()),
-            "ins_error_rms_cm": round(float(np.sqrt(np.mean(np.sum(drift ** 2, axis=1)))) * 100, 2),
-            "after_rms_cm": round(float(np.sqrt(np.mean(np.sum(left ** 2, axis=1)))) * 100, 2)}
+    near = cKDTree(position_m).query_ball_point(position_m, REVISIT_WITHIN_M)
+    revisited = np.array([any(abs(times[inside][k] - times[inside][j]) >= REVISIT_AFTER_S for j in close)
+                          for k, close in enumerate(near)], bool)
+
+    def rms_cm(error_m):
+        return round(float(np.sqrt(np.mean(np.sum(error_m ** 2, axis=1)))) * 100, 2) if len(error_m) else None
+
+    return {"controls": int(inside.sum()), "ins_error_rms_cm": rms_cm(drift), "after_rms_cm": rms_cm(left),
+            "revisited_controls": int(revisited.sum()), "revisited_ins_error_rms_cm": rms_cm(drift[revisited]),
+            "revisited_after_rms_cm": rms_cm(left[revisited])}
 
 
 def _case(folder: str, max_points: int | None, queue) -> None:
@@ -68,8 +81,8 @@ def _case(folder: str, max_points: int | None, queue) -> None:
            "seconds_per_stage": {k: round(v, 1) for k, v in result.timings_s.items()},
            "energy_cm2": [round(float(e), 5) for e in result.energy_cm2]}
     evaluation = evaluate(result, recording)
-    out |= {"intrinsic_rms_before (m, deg, deg, m)": [round(float(v), 5) for v in evaluation.intrinsic_rms_before],
-            "intrinsic_rms_after (m, deg, deg, m)": [round(float(v), 5) for v in evaluation.intrinsic_rms_after],
+    out |= {"intrinsic_rms_before (cm, deg, deg, cm)": [round(float(v), 5) for v in evaluation.intrinsic_rms_before],
+            "intrinsic_rms_after (cm, deg, deg, cm)": [round(float(v), 5) for v in evaluation.intrinsic_rms_after],
             "lever_arm_error_m (before, after)": [round(float(v), 4) for v in evaluation.lever_arm_error_m],
             "rotation_error_deg (before, after)": [round(float(v), 4) for v in evaluation.rotation_error_deg],
             "c2c_mean_cm (before, after, gauge-free)": [round(evaluation.cloud_before.mean * 100, 2),
