@@ -74,7 +74,8 @@ def check_rings_in_order(elevation_deg: np.ndarray, d_elevation_rad: np.ndarray,
     """Raise when two fibres' calibrated elevations cross: a real head's beams keep their order, whenever
     the nominal model's stated uncertainty (prior_sigma_deg, 1-sigma) says its beams are known to within a
     third of their spacing (a start that is further off, Table 4.1's 3 deg on a 1.33 deg spacing, may have
-    crossing beams)."""
+    crossing beams). Crossed rings are either a slide or a nominal model further off than it states (the
+    fit then finds the true rings, crossed): the message names both."""
     order = np.argsort(elevation_deg, kind="stable")
     if 3.0 * prior_sigma_deg > np.diff(elevation_deg[order]).min():
         return
@@ -84,7 +85,9 @@ def check_rings_in_order(elevation_deg: np.ndarray, d_elevation_rad: np.ndarray,
         a, b = order[crossed[0]], order[crossed[0] + 1]
         raise CalibrationError(
             f"{where}: the calibrated rings of fibres {a} and {b} cross ({calibrated[crossed[0]]:.3f} and "
-            f"{calibrated[crossed[0] + 1]:.3f} deg): the elevations slid; hold them (static.hold) or use a drive with "
+            f"{calibrated[crossed[0] + 1]:.3f} deg), which the nominal model's stated uncertainty ({prior_sigma_deg:g} deg) "
+            "rules out: if the nominal model is known to be further off, give its uncertainty "
+            "(priors.intrinsic_angle_deg); else the elevations slid: hold them (static.hold) or use a drive with "
             "surfaces at many heights")
 
 
