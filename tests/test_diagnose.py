@@ -22,6 +22,7 @@ from scipy.spatial import cKDTree
 from typer.testing import CliRunner
 
 import graphcal
+from factors.effects import candidate
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.cli.main import app
 from graphcal.cli.runs import DiagnoseOptions, diagnosis_run
@@ -130,6 +131,11 @@ def test_two_concealed_effects_are_both_found_and_sized(two_effects):
     for finding in diagnosis.findings:
         assert finding["energy_cm2"]["held_out_after"] < finding["energy_cm2"]["held_out_before"]
         assert finding["evidence"]["p_value"] < 1e-4 and np.isfinite(finding["sigma"]) and finding["sigma"] > 0
+        # the size where both are re-solved together, not the first one's own step's
+        value = diagnosis.fit.model.values[finding["effect"]]
+        assert finding["magnitude"] == candidate(finding["effect"]).magnitude_of(value)
+        assert finding["parameters"] == pytest.approx(np.atleast_1d(value).tolist())
+        assert "re-solved with every effect found" in finding["statement"]
     assert diagnosis.energy_cm2["after"] < diagnosis.energy_cm2["before"]
 
 

@@ -16,7 +16,7 @@ import pyarrow.parquet as pq
 import pytest
 import yaml
 
-from tools.foreign_sim import FAMILIES, simulate
+from tools.foreign_sim import FAMILIES, Departures, simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "tools" / "foreign_sim"
@@ -276,3 +276,38 @@ def test_drive_dynamics_of_a_full_drive(tmp_path):
     assert np.degrees(yaw[-1] - yaw[0]) == pytest.approx(90.0, abs=0.5)
     assert rpy[:, 1].max() > 1.0   # nose down while braking to 4 m/s
     assert rpy[:, 0].max() > 0.7   # body rolls out of the left turn (right side down)
+
+
+def test_departures_move_the_returns_as_their_physics_says(tmp_path):
+    """Every departure on at once against the same drive without them (the same draws, so the same returns):
+    the distance reads long by d x scale + bias (1 - cos incidence), the encoder lags the head by
+    A sin(psi + phase), every return is stamped with its revolution's start plus the latency, the INS yaw
+    drifts linearly; truth/effects.yaml lists each under its contract name with its magnitude."""
+    departures = Departures(range_scale=0.0015, incidence_range_bias_m=0.04, eccentricity_deg=0.06,
+                            eccentricity_phase_deg=30.0, latency_s=0.008, heading_drift_deg_s=0.02,
+                            revolution_stamps=True)
+    a = simulate("box_street", tmp_path / "a", duration_s=3.0, size=0.02, seed=2)
+    b = simulate("box_street", tmp_path / "b", duration_s=3.0, size=0.02, seed=2, departures=departures)
+    pa, pb = (pq.read_table(d / "points.parquet").to_pydict() for d in (a, b))
+    assert len(pa["time"]) == len(pb["time"]) > 30_000
+    fibre = np.asarray(pa["fibre"])
+    _, offsets = read_csv(a / "truth" / "intrinsics.csv")
+    distance = np.asarray(pa["range"], dtype=np.float64) + offsets[fibre, 1]
+    bias = np.asarray(pb["range"], dtype=np.float64) - np.asarray(pa["range"], dtype=np.float64) - 0.0015 * distance
+    assert bias.min() > -3e-5 and bias.max() < 0.04 + 3e-5 and bias.max() > 0.03  # grazing road returns
+    azimuth = np.asarray(pa["azimuth"], dtype=np.float64)
+    lag = np.angle(np.exp(1j * (np.asarray(pb["azimuth"], dtype=np.float64) - azimuth)))
+    np.testing.assert_allclose(lag, -np.radians(0.06) * np.sin(azimuth + np.radians(30.0)), atol=3e-6)
+    into_revolution = np.asarray(pa["time"]) + 0.008 - np.asarray(pb["time"])
+    np.testing.assert_allclose(into_revolution, azimuth / (2 * np.pi * 10.0), atol=2e-4)
+    scan = np.asarray(pb["scan"])
+    assert all(len(np.unique(np.asarray(pb["time"])[scan == k])) == 1 for k in np.unique(scan))
+    (_, ins_a), (_, ins_b) = read_csv(a / "trajectory.csv"), read_csv(b / "trajectory.csv")
+    np.testing.assert_allclose(ins_b[:, :6], ins_a[:, :6])
+    drift = np.angle(np.exp(1j * np.radians(ins_b[:, 6] - ins_a[:, 6])))
+    np.testing.assert_allclose(np.degrees(drift), 0.02 * (ins_a[:, 0] - ins_a[0, 0]), atol=1e-7)
+    effects = yaml.safe_load((b / "truth" / "effects.yaml").read_text())
+    assert {name: effects[name]["magnitude"] for name in ("intra_sweep_motion", "range_scale", "incidence_range_bias",
+                                                          "azimuth_eccentricity", "time_offset", "heading_drift")} == {
+        "intra_sweep_motion": 1.0, "range_scale": 0.0015, "incidence_range_bias": 0.04,
+        "azimuth_eccentricity": 0.06, "time_offset": 0.008, "heading_drift": 0.02}

@@ -364,11 +364,32 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
         fit = refit(fit, active, prior, refit_iterations)
         added = (winner, before, None)
     energy["after"] = fit.energy_cm2
+    if added is None:  # the last round scored the final fit (lin)
+        findings = [at_final_fit(f, fit, lin, names) for f in findings]
     calibration = _calibration(result, fit, findings)
     final = locate(fit) if findings else located
     findings += unexplained(final)
     return Diagnosis(findings, not_separable, final, located, first_round, concealed, energy,
                      time.perf_counter() - started, at_known_size, calibration, fit, withdrawn)
+
+
+def at_final_fit(finding: dict, fit: Fit, lin, names: list[str]) -> dict:
+    """A named finding's size, sigma and parameters at the final fit, where every effect found is re-solved
+    together (lin: its linearisation, names: the candidates scored there); its own step saw only the effects
+    found before it, and a latency found first keeps part of a range scale found after it until both are
+    re-solved. The statement keeps its step's figures and says the final ones when more than one was found."""
+    name = finding["effect"]
+    if name not in fit.model.names:  # a discovered effect: its curve and figures are its step's
+        return finding
+    value = fit.model.values[name]
+    magnitude = candidate(name).magnitude_of(value)
+    sigma = score_candidate(lin, name, names + [name]).sigma
+    statement = finding["statement"]
+    if len(fit.model.names) > 1:
+        statement += (f"; re-solved with every effect found, {name} is {display(name, magnitude)} ± "
+                      f"{display(name, sigma)}")
+    return finding | {"magnitude": magnitude, "sigma": sigma, "parameters": np.asarray(value).tolist(),
+                      "statement": statement}
 
 
 def unexplained(locations: list[dict]) -> list[dict]:

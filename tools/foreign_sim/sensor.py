@@ -79,6 +79,15 @@ class HeadSpin:
         wander = np.sum(self.weights / w * (np.cos(self.phases) - np.cos(w * tau[..., None] + self.phases)), axis=-1)
         return self.psi0 + 2 * np.pi / 60.0 * (self.nominal_rpm * tau + self.wander_rpm * wander)
 
+    def time_at(self, angle_rad) -> np.ndarray:
+        """The time [s] at which the head reaches an (unwrapped) angle: psi's inverse, by Newton's method
+        from the nominal rate (the wander moves the rate by under 0.1 %; five steps reach 1e-12 s)."""
+        target = np.asarray(angle_rad, dtype=np.float64)
+        t = self.t0 + (target - self.psi0) / (2 * np.pi * self.nominal_rpm / 60.0)
+        for _ in range(5):
+            t = t - (self.angle(t) - target) / (2 * np.pi * self.rpm(t) / 60.0)
+        return t
+
 
 def beam_directions(head_angle: np.ndarray, fibre: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     """(N, 3) unit beam directions in the lidar frame."""

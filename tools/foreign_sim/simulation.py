@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from tools.foreign_sim import mesh as M
 from tools.foreign_sim import sensor as S
+from tools.foreign_sim.departures import Departures
 from tools.foreign_sim.drive import Suspension, drive_vehicle, recorded_ins
 from tools.foreign_sim.scenes import FAMILIES, World, build_world
 from tools.foreign_sim.writer import (FORMAT, POINT_SCHEMA, TRUTH_POINT_SCHEMA, RowGroupWriter, commit_output,
@@ -103,12 +104,14 @@ def simulate(family: str, out, *, duration_s: float = 15.0, size: float = 1.0, s
              extrinsic_lever_m: float = 0.05, extrinsic_angle_deg: float = 0.5, ins_noise_m: float = 0.005,
              ins_noise_deg: float = 0.005, ins_drift_m: float = 0.0, ins_drift_deg: float = 0.0,
              ins_rate_hz: float = 200.0, encoder_jitter_deg: float = 0.002, spin_wander_rpm: float = 0.5,
-             chunk_s: float = 0.5, name: str | None = None, verbose: bool = False) -> Path:
+             departures: Departures = Departures(), chunk_s: float = 0.5, name: str | None = None,
+             verbose: bool = False) -> Path:
     """Simulate a drive through a scene of `family` and write its recording directory `out`.
 
     size: fraction of the firing blocks kept (each block of 32 lasers kept with that probability).
     intrinsic_bounds: (d_range m, d_azimuth deg, d_elevation deg, h_z m), true offsets uniform
-    within +-bounds. Returns the recording directory."""
+    within +-bounds. departures: the physics beyond the contract's model switched on (departures.py);
+    returns whose stamp falls outside the recorded INS are not written. Returns the recording directory."""
     if family not in FAMILIES:
         raise ValueError(f"unknown family {family!r}; known: {', '.join(FAMILIES)}")
     if not 0.0 < size <= 1.0:
@@ -117,6 +120,8 @@ def simulate(family: str, out, *, duration_s: float = 15.0, size: float = 1.0, s
         raise ValueError(f"duration_s must be positive, not {duration_s}")
     if TRUTH_RATE_HZ % ins_rate_hz:
         raise ValueError(f"ins_rate_hz must divide {TRUTH_RATE_HZ:g} Hz")
+    if abs(departures.latency_s) > MARGIN_S / 2:
+        raise ValueError(f"latency_s must be within +-{MARGIN_S / 2:g} s, not {departures.latency_s}")
     out = Path(out)
     started = _time.perf_counter()
 
@@ -152,8 +157,10 @@ def simulate(family: str, out, *, duration_s: float = 15.0, size: float = 1.0, s
     world_rpy = truth.rpy_deg + np.array([0.0, 0.0, heading0])
     every = int(TRUTH_RATE_HZ / ins_rate_hz)
     ins_rows = np.flatnonzero(steps % every == 0)
-    ins_position, ins_rpy = recorded_ins(key_time[ins_rows], world_position[ins_rows], world_rpy[ins_rows],
+    ins_time = key_time[ins_rows]
+    ins_position, ins_rpy = recorded_ins(ins_time, world_position[ins_rows], world_rpy[ins_rows],
                                          streams["ins"], ins_noise_m, ins_noise_deg, ins_drift_m, ins_drift_deg)
+    ins_rpy[:, 2] = departures.ins_yaw_deg(ins_time, ins_rpy[:, 2])
     say(f"drive: {truth.speed.min():.1f}-{truth.speed.max():.1f} m/s, |yaw rate| <= "
         f"{np.abs(truth.yaw_rate_deg).max():.1f} deg/s, "
         f"roll {truth.rpy_deg[:, 0].min():+.2f}..{truth.rpy_deg[:, 0].max():+.2f}, "
@@ -213,16 +220,21 @@ def simulate(family: str, out, *, duration_s: float = 15.0, size: float = 1.0, s
             strength = S.detection_strength(refl, cos_inc, d, retro[p])
             strength = np.where(glass[p], 0.25 * strength, strength)
             detected = rng.random(len(idx)) < 1.0 - np.exp(-strength / 0.012)
-            rho = d - offsets[fibre[idx], 0] + range_noise_m * rng.standard_normal(len(idx))
-            keep = detected & (rho >= S.MIN_RANGE_M) & (rho <= S.MAX_RANGE_M)
-            rows = idx[keep]
-            rev = np.floor(psi[rows] / (2 * np.pi)).astype(np.int64)
-            recorded = psi[rows] + jitter[np.clip(rev, 0, n_revolutions - 1)]
+            rho = (departures.measured_distance(d, cos_inc) - offsets[fibre[idx], 0]
+                   + range_noise_m * rng.standard_normal(len(idx)))
+            rev = np.floor(psi[idx] / (2 * np.pi)).astype(np.int64)
+            recorded = departures.encoder_reading(psi[idx]) + jitter[np.clip(rev, 0, n_revolutions - 1)]
             scan = np.floor(recorded / (2 * np.pi))
+            cuts, which = np.unique(scan, return_inverse=True)
+            stamp = departures.stamp(t_abs[idx], t0 + spin.time_at(2 * np.pi * cuts)[which])
+            keep = (detected & (rho >= S.MIN_RANGE_M) & (rho <= S.MAX_RANGE_M)
+                    & (stamp >= ins_time[0]) & (stamp <= ins_time[-1]))
+            rows = idx[keep]
+            scan, recorded = scan[keep], recorded[keep]
             azimuth = recorded - 2 * np.pi * scan
             intensity = 255.0 * np.minimum(1.6 * strength[keep], 1.0) * (1.0 + 0.05 * rng.standard_normal(len(rows)))
             intensity = np.clip(np.round(intensity + rng.normal(0.0, 1.0, len(rows))), 0.0, 255.0)
-            points.append({"time": t_abs[rows], "fibre": fibre[rows].astype(np.int16),
+            points.append({"time": stamp[keep], "fibre": fibre[rows].astype(np.int16),
                            "range": rho[keep].astype(np.float32), "azimuth": azimuth.astype(np.float32),
                            "intensity": intensity.astype(np.float32), "scan": scan.astype(np.int32)})
             xyz = origin + R_grid.apply(point[keep])
@@ -248,11 +260,11 @@ def simulate(family: str, out, *, duration_s: float = 15.0, size: float = 1.0, s
                                          "fibres": [{"id": i, "elevation_deg": float(e)}
                                                     for i, e in enumerate(S.ELEVATION_DEG)]})
         write_yaml(tmp / "extrinsic.yaml", mounting["nominal"])
-        write_trajectory(tmp / "trajectory.csv", key_time[ins_rows], ins_position, ins_rpy)
+        write_trajectory(tmp / "trajectory.csv", ins_time, ins_position, ins_rpy)
         write_intrinsics(tmp / "truth" / "intrinsics.csv", offsets)
         write_yaml(tmp / "truth" / "extrinsic.yaml", mounting["true"])
         write_trajectory(tmp / "truth" / "trajectory.csv", key_time, world_position, world_rpy)
-        write_yaml(tmp / "truth" / "effects.yaml", _effects(encoder_jitter_deg, ins_drift_m, ins_drift_deg))
+        write_yaml(tmp / "truth" / "effects.yaml", _effects(encoder_jitter_deg, ins_drift_m, ins_drift_deg, departures))
         np.savez_compressed(tmp / "truth" / "scene.npz", vertices=world.mesh.vertices, triangles=world.mesh.triangles,
                             reflectivity=world.mesh.reflectivity, material=world.mesh.material,
                             origin=origin, heading_deg=np.array(heading0))
@@ -265,6 +277,7 @@ def simulate(family: str, out, *, duration_s: float = 15.0, size: float = 1.0, s
                     "ins": {"rate_hz": float(ins_rate_hz), "noise_m": float(ins_noise_m),
                             "noise_deg": float(ins_noise_deg), "drift_m": float(ins_drift_m),
                             "drift_deg": float(ins_drift_deg)},
+                    "departures": departures.settings(),
                     "truth_rate_hz": TRUTH_RATE_HZ, "first_firing_time_s": t0,
                     "layout_to_grid": {"origin_m": origin.tolist(), "heading_deg": heading0,
                                        "meaning": "grid = origin + Rz(heading) layout (truth/scene.npz is in layout)"},
@@ -304,11 +317,17 @@ def _plain(value):
     return value
 
 
-def _effects(encoder_jitter_deg: float, ins_drift_m: float, ins_drift_deg: float) -> dict:
+def _effects(encoder_jitter_deg: float, ins_drift_m: float, ins_drift_deg: float, departures: Departures) -> dict:
     """truth/effects.yaml: the physics on top of the contract's model, with magnitudes."""
-    effects = {"intra_sweep_motion": {"stamp": "firing", "magnitude": 0.0, "unit": "revolution",
-                                      "physics": "the vehicle moves while the head spins; every return carries "
-                                                 "its own laser's firing time and is taken from the pose at it"}}
+    if departures.revolution_stamps:
+        sweep = {"stamp": "revolution", "magnitude": 1.0, "unit": "revolution",
+                 "physics": "the vehicle moves while the head spins; every return is taken from the pose at its "
+                            "laser's firing time but stamped with its revolution's start"}
+    else:
+        sweep = {"stamp": "firing", "magnitude": 0.0, "unit": "revolution",
+                 "physics": "the vehicle moves while the head spins; every return carries its own laser's firing "
+                            "time and is taken from the pose at it"}
+    effects = {"intra_sweep_motion": sweep, **departures.effects()}
     if encoder_jitter_deg > 0:
         effects["encoder_jitter"] = {"rms_deg": float(encoder_jitter_deg), "magnitude": float(encoder_jitter_deg),
                                      "unit": "deg", "physics": "the recorded encoder azimuth is off the head's true "

@@ -1,0 +1,25 @@
+"""graphcal.diagnose on a recording it was not fitted to: the independent simulator (tools/foreign_sim, its own
+firing order, encoder jitter, intensity, INS noise and true intrinsic and extrinsic errors) with a range scale
+written from its physics there. The finder names it first, within 20 % of truth/effects.yaml's magnitude.
+
+Small: a 15 s level box street at size 0.03 (about 300 k returns, 40 k used), 3 outer iterations, the named
+candidates only. The figures for every departure at size 0.1: benchmarks/bench_diagnose_foreign.py.
+"""
+
+import pytest
+
+import graphcal
+from graphcal.calibration.config import CalibrationConfig
+from tools.foreign_sim import Departures, simulate
+
+
+def test_a_range_scale_of_the_independent_simulator_is_named_first_and_sized(tmp_path):
+    directory = simulate("box_street", tmp_path / "range_scale", duration_s=15.0, size=0.03, seed=2, mount="level",
+                         departures=Departures(range_scale=0.0015))
+    recording = graphcal.Recording.load(directory)
+    settings = CalibrationConfig(mode="joint", max_points=40_000, stopping={
+        "max_outer_iterations": 3, "tolerance_m": 1e-3, "refuse_unconverged": False})
+    diagnosis = graphcal.diagnose(recording, settings, max_effects=1, quiet=True, open_world=False)
+    assert diagnosis.findings and diagnosis.findings[0]["effect"] == "range_scale", diagnosis.summary()
+    true = recording.truth.effects["range_scale"]["magnitude"]
+    assert diagnosis.findings[0]["magnitude"] == pytest.approx(true, rel=0.2)
