@@ -43,7 +43,8 @@ def main() -> None:
     args = parser.parse_args()
     from tools.foreign_sim import simulate
 
-    figures = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()},
+    figures = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform(),
+                           "load_average_at_start": round(os.getloadavg()[0], 2)},
                "date": datetime.date.today().isoformat(), "cases": {}}
     for millions in args.millions:
         duration_s = max(16.0, millions * 1e6 / FIRINGS_PER_S)
