@@ -37,8 +37,7 @@ from graphcal.diagnosis.score import (
     ALPHA,
     CandidateTest,
     linearise,
-    score_candidate,
-    score_candidates,
+    score_each,
     separation,
     wald_at_refit,
 )
@@ -285,12 +284,15 @@ def generic_if_better(winner: CandidateTest, eligible: list[CandidateTest]) -> C
     return generic[0] if generic and generic[0].bic_gain > winner.bic_gain else winner
 
 
-def score_all(fit: Fit, names: list[str]) -> tuple[dict, object]:
-    """Every candidate's score test at a fit (the modelled effects in the base), and the linearisation."""
+def score_all(fit: Fit, names: list[str]) -> tuple[dict, dict, object]:
+    """Every candidate's score test at a fit (the modelled effects in the base); each modelled effect's own test
+    with it among the candidates (its sigma at this fit); and the linearisation. One pass over the pairs'
+    rows for them all."""
     cluster, block = fit.clusters()
     lin = linearise(replace(fit.problem, effects=fit.with_candidates(names), lock=None), fit.estimate, fit.pairs,
                     cluster, block)
-    return score_candidates(lin, names, names), lin
+    scored = score_each(lin, dict.fromkeys(names, names) | {n: names + [n] for n in fit.model.names})
+    return {n: scored[n] for n in names}, {n: scored[n] for n in fit.model.names}, lin
 
 
 def default_max_points(recording: Recording) -> int:
@@ -327,16 +329,16 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
     # rounds is a bound the diagnosis seldom reaches: an open-ended bar, not a percentage of it
     for _ in progress(iter(range(rounds)), f"diagnosing (rounds, at most {rounds})", quiet=quiet):
         names = candidate_names(fit, candidates, generic)
-        tests, lin = score_all(fit, names)
+        tests, modelled, lin = score_all(fit, names)
         tests = sized_by_held_out(tests)
         if added is not None:  # the effect added last, with its sigma at the refit
             winner, before, hypothesis = added
-            at_refit = score_candidate(lin, winner.name, names + [winner.name])
+            at_refit = modelled[winner.name]
             statistic, p_value = wald_at_refit(fit.model.values[winner.name], at_refit)
             if hypothesis is None and p_value >= ALPHA / (len(names) + 1):
                 # not significant once re-solved: withdrawn, back to the fit without it
                 withdrawn.append(_withdrawn(winner, fit, at_refit.sigma, statistic, p_value))
-                fit, names, tests, lin = previous
+                fit, names, tests, modelled, lin = previous
                 not_separable = [n for n in not_separable if n["named"] != winner.name]
             else:
                 findings.append(_finding(winner, fit, before, at_refit, hypothesis, previous and previous[0]))
@@ -372,15 +374,15 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
                 not_separable.append({"effects": pair, "correlation": separation(lin, winner.name, other.name, names),
                                       "named": winner.name, "would_separate": SEPARATING_DATA.get(
                                           frozenset(pair), DEFAULT_SEPARATING_DATA)})
-        before, previous = fit.energy_cm2, (fit, names, tests, lin)
+        before, previous = fit.energy_cm2, (fit, names, tests, modelled, lin)
         active = fit.model.names + (winner.name,)
         prior = {n: float(max(10 * np.abs(fit.model.values.get(n, winner.theta)).max(), 10 * np.sqrt(
             np.max(np.diag(winner.covariance))))) for n in active}
         fit = refit(fit, active, prior, refit_iterations)
         added = (winner, before, None)
     energy["after"] = fit.energy_cm2
-    if added is None:  # the last round scored the final fit (lin)
-        findings = [at_final_fit(f, fit, lin, names) for f in findings]
+    if added is None:  # the last round scored the final fit (modelled)
+        findings = [at_final_fit(f, fit, modelled) for f in findings]
     calibration = _calibration(result, fit, findings)
     final = locate(fit) if findings else located
     findings += unexplained(final)
@@ -388,9 +390,9 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
                      time.perf_counter() - started, at_known_size, calibration, fit, withdrawn)
 
 
-def at_final_fit(finding: dict, fit: Fit, lin, names: list[str]) -> dict:
+def at_final_fit(finding: dict, fit: Fit, modelled: dict[str, CandidateTest]) -> dict:
     """A named finding's size, sigma and parameters at the final fit, where every effect found is re-solved
-    together (lin: its linearisation, names: the candidates scored there); its own step saw only the effects
+    together (modelled: each modelled effect's test there, score_all); its own step saw only the effects
     found before it, and a latency found first keeps part of a range scale found after it until both are
     re-solved. The statement keeps its step's figures and says the final ones when more than one was found."""
     name = finding["effect"]
@@ -398,7 +400,7 @@ def at_final_fit(finding: dict, fit: Fit, lin, names: list[str]) -> dict:
         return finding
     value = fit.model.values[name]
     magnitude = candidate(name).magnitude_of(value)
-    sigma = score_candidate(lin, name, names + [name]).sigma
+    sigma = modelled[name].sigma
     statement = finding["statement"]
     if len(fit.model.names) > 1:
         statement += (f"; re-solved with every effect found, {name} is {display(name, magnitude)} ± "

@@ -202,8 +202,9 @@ def linearise(problem: Problem, estimate: Estimate, pairs: Correspondences, clus
         factor = linear.at(i)
         A, b = factor.jacobian()
         cols = columns_of(factor.keys())
-        information[np.ix_(cols, cols)] += to_named[np.ix_(cols, cols)] @ A.T @ A @ to_named[np.ix_(cols, cols)].T
-        vector[cols] += to_named[np.ix_(cols, cols)] @ A.T @ b
+        A_named = A @ to_named[np.ix_(cols, cols)].T
+        information[np.ix_(cols, cols)] += A_named.T @ A_named
+        vector[cols] += A_named.T @ b
     effect_columns = {name: np.arange(column[k], column[k] + model.dim(name)) for k, name in zip(model.keys, model.names)}
     n_clusters = int(cluster.max()) + 1 if len(cluster) else 0
     return Linearisation(information, vector, names, effect_columns,
@@ -338,7 +339,7 @@ class _Projection:
     def S_inv(self) -> np.ndarray:
         return np.linalg.pinv(self.S)
 
-    @property
+    @functools.cached_property
     def theta(self) -> np.ndarray:
         return self.S_inv @ self.u
 
@@ -369,18 +370,23 @@ class _Projection:
                              held_out, lin.n_clusters, explained_rms_m, lin.sigma0_m, held_out_se)
 
 
-def score_candidates(lin: Linearisation, names: list[str], candidates: list[str]) -> dict[str, CandidateTest]:
-    """The score test of each of names against a base of every parameter but the candidates'. The data's rows
-    are made once for all of them (_cluster_variances)."""
-    projections = [_Projection.of(lin, name, candidates) for name in names]
+def score_each(lin: Linearisation, candidates_of: dict[str, list[str]]) -> dict[str, CandidateTest]:
+    """The score test of each name against a base of every parameter but its own candidates' ({name:
+    candidates}). The data's rows are made once for all of them (_cluster_variances)."""
+    projections = [_Projection.of(lin, name, candidates) for name, candidates in candidates_of.items()]
     testable = [p for p in projections if p.testable]
     variances = _cluster_variances(lin, testable)
     return {p.name: p.test(lin, variances[p.name]) if p.testable else p.untestable(lin) for p in projections}
 
 
+def score_candidates(lin: Linearisation, names: list[str], candidates: list[str]) -> dict[str, CandidateTest]:
+    """The score test of each of names against a base of every parameter but the candidates'."""
+    return score_each(lin, dict.fromkeys(names, candidates))
+
+
 def score_candidate(lin: Linearisation, name: str, candidates: list[str]) -> CandidateTest:
     """The score test of one candidate against a base of every parameter but the candidates'."""
-    return score_candidates(lin, [name], candidates)[name]
+    return score_each(lin, {name: candidates})[name]
 
 
 def _cluster_variances(lin: Linearisation, projections: list[_Projection]) -> dict[str, np.ndarray]:
