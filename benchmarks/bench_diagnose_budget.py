@@ -11,13 +11,12 @@ from __future__ import annotations
 import argparse
 import datetime
 import os
-import platform
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-from common import peak_gib, report, run_in_process
+from common import machine, peak_gib, report, run_in_process
 
 RESULTS = Path(__file__).resolve().parent / "results"
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools.foreign_sim, from the checkout
@@ -43,8 +42,7 @@ def main() -> None:
     args = parser.parse_args()
     from tools.foreign_sim import simulate
 
-    figures = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform(),
-                           "load_average_at_start": round(os.getloadavg()[0], 2)},
+    figures = {"machine": {**machine(), "load_average_at_start": round(os.getloadavg()[0], 2)},
                "date": datetime.date.today().isoformat(), "cases": {}}
     for millions in args.millions:
         duration_s = max(16.0, millions * 1e6 / FIRINGS_PER_S)

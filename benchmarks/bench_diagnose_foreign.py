@@ -22,14 +22,12 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
-import os
-import platform
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-from common import peak_gib, report, run_in_process
+from common import machine, peak_gib, report, run_in_process
 
 RESULTS = Path(__file__).resolve().parent / "results"
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools.foreign_sim, from the checkout
@@ -117,8 +115,7 @@ def main() -> None:
     parser.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES))
     parser.add_argument("--out", type=Path, default=RESULTS / "diagnose_foreign.json")
     args = parser.parse_args()
-    figures = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                           "platform": platform.platform()},
+    figures = {"machine": machine(),
                "date": datetime.date.today().isoformat(),
                "settings": {"family": "box_street", "mount": "level", "size": args.size, "duration_s": args.duration,
                             "seed": args.seed, "max_points": args.max_points, "mode": "joint",

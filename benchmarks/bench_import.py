@@ -12,14 +12,12 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import multiprocessing as mp
-import platform
 import struct
 import tempfile
 import time
 from pathlib import Path
 
-from common import peak_gib, report, run_in_process
+from common import machine, peak_gib, report, run_in_process
 
 RESULTS = Path(__file__).resolve().parent / "results"
 MONTEREY = Path(__file__).resolve().parents[2] / "shared/data/real/veloview_hdl32e_vlp16_pcap/monterey-first-100-packets.pcap"
@@ -92,7 +90,7 @@ def main() -> None:
     if not MONTEREY.is_file():
         raise SystemExit(f"{MONTEREY} is absent")
     results = {"benchmark": "import_velodyne_pcap",
-               "machine": {"cpus": mp.cpu_count(), "python": platform.python_version(), "platform": platform.platform()},
+               "machine": machine(),
                "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
     with tempfile.TemporaryDirectory() as tmp:
         cases = {"monterey": MONTEREY}

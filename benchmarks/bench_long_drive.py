@@ -19,12 +19,11 @@ from __future__ import annotations
 import argparse
 import datetime
 import os
-import platform
 import tempfile
 import time
 from pathlib import Path
 
-from common import peak_gib, report, run_in_process
+from common import machine, peak_gib, report, run_in_process
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -105,7 +104,7 @@ def main() -> None:
     from graphcal.simulation.starts import FAR_START_PRIORS
 
     city_loop = load_scenario_builder("city_loop")
-    figures = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()},
+    figures = {"machine": machine(),
                "date": datetime.date.today().isoformat(), "size": args.size, "max_points": args.max_points,
                "priors": FAR_START_PRIORS, "drives": {}}
     for minutes in args.minutes:

@@ -11,14 +11,12 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import os
-import platform
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-from common import peak_gib, report
+from common import machine, peak_gib, report
 
 RESULTS = Path(__file__).resolve().parent / "results"
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools.foreign_sim, from the checkout
@@ -41,7 +39,7 @@ def main() -> None:
     from graphcal.recording.directory import Recording
     from tools.foreign_sim import simulate
 
-    figures = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()},
+    figures = {"machine": machine(),
                "date": datetime.date.today().isoformat(), "arguments": vars(args)}
     with tempfile.TemporaryDirectory() as folder:
         simulate("relief_street", Path(folder) / "r", duration_s=args.duration, size=args.size, seed=2, mount="tilted")

@@ -10,12 +10,10 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import os
-import platform
 import time
 from pathlib import Path
 
-from common import peak_gib, report, run_in_process
+from common import machine, peak_gib, report, run_in_process
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -58,8 +56,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--result", type=Path, default=RESULTS / "trajectory_noise.json")
     args = parser.parse_args()
-    figures = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                           "platform": platform.platform()},
+    figures = {"machine": machine(),
                "date": datetime.date.today().isoformat(),
                "drives": {f"{m:g} min": run_in_process(_case, m, args.seed) for m in args.minutes}}
     report(figures, args.result)

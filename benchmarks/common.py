@@ -4,9 +4,16 @@ from __future__ import annotations
 
 import json
 import multiprocessing as mp
+import os
+import platform
 import resource
 from pathlib import Path
 from queue import Empty
+
+
+def machine() -> dict:
+    """The machine a benchmark ran on: its CPUs, Python and platform (the results' "machine")."""
+    return {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()}
 
 
 def peak_gib() -> float:
