@@ -16,7 +16,7 @@ from graphcal.cli.main import app
 from graphcal.common.errors import RecordingError
 from graphcal.importers.ouster_metadata import SECTIONS, read_ouster_metadata
 from graphcal.importers.ouster_packets import decode_columns
-from graphcal.importers.ouster_pcap import decode_ouster_pcap, import_ouster
+from graphcal.importers.ouster_pcap import import_ouster, survey_ouster_pcap
 from graphcal.recording.directory import Recording
 
 FOLDER = Path(__file__).resolve().parents[2] / "shared/data/real/ouster_sdk_pcaps"
@@ -34,10 +34,10 @@ def _paths(key):
 
 @needs_real
 @pytest.mark.parametrize("key", CAPTURES)
-def test_returns_and_xyz_match_ouster_sdk(key):
+def test_returns_and_xyz_match_ouster_sdk(key, tmp_path):
     capture, meta = _paths(key)
     metadata = read_ouster_metadata(meta)
-    recording = import_ouster(capture, metadata, position=POSITION)
+    recording = import_ouster(capture, metadata, tmp_path / key, position=POSITION, quiet=True)
     returns = recording.points.read()
     ref = {name: REFERENCE[f"{key}_{name}"] for name in ("frame", "row", "column", "range_mm", "reflectivity",
                                                           "timestamp_ns", "xyz", "returns_per_frame")}
@@ -64,6 +64,47 @@ def test_returns_and_xyz_match_ouster_sdk(key):
     exact = recording.extrinsic.lidar_to_body(recording.sensor.to_xyz(fibre, ref["range_mm"] / 1000.0,
                                                                       2 * np.pi * ref["column"] / 1024))
     assert np.abs(exact - ref["xyz"]).max() < 1e-9
+
+
+@needs_real
+def test_import_streams_and_writes_what_the_whole_capture_gives(tmp_path):
+    """Read 5000 bytes of the file at a time (one record a chunk: chunks without a lidar packet, frames and
+    time order carried from chunk to chunk), the recording is the one of the whole file read at once, byte for
+    byte, and holds the SDK's returns."""
+    capture, meta = _paths("os1")
+    metadata = read_ouster_metadata(meta)
+    whole = import_ouster(capture, metadata, tmp_path / "whole", position=POSITION, chunk_bytes=None, quiet=True)
+    streamed = import_ouster(capture, metadata, tmp_path / "streamed", position=POSITION, chunk_bytes=5000,
+                             quiet=True)
+    files = sorted(path.name for path in (tmp_path / "whole").iterdir())
+    assert files == sorted(path.name for path in (tmp_path / "streamed").iterdir()) and "points.parquet" in files
+    for name in files:
+        assert (tmp_path / "whole" / name).read_bytes() == (tmp_path / "streamed" / name).read_bytes(), name
+    returns = streamed.points.read()
+    np.testing.assert_array_equal(np.bincount(returns["scan"]), REFERENCE["os1_returns_per_frame"])
+    assert np.all(np.diff(returns["time"]) >= 0) and whole.source == streamed.source
+    assert streamed.source["notes"][0].endswith(f"{len(returns['time'])} returns in 3 frames")
+
+
+@needs_real
+def test_a_capture_out_of_time_order_by_more_than_a_chunk_is_refused(tmp_path):
+    """The lidar packets' records of the capture's second half written before the first half's: the streamed
+    import names the time field and the order it expects, and writes nothing."""
+    capture, meta = _paths("os0")
+    data = capture.read_bytes()
+    offsets, at = [], 24
+    while at + 16 <= len(data):
+        offsets.append(at)
+        at += 16 + int.from_bytes(data[at + 8:at + 12], "little")
+    offsets.append(len(data))
+    records = [data[a:b] for a, b in zip(offsets[:-1], offsets[1:])]
+    half = len(records) // 2
+    swapped = tmp_path / "swapped.pcap"
+    swapped.write_bytes(data[:24] + b"".join(records[half:] + records[:half]))
+    with pytest.raises(RecordingError, match="time.*lidar packets in time order"):
+        import_ouster(swapped, read_ouster_metadata(meta), tmp_path / "rec", position=POSITION, chunk_bytes=50_000,
+                      quiet=True)
+    assert not (tmp_path / "rec").exists()
 
 
 @pytest.mark.parametrize("profile", ["LEGACY", "RNG19_RFL8_SIG16_NIR16"])
@@ -115,7 +156,7 @@ def test_a_capture_and_the_metadata_of_another_unit_are_refused():
     capture, _ = _paths("os1")
     _, other = _paths("os0")
     with pytest.raises(RecordingError, match="prod_sn"):
-        decode_ouster_pcap(capture, read_ouster_metadata(other))
+        survey_ouster_pcap(capture, read_ouster_metadata(other))
 
 
 @needs_real

@@ -13,6 +13,7 @@ Matplotlib (Agg), deterministic.
 from __future__ import annotations
 
 import sys
+import tempfile
 from pathlib import Path
 
 import matplotlib
@@ -31,8 +32,10 @@ EXTENT_M = 30.0
 
 def main(folder: Path) -> Path:
     metadata = read_ouster_metadata(folder / "OS-1-128_v2.3.0_1024x10.json")
-    recording = import_ouster(folder / "OS-1-128_v2.3.0_1024x10_lb_n3.pcap", metadata, position=(0.0, 0.0, 0.0))
-    points = recording.points.read()
+    with tempfile.TemporaryDirectory() as scratch:
+        recording = import_ouster(folder / "OS-1-128_v2.3.0_1024x10_lb_n3.pcap", metadata, Path(scratch) / "os1",
+                                  position=(0.0, 0.0, 0.0), quiet=True)
+        points = recording.points.read()
     frame = points["scan"] == 1
     fibre = points["fibre"][frame].astype(np.intp)
     p_lidar = recording.sensor.to_xyz(fibre, points["range"][frame].astype(np.float64),

@@ -513,14 +513,12 @@ def import_ouster_command(
     from graphcal.importers.ouster_metadata import read_ouster_metadata
     from graphcal.importers.ouster_pcap import import_ouster
 
-    if out is not None:  # before the import's work
-        _not_taken(out)
-    recording = import_ouster(pcap, read_ouster_metadata(metadata),
+    out = _imported_recording_folder(out, pcap.stem)  # before the import's work
+    recording = import_ouster(pcap, read_ouster_metadata(metadata), out,
                               trajectory=_read_trajectory(trajectory) if trajectory else None,
                               position=_numbers(position, "--position"), attitude_deg=_numbers(attitude, "--attitude"),
-                              mount=_extrinsic(lever_arm, boresight))
-    recording.crs = crs
-    _save_import(recording, out, pcap, quiet)
+                              mount=_extrinsic(lever_arm, boresight), crs=crs, quiet=quiet)
+    _print_import(recording, out, quiet)
 
 
 @import_app.command("kitti")

@@ -8,6 +8,7 @@ TCP, IP fragments) are counted and skipped. pcapng files are refused with a clea
 
 from __future__ import annotations
 
+import math
 import struct
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
@@ -83,6 +84,11 @@ def udp_payload_chunks(path: str | Path, chunk_bytes: int | None = None) -> Iter
             empty = np.zeros(0, dtype=np.int64)
             held = _payloads(path, np.zeros(0, dtype=np.uint8), link, empty, empty.astype(np.float64), empty, 0)
         yield replace(held, cut_bytes=len(rest))
+
+
+def chunk_count(path: Path, chunk_bytes: int | None) -> int:
+    """How many chunks udp_payload_chunks reads the file in, at most (a progress bar's length)."""
+    return max(1, math.ceil(path.stat().st_size / chunk_bytes)) if chunk_bytes else 1
 
 
 def _global_header(path: Path, head: bytes) -> tuple[str, float, int]:

@@ -12,18 +12,18 @@ must accept what an import writes).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from graphcal.common.atomic import atomic_path
+from graphcal.common.atomic import atomic_directory, atomic_path
 from graphcal.common.errors import ConfigError, RecordingError
 from graphcal.importers.beam_fit import MisfitSpread
 from graphcal.recording.directory import Recording
-from graphcal.recording.points import PointTable, point_schema, row_group_writer, time_sorted_writer
+from graphcal.recording.points import SCHEMA, PointTable, point_schema, row_group_writer, time_sorted_writer
 
 POINTS = "points.parquet"
 
@@ -113,3 +113,19 @@ def save_imported(recording: Recording, folder: Path, source: Path) -> None:
     written beside them."""
     check_imported(recording, source)
     recording.save_beside_points(folder)
+
+
+def write_import(out: Path, source: Path, expected_order: str,
+                 chunks: Iterable[tuple[dict[str, np.ndarray], np.ndarray | None]],
+                 finish: Callable[[ReturnWriter, PointTable], Recording]) -> Recording:
+    """The recording folder `out` (written whole or not at all; an existing one is replaced) of the returns given
+    chunk after chunk: (RECORDING.md's columns, their model misfit [m] or None) as ReturnWriter.add takes them,
+    written through return_writer; `finish` makes the recording of them (its notes from the writer, its points the
+    table written) once they are all out, then save_imported checks and writes it. source, expected_order: as
+    return_writer."""
+    with atomic_directory(out) as folder:
+        with return_writer(folder, source, expected_order, list(SCHEMA)) as returns:
+            for columns, misfit_m in chunks:
+                returns.add(columns, misfit_m)
+        save_imported(finish(returns, PointTable.open(folder / POINTS)), folder, source)
+    return Recording.load(out, validate=False)

@@ -10,7 +10,6 @@ its returns, whatever the capture's length. docs/howto/import.md has the details
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -19,7 +18,7 @@ import numpy as np
 from graphcal.common.errors import RecordingError
 from graphcal.common.progress import progress
 from graphcal.importers.nmea import RmcFix, find_rmc
-from graphcal.importers.pcap import UdpPayloads, udp_payload_chunks
+from graphcal.importers.pcap import UdpPayloads, chunk_count, udp_payload_chunks
 from graphcal.importers.velodyne_calibration import VelodyneCalibration
 from graphcal.importers.velodyne_packets import PACKET, PACKET_BYTES
 from graphcal.importers.velodyne_recording import (
@@ -73,7 +72,7 @@ def survey_pcap(path: str | Path, model: str | None = None, distance_resolution_
     survey, fixes = PacketSurvey(), _PositionFixes()
     n_records = n_other = cut_bytes = 0
     for udp in progress(udp_payload_chunks(path, chunk_bytes), f"surveying {path.name}",
-                        total=_n_chunks(path, chunk_bytes), quiet=quiet):
+                        total=chunk_count(path, chunk_bytes), quiet=quiet):
         cut = (udp.port == DATA_PORT) & (udp.length < PACKET_BYTES)
         if cut.any():
             first = int(np.flatnonzero(cut)[0])
@@ -94,7 +93,7 @@ def survey_pcap(path: str | Path, model: str | None = None, distance_resolution_
 
     def packets() -> Iterator[np.ndarray]:
         for udp in progress(udp_payload_chunks(path, chunk_bytes), f"decoding {path.name}",
-                            total=_n_chunks(path, chunk_bytes), quiet=quiet):
+                            total=chunk_count(path, chunk_bytes), quiet=quiet):
             yield _data_packets(udp, udp.length == PACKET_BYTES)
 
     return surveyed_capture(survey, packets, path=path, model=model, distance_resolution_m=distance_resolution_m,
@@ -105,10 +104,6 @@ def survey_pcap(path: str | Path, model: str | None = None, distance_resolution_
 def _data_packets(udp: UdpPayloads, is_data: np.ndarray) -> np.ndarray:
     """The data packets of a chunk as a structured PACKET array."""
     return udp.stack(is_data, PACKET_BYTES).view(PACKET).ravel()
-
-
-def _n_chunks(path: Path, chunk_bytes: int | None) -> int:
-    return max(1, math.ceil(path.stat().st_size / chunk_bytes)) if chunk_bytes else 1
 
 
 class _PositionFixes:
