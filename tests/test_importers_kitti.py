@@ -91,8 +91,7 @@ def _unit_hdl64e(seed=1):
 def test_kitti_drive_raw_values_times_and_poses(tmp_path):
     unit = _unit_hdl64e()
     drive, truth = _write_drive(tmp_path, unit)
-    recording = import_kitti(drive, quiet=True)
-    recording.save(tmp_path / "rec")
+    import_kitti(drive, tmp_path / "rec", quiet=True)
     loaded = Recording.load(tmp_path / "rec")
     truth["time"], week = _gps_seconds_of_week(truth["time"])
     stored = loaded.points.read()
@@ -120,7 +119,7 @@ def test_kitti_drive_raw_values_times_and_poses(tmp_path):
 
 def test_returns_before_the_first_oxts_pose_are_left_out(tmp_path):
     drive, truth = _write_drive(tmp_path, _unit_hdl64e(), n_scans=2, columns=50, oxts_start_delay=0.02)
-    recording = import_kitti(drive, quiet=True)
+    recording = import_kitti(drive, tmp_path / "rec", quiet=True)
     dropped = int((truth["time"] < START + 0.02).sum())
     assert len(recording.points) == len(truth["time"]) - dropped > 0
     assert any(f"{dropped} returns outside the OXTS time span" in note for note in recording.source["notes"])
@@ -134,7 +133,7 @@ def test_kitti_with_azimuth_and_horizontal_offsets(tmp_path):
     turn = 1.15 ms; a return within 4 deg of the scan's start/end azimuth lands at the other end, a scan off."""
     sensor = sensor_from_catalog("HDL-64E")
     drive, truth = _write_drive(tmp_path, sensor, n_scans=1, columns=200)
-    recording = import_kitti(drive, quiet=True)
+    recording = import_kitti(drive, tmp_path / "rec", quiet=True)
     stored, truth = _matched(recording.points.read()), _matched(truth, "norm")
     assert np.mean(stored["fibre"] == truth["fibre"]) > 0.999
     xyz = recording.sensor.to_xyz(stored["fibre"].astype(int), stored["range"].astype(float),
@@ -147,13 +146,48 @@ def test_kitti_with_azimuth_and_horizontal_offsets(tmp_path):
     assert near.mean() > 0.95 and np.all(near | (np.abs(time_error - SCAN_S) < 1.5e-3))
 
 
+def test_import_streams_scan_by_scan_and_writes_what_the_whole_drive_gives(tmp_path):
+    """One scan read and written at a time (the returns of a scan in random order, the time-sorted writer merging
+    them with the next scan's), the recording is the one of all the scans written at once, byte for byte; its
+    returns are the drive's, sorted by time, those before the first OXTS pose left out."""
+    drive, truth = _write_drive(tmp_path, _unit_hdl64e(), n_scans=4, columns=60, oxts_start_delay=0.03)
+    streamed = import_kitti(drive, tmp_path / "streamed", chunk_scans=1, quiet=True)
+    whole = import_kitti(drive, tmp_path / "whole", chunk_scans=1000, quiet=True)
+    files = sorted(path.name for path in (tmp_path / "whole").iterdir())
+    assert files == sorted(path.name for path in (tmp_path / "streamed").iterdir()) and "points.parquet" in files
+    for name in files:
+        assert (tmp_path / "whole" / name).read_bytes() == (tmp_path / "streamed" / name).read_bytes(), name
+    returns = streamed.points.read()
+    kept = truth["time"] >= START + 0.03
+    assert len(returns["time"]) == kept.sum() == whole.points.read()["time"].size > 0
+    assert np.all(np.diff(returns["time"]) >= 0)
+    np.testing.assert_array_equal(np.bincount(returns["scan"]), np.bincount(np.repeat(np.arange(4), 60 * 64)[kept]))
+    np.testing.assert_allclose(np.sort(returns["time"]), np.sort(_gps_seconds_of_week(truth["time"][kept])[0]),
+                               rtol=0, atol=1e-6)
+    assert any(f"{int((~kept).sum())} returns outside the OXTS time span" in note for note in streamed.source["notes"])
+
+
+def test_a_drive_whose_scans_go_back_in_time_is_refused(tmp_path):
+    """The last scan stamped before the first (two scans and more out of order: the writer holds back one
+    scan's returns only): the scan-by-scan import names the time field and the order it expects, and writes
+    nothing."""
+    drive, _ = _write_drive(tmp_path, _unit_hdl64e(), n_scans=4, columns=20)
+    for name in ("timestamps_start.txt", "timestamps_end.txt"):
+        path = drive / "velodyne_points" / name
+        lines = path.read_text().splitlines()
+        path.write_text("\n".join(lines[1:] + lines[:1]) + "\n")
+    with pytest.raises(RecordingError, match="time.*scans in time order"):
+        import_kitti(drive, tmp_path / "rec", quiet=True)
+    assert not (tmp_path / "rec").exists()
+
+
 def test_bad_kitti_drive(tmp_path):
     with pytest.raises(RecordingError, match="no .bin scans"):
-        import_kitti(tmp_path, quiet=True)
+        import_kitti(tmp_path, tmp_path / "rec", quiet=True)
     drive, _ = _write_drive(tmp_path, sensor_from_catalog("HDL-64E"), n_scans=2, columns=10)
     (drive / "velodyne_points" / "timestamps_end.txt").write_text(_stamp(START) + "\n")
     with pytest.raises(RecordingError, match="1 timestamps for 2 scans"):
-        import_kitti(drive, quiet=True)
+        import_kitti(drive, tmp_path / "rec", quiet=True)
     (drive / "velodyne_points" / "timestamps_end.txt").write_text("yesterday\nnoon\n")
     with pytest.raises(RecordingError, match=r"timestamps_end\.txt, row 1: timestamp 'yesterday'"):
-        import_kitti(drive, quiet=True)
+        import_kitti(drive, tmp_path / "rec", quiet=True)

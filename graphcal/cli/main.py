@@ -403,17 +403,6 @@ def _numbers(text: str | None, option: str, count: int = 3) -> tuple[float, ...]
     return values
 
 
-def _save_import(recording, out: Path | None, source: Path, quiet: bool) -> None:
-    """Check every imported return (an importer's arithmetic on a damaged input must not write a recording that
-    info refuses), write the recording at `out` (default out/<name>) and print its notes."""
-    from graphcal.importers.return_stream import check_imported
-
-    out = _imported_recording_folder(out, recording.name)
-    check_imported(recording, source)
-    recording.save(out)
-    _print_import(recording, out, quiet)
-
-
 def _print_import(recording, out: Path, quiet: bool) -> None:
     """The notes of an imported recording and where it was written, unless quiet."""
     if not quiet:
@@ -532,11 +521,10 @@ def import_kitti_command(
     from graphcal.importers.kitti import import_kitti
     from graphcal.importers.velodyne_calibration import read_velodyne_calibration
 
-    if out is not None:  # before the import's work
-        _not_taken(out)
-    recording = import_kitti(drive, calibration=read_velodyne_calibration(calibration) if calibration else None,
+    out = _imported_recording_folder(out, drive.name)  # before the import's work
+    recording = import_kitti(drive, out, calibration=read_velodyne_calibration(calibration) if calibration else None,
                              quiet=quiet)
-    _save_import(recording, out, drive, quiet)
+    _print_import(recording, out, quiet)
 
 
 @import_app.command("sbet")

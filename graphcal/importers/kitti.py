@@ -20,13 +20,15 @@ not raw packets, and no per-return time. What the importer recovers, and how:
 - trajectory: OXTS lat, lon, alt, roll, pitch, yaw (yaw 0 = east, counter-clockwise: already the
   recording's ENU convention); returns outside the OXTS time span are left out (no extrapolation);
 - extrinsic: calib_imu_to_velo.txt (p_velo = R p_imu + T) inverted to lidar -> body (IMU).
-Timestamps are read as UTC and converted to GPS seconds of week.
+Timestamps are read as UTC and converted to GPS seconds of week. The scans are read and their returns written one
+at a time (return_stream, points.parquet sorted by time), in memory bounded whatever the drive's length.
 """
 
 from __future__ import annotations
 
 import calendar
 import time as _time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -34,8 +36,9 @@ from scipy.spatial.transform import Rotation
 
 from graphcal.common.errors import RecordingError
 from graphcal.recording.extrinsic import Extrinsic
-from graphcal.importers.beam_fit import fit_beam_line
+from graphcal.importers.beam_fit import fit_beam_line, misfit_note
 from graphcal.importers.gpstime import seconds_of_week
+from graphcal.importers.return_stream import ReturnWriter, write_import
 from graphcal.importers.velodyne_calibration import VelodyneCalibration
 from graphcal.recording.points import PointTable
 from graphcal.common.progress import progress
@@ -45,6 +48,7 @@ from graphcal.recording.sensor import SensorModel, sensor_from_catalog
 from graphcal.recording.trajectory import Trajectory
 
 _REFINE_SCANS = 5
+_ORDER = "scans in time order (timestamps_start.txt increasing), each one's returns between its start and end"
 _OXTS_FIELDS = 30
 
 
@@ -121,9 +125,11 @@ def fit_fibres(h_m: np.ndarray, z_m: np.ndarray, elevation_deg: np.ndarray, vert
     return elevation_deg, vertical_m
 
 
-def import_kitti(drive: str | Path, calibration: VelodyneCalibration | None = None, name: str | None = None,
-                 quiet: bool = False) -> Recording:
-    """A KITTI raw drive folder (…_drive_NNNN_sync or _extract) as a recording; see the module docstring."""
+def import_kitti(drive: str | Path, out: str | Path, calibration: VelodyneCalibration | None = None,
+                 name: str | None = None, chunk_scans: int = 1, quiet: bool = False) -> Recording:
+    """A KITTI raw drive folder (…_drive_NNNN_sync or _extract) as the recording folder `out` (written whole or not
+    at all; an existing folder is replaced), chunk_scans scans read and written at a time (memory holds them and
+    their returns, whatever the drive's length); see the module docstring."""
     drive = Path(drive)
     velodyne, oxts = drive / "velodyne_points", drive / "oxts"
     scans = sorted((velodyne / "data").glob("*.bin"))
@@ -144,13 +150,66 @@ def import_kitti(drive: str | Path, calibration: VelodyneCalibration | None = No
                          reference_fibre=int(np.argmin(np.abs(elevation_deg))), elevation_deg=elevation_deg,
                          azimuth_offset_deg=zeros, range_offset_m=zeros, vertical_offset_m=vertical_m,
                          horizontal_offset_m=zeros, height_offset_m=zeros, timing=base.timing)
+    trajectory, oxts_span = _oxts_trajectory(oxts, midnight)
+    extrinsic = read_imu_to_velo(_find_calibration(drive))
+    kept = {"left_out": 0, "week": None}
+
+    def chunks() -> Iterator[tuple[dict[str, np.ndarray], np.ndarray]]:
+        indexed, step = list(enumerate(scans)), max(1, chunk_scans)
+        groups = [indexed[s:s + step] for s in range(0, len(indexed), step)]
+        for group in progress(groups, f"reading {drive.name}", quiet=quiet):
+            columns, misfit = _scan_returns(group, start, end, sensor)
+            inside = (columns["time"] >= oxts_span[0]) & (columns["time"] <= oxts_span[1])
+            kept["left_out"] += int(np.count_nonzero(~inside))
+            if inside.any():
+                # sorted by the time since midnight first: the returns that GPS seconds of week (coarser float64
+                # steps) make simultaneous keep that order
+                kept_rows = np.flatnonzero(inside)[np.argsort(columns["time"][inside], kind="stable")]
+                columns, misfit = {key: values[kept_rows] for key, values in columns.items()}, misfit[kept_rows]
+                columns["time"], kept["week"] = seconds_of_week(midnight, columns["time"], kept["week"])
+                yield columns, misfit
+
+    def finish(returns: ReturnWriter, points: PointTable) -> Recording:
+        if not returns.n_returns:
+            raise RecordingError(oxts / "timestamps.txt", "no return within the OXTS time span",
+                                 expected="OXTS poses over the time of the scans")
+        week = kept["week"]
+        trajectory_time, _ = seconds_of_week(midnight, trajectory.time, week)
+        model_source = "the calibration" if calibration else "the HDL-64E catalogue"
+        notes = [f"{len(scans)} KITTI scans, {returns.n_returns} returns kept",
+                 ("per-return time DERIVED from the azimuth (KITTI has none): t = start + (end - start) * "
+                  "((azimuth - pi) mod 2 pi) / 2 pi, with timestamps_start/end.txt"),
+                 ("the driver's per-laser corrections are already in KITTI's points: raw values are recovered with a "
+                  "fitted nominal model (no azimuth, range or horizontal offsets)"),
+                 (f"fibre = nearest beam line (elevation, vertical offset) starting from {model_source}, refitted on "
+                  f"the first {min(len(scans), _REFINE_SCANS)} scans; range and azimuth from the model's inverse"),
+                 misfit_note(returns.misfit),
+                 f"{kept['left_out']} returns outside the OXTS time span left out",
+                 f"times are GPS seconds of week {week} (KITTI timestamps read as UTC)",
+                 "OXTS altitude used as the height, as recorded (KITTI documents it as altitude, not ellipsoidal "
+                 "height)"]
+        source = {"importer": "kitti-raw", "file": drive.name, "model": "HDL-64E",
+                  "time_base": "GPS seconds of week", "gps_week": week, "notes": notes}
+        return Recording(name=name or drive.name, crs="auto", sensor=sensor, extrinsic=extrinsic,
+                         trajectory=Trajectory(trajectory_time, trajectory.position, trajectory.rpy_deg,
+                                               geodetic=True), points=points, source=source)
+
+    return write_import(Path(out), drive, _ORDER, chunks(), finish)
+
+
+def _scan_returns(scans: list[tuple[int, Path]], start: np.ndarray, end: np.ndarray, sensor: SensorModel
+                  ) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The returns of some scans (index, .bin file): time (s since the drive's UTC midnight, derived from the
+    azimuth), fibre, range [m], azimuth [rad], intensity (reflectance x 255), scan (its index); and each one's model
+    misfit [m] (its distance from its fibre's beam line). The empty points (0, 0, 0) are left out."""
     columns = {key: [] for key in ("time", "fibre", "range", "azimuth", "intensity", "scan")}
     misfit = []
-    for index, path in enumerate(progress(scans, f"reading {drive.name}", quiet=quiet)):
+    for index, path in scans:
         raw = read_scan(path)
         keep = np.any(raw[:, :3] != 0, axis=1)
         xyz, reflectance = raw[keep, :3].astype(np.float64), raw[keep, 3]
-        fibre = assign_fibres(np.hypot(xyz[:, 0], xyz[:, 1]), xyz[:, 2], elevation_deg, vertical_m)
+        fibre = assign_fibres(np.hypot(xyz[:, 0], xyz[:, 1]), xyz[:, 2], sensor.elevation_deg,
+                              sensor.vertical_offset_m)
         range_m, azimuth, off_line = sensor.from_xyz(fibre, xyz)
         misfit.append(np.abs(off_line))
         fraction = np.mod(azimuth - np.pi, 2 * np.pi) / (2 * np.pi)
@@ -160,38 +219,7 @@ def import_kitti(drive: str | Path, calibration: VelodyneCalibration | None = No
         columns["azimuth"].append(azimuth)
         columns["intensity"].append(np.clip(reflectance * 255.0, 0.0, 255.0))
         columns["scan"].append(np.full(len(range_m), index))
-    arrays = {key: np.concatenate(values) for key, values in columns.items()}
-    order = np.argsort(arrays["time"], kind="stable")
-    arrays = {key: values[order] for key, values in arrays.items()}
-    misfit = np.concatenate(misfit)
-    trajectory, oxts_span = _oxts_trajectory(oxts, midnight)
-    inside = (arrays["time"] >= oxts_span[0]) & (arrays["time"] <= oxts_span[1])
-    arrays = {key: values[inside] for key, values in arrays.items()}
-    if not len(arrays["time"]):
-        raise RecordingError(oxts / "timestamps.txt", "no return within the OXTS time span",
-                             expected="OXTS poses over the time of the scans")
-    time, week = seconds_of_week(midnight, arrays.pop("time"))
-    trajectory_time, _ = seconds_of_week(midnight, trajectory.time, week)
-    trajectory = Trajectory(trajectory_time, trajectory.position, trajectory.rpy_deg, geodetic=True)
-    model_source = "the calibration" if calibration else "the HDL-64E catalogue"
-    notes = [f"{len(scans)} KITTI scans, {len(time)} returns kept",
-             ("per-return time DERIVED from the azimuth (KITTI has none): t = start + (end - start) * "
-              "((azimuth - pi) mod 2 pi) / 2 pi, with timestamps_start/end.txt"),
-             ("the driver's per-laser corrections are already in KITTI's points: raw values are recovered with a "
-              "fitted nominal model (no azimuth, range or horizontal offsets)"),
-             (f"fibre = nearest beam line (elevation, vertical offset) starting from {model_source}, refitted on the "
-              f"first {min(len(scans), _REFINE_SCANS)} scans; range and azimuth from the model's inverse; model "
-              f"misfit (distance to the fibre's beam line): median {1000 * np.median(misfit):.1f} mm, 99 % "
-              f"{1000 * np.percentile(misfit, 99):.1f} mm"),
-             f"{int((~inside).sum())} returns outside the OXTS time span left out",
-             f"times are GPS seconds of week {week} (KITTI timestamps read as UTC)",
-             "OXTS altitude used as the height, as recorded (KITTI documents it as altitude, not ellipsoidal height)"]
-    source = {"importer": "kitti-raw", "file": drive.name, "model": "HDL-64E", "time_base": "GPS seconds of week",
-              "gps_week": week, "notes": notes}
-    points = PointTable.from_arrays(time=time, **arrays)
-    return Recording(name=name or drive.name, crs="auto", sensor=sensor,
-                     extrinsic=read_imu_to_velo(_find_calibration(drive)), trajectory=trajectory, points=points,
-                     source=source)
+    return {key: np.concatenate(values) for key, values in columns.items()}, np.concatenate(misfit)
 
 
 def _seconds_since(path: Path, midnight: float) -> np.ndarray:
