@@ -429,12 +429,18 @@ def import_pcap_command(
         block_azimuth: Annotated[bool, typer.Option(help="one azimuth per firing sequence (VeloView 3) instead "
                                                          "of each laser's own")] = False,
         topic: Annotated[str | None, typer.Option(help="ROS bag: the VelodyneScan topic (default: the only one)")] = None,
+        body_frame: Annotated[str | None, typer.Option(help="ROS bag: the body's frame in the bag's tf, where the "
+                                                            "extrinsic is read from when --lever-arm and --boresight "
+                                                            "are not given (default: the frame of the bag's Odometry "
+                                                            "or Imu)")] = None,
         quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
     """Velodyne pcap (or ROS bag) -> recording. Without --trajectory the sensor is taken as STATIC
-    at the GPRMC fix of its position packets (or --position).
+    at the GPRMC fix of its position packets (or --position). From a bag, the extrinsic is the bag's
+    /tf_static chain from the body frame to the packets' frame unless --lever-arm/--boresight give one.
 
     Example: graphcal import pcap drive.pcap --trajectory sbet.out --lever-arm 0.8,0,1.9 --boresight 0,0,90
     """
+    from graphcal.common.errors import ConfigError
     from graphcal.importers.velodyne_calibration import read_velodyne_calibration
     from graphcal.importers.velodyne_pcap import import_pcap
 
@@ -447,8 +453,11 @@ def import_pcap_command(
     if pcap.is_dir() or pcap.suffix.lower() in (".bag", ".db3", ".mcap"):
         from graphcal.importers.velodyne_rosbag import import_rosbag
 
-        recording = import_rosbag(pcap, out, topic=topic, **options)
+        recording = import_rosbag(pcap, out, topic=topic, body_frame=body_frame, **options)
     else:
+        if body_frame is not None or topic is not None:
+            raise ConfigError(f"{'--body-frame' if body_frame is not None else '--topic'}: only for a ROS bag, and "
+                              f"{pcap} is a libpcap file")
         recording = import_pcap(pcap, out, **options)
     _print_import(recording, out, quiet)
 

@@ -22,7 +22,7 @@ import numpy as np
 from graphcal.common.errors import RecordingError
 from graphcal.importers.point_fields import ScanPoints, scan_points
 from graphcal.importers.ros_messages import RosBag, Topic, open_bag
-from graphcal.importers.ros_tf import tf_extrinsic
+from graphcal.importers.ros_tf import bag_extrinsic, header_frame
 from graphcal.importers.ros_trajectory import bag_trajectory, stamp_s
 from graphcal.importers.scan_recording import ScanSource, local_crs, write_scan_recording
 from graphcal.importers.velodyne_calibration import VelodyneCalibration
@@ -80,12 +80,6 @@ def read_scans(bag: RosBag, cloud: Topic) -> Iterator[ScanPoints]:
         yield scan_points(cloud_fields(msg, bag.path, index), source, stamp_s(msg.header), "the header stamp")
 
 
-def cloud_frame(bag: RosBag, cloud: Topic) -> str:
-    """The first message's header.frame_id (the lidar frame), without tf2's leading '/'; '' for no message."""
-    first = next(iter(bag.messages([cloud])), None)
-    return "" if first is None else first[2].header.frame_id.lstrip("/")
-
-
 def import_pointcloud2(bag: str | Path, out: str | Path, *, topic: str | None = None,
                        calibration: VelodyneCalibration | None = None, trajectory: Trajectory | None = None,
                        crs: str = "auto", pose_topic: str | None = None, extrinsic: Extrinsic | None = None,
@@ -112,22 +106,11 @@ def import_pointcloud2(bag: str | Path, out: str | Path, *, topic: str | None = 
         else:
             notes.append("trajectory: the file given (GPS seconds of week)")
             utc = False
-        extrinsic, extrinsic_note = _extrinsic(opened, extrinsic, body_frame, cloud_frame(opened, cloud))
+        extrinsic, extrinsic_note = bag_extrinsic(opened, extrinsic, body_frame, header_frame(opened, [cloud]),
+                                                  "the clouds' header.frame_id")
         notes += ["points taken as the driver wrote them, in the sensor frame (not transformed to another frame); raw "
                   "range and azimuth are recovered through the nominal model (exact only when it is the driver's own)",
                   extrinsic_note]
         source = ScanSource(path=bag, importer="pointcloud2", model=model, trajectory=trajectory,
                             trajectory_utc=utc, extrinsic=extrinsic, crs=crs, notes=notes)
         return write_scan_recording(read_scans(opened, cloud), source, out, calibration, name or bag.stem, quiet)
-
-
-def _extrinsic(bag: RosBag, given: Extrinsic | None, body_frame: str | None, lidar_frame: str
-               ) -> tuple[Extrinsic, str]:
-    """The lidar -> body extrinsic and where it came from: as given (it wins over the bag), else the bag's
-    T_body_lidar (ros_tf), else identity (with the reason the bag's tf gave none)."""
-    if given is not None:
-        return given, "lidar -> body extrinsic as given (the bag's tf is not read)"
-    from_tf, note = tf_extrinsic(bag, body_frame, lidar_frame)
-    if from_tf is not None:
-        return from_tf, note
-    return Extrinsic((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)), f"lidar -> body extrinsic: identity (none given; {note})"

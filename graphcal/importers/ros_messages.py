@@ -60,7 +60,8 @@ def open_bag(path: str | Path) -> Iterator[RosBag]:
         raise ConfigError('reading ROS bags needs rosbags: pip install "graphcal[rosbag]"') from None
     try:
         with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
-            yield _bag(path, reader)
+            yield ros_bag(path, reader.connections, lambda chosen: reader.messages(connections=chosen),
+                          reader.deserialize)
     except GraphcalError:
         raise
     except Exception as error:  # rosbags' own (no metadata.yaml, a damaged file, a cut message)
@@ -69,15 +70,18 @@ def open_bag(path: str | Path) -> Iterator[RosBag]:
                                       "db3 file") from None
 
 
-def _bag(path: Path, reader) -> RosBag:
-    by_topic = {}
-    for connection in reader.connections:
-        by_topic.setdefault(Topic(connection.topic, msgtype_name(connection.msgtype)), []).append(connection)
+def ros_bag(path: Path, connections: list, messages, deserialize) -> RosBag:
+    """A RosBag of an open reader's connections (rosbags Connection), messages(connections) -> iterator of
+    (connection, log time ns, raw bytes) in log-time order, and deserialize(raw, msgtype)."""
+    def topic_of(connection) -> Topic:
+        return Topic(connection.topic, msgtype_name(connection.msgtype))
 
-    def messages(topics: list[Topic]):
-        wanted = {c.id: topic for topic in topics for c in by_topic.get(topic, [])}
-        chosen = [c for c in reader.connections if c.id in wanted]
-        for connection, log_ns, raw in reader.messages(connections=chosen):
-            yield wanted[connection.id], log_ns, reader.deserialize(raw, connection.msgtype)
+    def read(topics: list[Topic]):
+        wanted = set(topics)
+        chosen = [c for c in connections if topic_of(c) in wanted]
+        if not chosen:  # rosbags reads every connection when given none
+            return
+        for connection, log_ns, raw in messages(chosen):
+            yield topic_of(connection), log_ns, deserialize(raw, connection.msgtype)
 
-    return RosBag(path, list(by_topic), messages)
+    return RosBag(path, list(dict.fromkeys(topic_of(c) for c in connections)), read)

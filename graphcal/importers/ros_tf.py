@@ -21,7 +21,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from graphcal.common.errors import RecordingError
-from graphcal.importers.ros_messages import RosBag
+from graphcal.importers.ros_messages import RosBag, Topic
 from graphcal.recording.extrinsic import Extrinsic
 from graphcal.recording.rotations import rpy_deg_from_rotation
 
@@ -111,10 +111,12 @@ def read_frame_tree(bag: RosBag) -> FrameTree | None:
     return FrameTree({**fixed, **static}, moving)
 
 
-def tf_extrinsic(bag: RosBag, body_frame: str | None, lidar_frame: str) -> tuple[Extrinsic | None, str]:
+def tf_extrinsic(bag: RosBag, body_frame: str | None, lidar_frame: str, lidar_what: str = "the lidar frame"
+                 ) -> tuple[Extrinsic | None, str]:
     """T_body_lidar from the bag's transforms as the lidar -> body extrinsic, and a note saying where it came
     from; None (and a note naming the frames found) when the bag has no transforms, no body frame is known
-    (body_frame None) or the transforms do not link the body frame to lidar_frame."""
+    (body_frame None) or the transforms do not link the body frame to lidar_frame. lidar_what: where the lidar
+    frame's name comes from, for the note."""
     if body_frame is None:
         return None, ("the bag's tf is not read: the trajectory's body frame has no name in the bag (give it with "
                       "--body-frame)")
@@ -124,14 +126,33 @@ def tf_extrinsic(bag: RosBag, body_frame: str | None, lidar_frame: str) -> tuple
         return None, f"no {TFMESSAGE} in the bag"
     link = tree.link(body_frame, lidar_frame)
     if link is None:
-        return None, (f"the bag's tf does not link {body_frame} (the trajectory's body frame) to {lidar_frame} "
-                      f"(the clouds' header.frame_id); transforms found: {tree.listing()}")
+        return None, (f"the bag's tf does not link {body_frame} (the body frame) to {lidar_frame} ({lidar_what}); "
+                      f"transforms found: {tree.listing()}")
     T_body_lidar, frames = link
     extrinsic = Extrinsic(tuple(float(v) for v in T_body_lidar.translation_m),
                           tuple(float(v) for v in rpy_deg_from_rotation(T_body_lidar.rotation)))
     return extrinsic, (f"lidar -> body extrinsic from the bag's tf: {' -> '.join(frames)} "
                        f"composed, lever arm {_rounded(extrinsic.lever_arm_m)} m, boresight "
                        f"{_rounded(extrinsic.boresight_deg)} deg")
+
+
+def bag_extrinsic(bag: RosBag, given: Extrinsic | None, body_frame: str | None, lidar_frame: str,
+                  lidar_what: str = "the lidar frame") -> tuple[Extrinsic, str]:
+    """The lidar -> body extrinsic and where it came from: as given (it wins over the bag), else the bag's
+    T_body_lidar (tf_extrinsic), else identity (with the reason the bag's tf gave none)."""
+    if given is not None:
+        return given, "lidar -> body extrinsic as given (the bag's tf is not read)"
+    from_tf, note = tf_extrinsic(bag, body_frame, lidar_frame, lidar_what)
+    if from_tf is not None:
+        return from_tf, note
+    return Extrinsic((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)), f"lidar -> body extrinsic: identity (none given; {note})"
+
+
+def header_frame(bag: RosBag, topics: list[Topic]) -> str:
+    """The header.frame_id of the first message of the topics (the frame its data are in), without tf2's
+    leading '/'; '' for no message."""
+    first = next(iter(bag.messages(topics)), None)
+    return "" if first is None else first[2].header.frame_id.lstrip("/")
 
 
 def _transform(stamped, bag: RosBag, topic: str) -> Transform:

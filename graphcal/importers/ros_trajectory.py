@@ -47,7 +47,7 @@ class BagTrajectory:
 def bag_trajectory(bag: RosBag, topic: str | None = None) -> BagTrajectory:
     """The bag's trajectory (NavSatFix + Imu preferred, else Odometry; `topic` picks a NavSatFix or Odometry
     topic); RecordingError when the bag has neither."""
-    fixes, imus, odometry = bag.of_type(NAVSATFIX, topic), bag.of_type(IMU), bag.of_type(ODOMETRY, topic)
+    fixes, imus, odometry = _trajectory_topics(bag, topic)
     if fixes and imus:
         return _navsat(bag, fixes[0], imus[0])
     if odometry:
@@ -55,6 +55,23 @@ def bag_trajectory(bag: RosBag, topic: str | None = None) -> BagTrajectory:
     raise RecordingError(bag.path, f"no trajectory: no {NAVSATFIX} with {IMU}, no {ODOMETRY}"
                                    f"{f' on topic {topic}' if topic else ''}; topics: {bag.listing()}",
                          expected="GNSS/INS messages in the bag, or a trajectory file (--trajectory)")
+
+
+def trajectory_frame(bag: RosBag, topic: str | None = None) -> str | None:
+    """The body frame of the trajectory bag_trajectory would read (the Imu's header.frame_id with NavSatFix, else
+    Odometry's child_frame_id), read from those messages alone; None when the bag has neither or they name
+    several frames."""
+    fixes, imus, odometry = _trajectory_topics(bag, topic)
+    if fixes and imus:
+        return _one_frame({msg.header.frame_id for _, _, msg in bag.messages(imus[:1])})
+    if odometry:
+        return _one_frame({msg.child_frame_id for _, _, msg in bag.messages(odometry[:1])})
+    return None
+
+
+def _trajectory_topics(bag: RosBag, topic: str | None) -> tuple[list[Topic], list[Topic], list[Topic]]:
+    """The bag's NavSatFix, Imu and Odometry topics (`topic` picks a NavSatFix or Odometry topic)."""
+    return bag.of_type(NAVSATFIX, topic), bag.of_type(IMU), bag.of_type(ODOMETRY, topic)
 
 
 def _navsat(bag: RosBag, fix_topic: Topic, imu_topic: Topic) -> BagTrajectory:

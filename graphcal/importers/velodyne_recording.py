@@ -84,16 +84,16 @@ def write_velodyne_recording(surveyed: SurveyedCapture, out: str | Path, importe
                              calibration: VelodyneCalibration | None = None, trajectory: Trajectory | None = None,
                              position: tuple[float, float, float] | None = None,
                              attitude_deg: tuple[float, float, float] = (0.0, 0.0, 0.0),
-                             extrinsic: Extrinsic | None = None, crs: str = "auto",
-                             name: str | None = None) -> Recording:
+                             extrinsic: Extrinsic | None = None, extrinsic_note: str | None = None,
+                             crs: str = "auto", name: str | None = None) -> Recording:
     """A surveyed capture as the recording folder `out` (written whole or not at all, chunk by chunk), times in GPS
     seconds of week.
 
     calibration: the unit's db.xml/YAML (required for an HDL-64E, a VLP-32C and a VLS-128), else the catalogue
     model. trajectory: poses on the same clock (e.g. from an SBET), cut to the returns' span +- 1 s; else a static
     trajectory at `position` (lat, lon deg, ellipsoidal height m) or at the mean GPRMC fix (height 0 m), with
-    `attitude_deg` (roll, pitch, yaw vs ENU). extrinsic: nominal lidar -> body, identity if None. What was assumed
-    is listed in `recording.source['notes']`.
+    `attitude_deg` (roll, pitch, yaw vs ENU). extrinsic: nominal lidar -> body, identity if None; extrinsic_note:
+    where a given one came from, for the notes. What was assumed is listed in `recording.source['notes']`.
     """
     out, capture = Path(out), surveyed.capture
     path = capture.path
@@ -128,6 +128,8 @@ def write_velodyne_recording(surveyed: SurveyedCapture, out: str | Path, importe
         if extrinsic is None:
             extrinsic = Extrinsic(lever_arm_m=(0.0, 0.0, 0.0), boresight_deg=(0.0, 0.0, 0.0))
             notes.append("nominal extrinsic: identity (lidar frame = body frame)")
+        elif extrinsic_note:
+            notes.append(extrinsic_note)
         source = {"importer": importer, "file": path.name, "model": capture.model,
                   "time_base": "GPS seconds of week", "gps_week": week,
                   "azimuth": "interpolated to each firing" if capture.interpolated_azimuth else "block azimuth",

@@ -21,6 +21,9 @@ import numpy as np
 from graphcal.common.errors import ConfigError, GraphcalError, RecordingError
 from graphcal.common.progress import progress
 from graphcal.common.yamlfile import read_yaml
+from graphcal.importers.ros_messages import RosBag, Topic, ros_bag
+from graphcal.importers.ros_tf import bag_extrinsic, header_frame
+from graphcal.importers.ros_trajectory import trajectory_frame
 from graphcal.importers.velodyne_calibration import VelodyneCalibration
 from graphcal.importers.velodyne_packets import PACKET, PACKET_BYTES
 from graphcal.importers.velodyne_recording import (
@@ -32,6 +35,7 @@ from graphcal.importers.velodyne_recording import (
 )
 from graphcal.importers.velodyne_survey import PacketSurvey
 from graphcal.recording.directory import Recording
+from graphcal.recording.extrinsic import Extrinsic
 
 SCAN_TYPE = "velodyne_msgs/msg/VelodyneScan"
 CHUNK_PACKETS = 1024  # packets read and decoded at a time, in whole messages (about 0.35 M returns)
@@ -50,45 +54,56 @@ def packet_chunks(bag: str | Path, topic: str | None = None) -> Iterator[tuple[n
     """The packets of the VelodyneScan messages in the bag's order, whole messages of about CHUNK_PACKETS packets at a
     time: (PACKET array, ROS stamps [s since 1970], index of each packet in the bag). RecordingError naming the bag
     when it has none."""
+    bag = Path(bag)
+    data, stamps, before = [], [], 0
+    with velodyne_bag(bag) as opened:
+        for scans_topic, _, msg in opened.messages(scan_topics(opened, topic)):
+            for packet in msg.packets:
+                if len(packet.data) != PACKET_BYTES:
+                    raise RecordingError(bag, f"packet of {len(packet.data)} bytes on {scans_topic.name}",
+                                         expected=f"{PACKET_BYTES}-byte Velodyne data packets")
+                data.append(np.asarray(packet.data, dtype=np.uint8))
+                stamps.append(packet.stamp.sec + 1e-9 * packet.stamp.nanosec)
+            if len(data) >= CHUNK_PACKETS:
+                yield _chunk(data, stamps, before)
+                data, stamps, before = [], [], before + len(data)
+    if data:
+        yield _chunk(data, stamps, before)
+    elif not before:
+        raise RecordingError(bag, "no packet in the VelodyneScan messages", expected="Velodyne data packets")
+
+
+def scan_topics(bag: RosBag, topic: str | None = None) -> list[Topic]:
+    """The bag's VelodyneScan topics (every one, or the one named `topic`); RecordingError when there is none."""
+    scans = bag.of_type(SCAN_TYPE, topic)
+    if not scans:
+        raise RecordingError(bag.path, f"no {SCAN_TYPE} topic{f' named {topic}' if topic else ''}; topics: "
+                                       f"{bag.listing()}", field="topic",
+                             expected="Velodyne packets (velodyne_driver output)")
+    return scans
+
+
+@contextmanager
+def velodyne_bag(bag: Path) -> Iterator[RosBag]:
+    """A bag opened with velodyne_msgs' types known (ROS 2 bags do not carry message definitions); RecordingError
+    naming it when rosbags cannot read it."""
     try:
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore
     except ImportError:
         raise ConfigError('reading ROS bags needs rosbags: pip install "graphcal[rosbag]"') from None
-    bag = Path(bag)
     if not bag.exists():
         raise RecordingError(bag, "bag not found")
     store = get_typestore(Stores.ROS2_HUMBLE)
     for name, definition in _DEFINITIONS.items():
         store.register(get_types_from_msg(definition, name))
-    data, stamps, before = [], [], 0
     try:
         with _open_bag(bag, store) as (connections, messages, deserialize):
-            wanted = SCAN_TYPE.replace("/msg/", "/")
-            scans = [c for c in connections if c.msgtype.replace("/msg/", "/") == wanted
-                     and (topic is None or c.topic == topic)]
-            if not scans:
-                found = ", ".join(sorted(f"{c.topic} ({c.msgtype})" for c in connections)) or "none"
-                raise RecordingError(bag, f"no {SCAN_TYPE} topic{f' named {topic}' if topic else ''}; topics: {found}",
-                                     field="topic", expected="Velodyne packets (velodyne_driver output)")
-            for connection, raw in messages(scans):
-                for packet in deserialize(raw, connection.msgtype).packets:
-                    if len(packet.data) != PACKET_BYTES:
-                        raise RecordingError(bag, f"packet of {len(packet.data)} bytes on {connection.topic}",
-                                             expected=f"{PACKET_BYTES}-byte Velodyne data packets")
-                    data.append(np.asarray(packet.data, dtype=np.uint8))
-                    stamps.append(packet.stamp.sec + 1e-9 * packet.stamp.nanosec)
-                if len(data) >= CHUNK_PACKETS:
-                    yield _chunk(data, stamps, before)
-                    data, stamps, before = [], [], before + len(data)
+            yield ros_bag(bag, connections, messages, deserialize)
     except GraphcalError:
         raise
     except Exception as error:  # rosbags' own (a folder without metadata.yaml, an empty or damaged bag, a cut message)
         raise RecordingError(bag, f"not a readable ROS bag: {type(error).__name__}: {error}",
                              expected="a rosbag1 file or a rosbag2 folder with its metadata.yaml") from None
-    if data:
-        yield _chunk(data, stamps, before)
-    elif not before:
-        raise RecordingError(bag, "no packet in the VelodyneScan messages", expected="Velodyne data packets")
 
 
 def _chunk(data: list[np.ndarray], stamps: list[float], before: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -98,16 +113,15 @@ def _chunk(data: list[np.ndarray], stamps: list[float], before: int) -> tuple[np
 
 @contextmanager
 def _open_bag(bag: Path, store) -> Iterator[tuple[list, Callable, Callable]]:
-    """(connections, messages(connections) -> iterator of (connection, raw bytes), deserialize(raw, msgtype))
-    of a bag: rosbags' AnyReader, or for a rosbag2 sqlite3 folder whose metadata.yaml leaves the
-    serialization format empty (early ROS 2 recorders), its storage files read as CDR, the only
-    format rosbag2 records."""
+    """(connections, messages(connections) -> iterator of (connection, log time ns, raw bytes),
+    deserialize(raw, msgtype)) of a bag: rosbags' AnyReader, or for a rosbag2 sqlite3 folder whose
+    metadata.yaml leaves the serialization format empty (early ROS 2 recorders), its storage files
+    read as CDR, the only format rosbag2 records."""
     if not _unnamed_cdr(bag):
         from rosbags.highlevel import AnyReader
 
         with AnyReader([bag], default_typestore=store) as reader:
-            yield (reader.connections, lambda wanted: ((c, raw) for c, _, raw in reader.messages(connections=wanted)),
-                   reader.deserialize)
+            yield reader.connections, lambda wanted: reader.messages(connections=wanted), reader.deserialize
         return
     from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
 
@@ -122,7 +136,7 @@ def _open_bag(bag: Path, store) -> Iterator[tuple[list, Callable, Callable]]:
             for storage in storages:
                 mine = [c for c in wanted if c.owner is storage]
                 if mine:
-                    yield from ((c, raw) for c, _, raw in storage.messages(mine))
+                    yield from storage.messages(mine)
 
         yield [c for storage in storages for c in storage.connections], messages, store.deserialize_cdr
 
@@ -184,10 +198,28 @@ def _sorted_survey(bag: Path, topic: str | None, quiet: bool, options: dict) -> 
 
 def import_rosbag(bag: str | Path, out: str | Path, *, topic: str | None = None, model: str | None = None,
                   calibration: VelodyneCalibration | None = None, interpolate_azimuth: bool = True,
-                  quiet: bool = False, **options) -> Recording:
+                  extrinsic: Extrinsic | None = None, body_frame: str | None = None, quiet: bool = False,
+                  **options) -> Recording:
     """A bag's Velodyne packets as the recording folder `out` (written whole or not at all, CHUNK_PACKETS packets
-    at a time); options as velodyne_recording.write_velodyne_recording (trajectory, position, attitude_deg,
-    extrinsic, crs, name)."""
+    at a time); options as velodyne_recording.write_velodyne_recording (trajectory, position, attitude_deg, crs,
+    name). extrinsic: lidar -> body; when not given, from the bag's tf (rosbag_extrinsic)."""
+    bag = Path(bag)
+    extrinsic, extrinsic_note = rosbag_extrinsic(bag, topic, extrinsic, body_frame)
     surveyed = survey_rosbag(bag, topic, model, calibration.distance_resolution_m if calibration else None,
                              interpolate_azimuth, quiet)
-    return write_velodyne_recording(surveyed, out, "velodyne-rosbag", calibration=calibration, **options)
+    return write_velodyne_recording(surveyed, out, "velodyne-rosbag", calibration=calibration, extrinsic=extrinsic,
+                                    extrinsic_note=extrinsic_note, **options)
+
+
+def rosbag_extrinsic(bag: Path, topic: str | None, given: Extrinsic | None, body_frame: str | None
+                     ) -> tuple[Extrinsic, str]:
+    """The lidar -> body extrinsic of a bag's Velodyne packets and a note saying where it came from: as given (it
+    wins), else T_body_lidar of the bag's /tf_static (ros_tf) from body_frame (by default the frame of the bag's
+    Odometry or Imu messages, when it has them) to the VelodyneScan messages' header.frame_id, else identity with
+    the reason (no body frame, no tf, or the chain broken: the transforms found named)."""
+    with velodyne_bag(bag) as opened:
+        lidar_frame = ""
+        if given is None:
+            body_frame = body_frame or trajectory_frame(opened)
+            lidar_frame = header_frame(opened, scan_topics(opened, topic))
+        return bag_extrinsic(opened, given, body_frame, lidar_frame, "the VelodyneScan messages' header.frame_id")
