@@ -98,6 +98,8 @@ def main() -> None:
     parser.add_argument("--size", type=float, default=0.1, help="fraction of firings simulated")
     parser.add_argument("--max-points", type=int, default=1_000_000, help="returns calibrate uses (its default)")
     parser.add_argument("--result", default="long_drive.json", help="file name in benchmarks/results/")
+    parser.add_argument("--keep", help="folder where the simulated drives are kept and found again (default: a "
+                                       "temporary folder, simulated each run; simulated_s null when found)")
     args = parser.parse_args()
     from graphcal.simulation.script import load_scenario_builder
     from graphcal.simulation.simulator import simulate_to
@@ -109,13 +111,16 @@ def main() -> None:
                "priors": FAR_START_PRIORS, "drives": {}}
     for minutes in args.minutes:
         with tempfile.TemporaryDirectory() as folder:
-            started = time.perf_counter()
-            simulate_to(city_loop(duration_s=60.0 * minutes, size=args.size, seed=0, range_noise_m=0.005),
-                        Path(folder) / "city", quiet=True)
-            simulated_s = time.perf_counter() - started
-            figures["drives"][f"{minutes:g} min"] = {"simulated_s": round(simulated_s, 1),
+            drive = Path(args.keep or folder) / f"city_{minutes:g}min_size{args.size:g}"
+            simulated_s = None
+            if not (drive / "recording.yaml").exists():
+                started = time.perf_counter()
+                simulate_to(city_loop(duration_s=60.0 * minutes, size=args.size, seed=0, range_noise_m=0.005),
+                            drive, quiet=True)
+                simulated_s = round(time.perf_counter() - started, 1)
+            figures["drives"][f"{minutes:g} min"] = {"simulated_s": simulated_s,
                                                      "load_average_1min": round(os.getloadavg()[0], 2),
-                                                     **run_in_process(_case, str(Path(folder) / "city"), args.max_points)}
+                                                     **run_in_process(_case, str(drive), args.max_points)}
         RESULTS.mkdir(exist_ok=True)
         report(figures, RESULTS / args.result)
 

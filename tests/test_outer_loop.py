@@ -91,6 +91,39 @@ def test_features_are_computed_again_only_when_the_cloud_changes_shape():
     assert computed and np.allclose(np.abs(features.normal @ [-0.01, 0, 1]) / np.hypot(0.01, 1), 1.0)
 
 
+def test_the_same_cloud_is_paired_once():
+    """A weak-direction analysis and the solve after it pair the same cloud: the second gets the first's pairs;
+    a cloud moved, another gate or other features are paired again."""
+    from graphcal.calibration.association import PairCloud, associate, neighbour_fibres, PairGates
+    from graphcal.calibration.config import FINE, CalibrationConfig
+    from graphcal.calibration.pairing import Association, FeatureCache, features_at
+
+    rng = np.random.default_rng(1)
+    fibre = rng.integers(0, 3, 6000)
+    points = np.column_stack([rng.uniform(0, 4, 6000), rng.uniform(0, 4, 6000), np.zeros(6000)])
+    points[:, 2] = 0.002 * points[:, 0]  # three fibres' returns on one plane
+    settings = CalibrationConfig().for_sensor(False).features
+    made = []
+
+    class Counted(Association):
+        def pairs(self, *args):
+            made.append(args[3])
+            return super().pairs(*args)
+
+    association = Counted(FINE, neighbour_fibres(np.array([0.0, 1.0, 2.0]), 1), np.arange(6000), 0)
+    cache = FeatureCache(settings)
+    features = cache.at(points)[0]
+    first = cache.pairs(association, points, fibre, features, 0.3, lambda: None)
+    expected = associate(PairCloud(points, fibre, features), association.neighbours, PairGates.of(FINE, 0.3),
+                         np.random.default_rng(0), np.arange(6000))
+    assert len(first) > 100 and np.array_equal(first.index_m, expected.index_m)
+    assert cache.pairs(association, points.copy(), fibre, features, 0.3, lambda: None) is first and len(made) == 1
+    cache.pairs(association, points, fibre, features, 0.2, lambda: None)
+    cache.pairs(association, points + [0, 0, 1e-3], fibre, features, 0.2, lambda: None)
+    cache.pairs(association, points + [0, 0, 1e-3], fibre, features_at(points, settings), 0.2, lambda: None)
+    assert made == [0.3, 0.2, 0.2, 0.2]
+
+
 def test_the_coarse_phase_sample_keeps_each_return_whole():
     from graphcal.calibration.returns import ReturnData
     from graphcal.recording.sensor import sensor_from_catalog

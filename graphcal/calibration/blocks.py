@@ -1,6 +1,6 @@
 """The block factors' data of a calibration (factors/point_to_plane.py): one block per fibre of p and
 window of block_controls control intervals of p (per window only when the intrinsics are not estimated),
-at most MAX_BLOCK_ROWS pairs each, with each pair's sigma."""
+successive windows merged up to MIN_BLOCK_ROWS pairs, at most MAX_BLOCK_ROWS pairs each, with each pair's sigma."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from graphcal.calibration.keys import E, I, X
 from graphcal.calibration.returns import Estimate, ReturnData, corrections_at, rays_at, world_at
 
 MAX_BLOCK_ROWS = 20_000
+MIN_BLOCK_ROWS = 2_000
 
 
 def make_blocks(data: ReturnData, estimate: Estimate, pairs: Correspondences, config: CalibrationConfig,
@@ -91,13 +92,39 @@ def pose_sigma_m(data: ReturnData, estimate: Estimate, pairs: Correspondences) -
                               data.time_s[p] - data.time_s[m], noise.interval_s, noise.position_m, noise.attitude_rad)
 
 
-def block_rows(fibre_p: np.ndarray, window: np.ndarray, max_rows: int = MAX_BLOCK_ROWS) -> list[np.ndarray]:
-    """Pair indices of each block: the pairs of one fibre of p and one window of p's control
-    intervals, in chunks of at most max_rows (few large blocks: each block is one Python callback)."""
+def block_rows(fibre_p: np.ndarray, window: np.ndarray, min_rows: int = MIN_BLOCK_ROWS,
+               max_rows: int = MAX_BLOCK_ROWS) -> list[np.ndarray]:
+    """Pair indices of each block: the pairs of one fibre of p and one window of p's control intervals,
+    successive windows of a fibre merged until a block holds at least min_rows pairs (a long drive spreads
+    the capped pairs thin over its windows: without merging, its blocks, each one Python callback, would grow
+    in number with the drive and shrink in rows), in chunks of at most max_rows."""
     if not len(fibre_p):
         return []
     group = fibre_p.astype(np.int64) * (int(window.max()) + 1) + window
     order = np.argsort(group, kind="stable")
     bounds = np.flatnonzero(np.r_[True, np.diff(group[order]) != 0, True])
-    return [chunk for start, stop in itertools.pairwise(bounds)
-            for chunk in np.array_split(order[start:stop], -(-(stop - start) // max_rows))]
+    fibre_of = fibre_p[order[bounds[:-1]]]
+    blocks = []
+    for start, stop in _merged(bounds, fibre_of, min_rows):
+        blocks += np.array_split(order[start:stop], -(-(stop - start) // max_rows))
+    return blocks
+
+
+def _merged(bounds: np.ndarray, fibre_of: np.ndarray, min_rows: int) -> list[tuple[int, int]]:
+    """(start, stop) of the merged groups: successive groups (rows bounds[k]:bounds[k + 1], of fibre fibre_of[k])
+    of one fibre joined until they hold min_rows rows; a fibre's short remainder joins its last span."""
+    spans: list[tuple[int, int]] = []
+    ends = np.flatnonzero(np.r_[fibre_of[1:] != fibre_of[:-1], True])  # each fibre's last group
+    first = 0
+    for last in ends:
+        start, own = int(bounds[first]), len(spans)
+        for k in range(first, last + 1):
+            if bounds[k + 1] - start >= min_rows:
+                spans.append((start, int(bounds[k + 1])))
+                start = int(bounds[k + 1])
+        if start < bounds[last + 1] and len(spans) > own:
+            spans[-1] = (spans[-1][0], int(bounds[last + 1]))
+        elif start < bounds[last + 1]:
+            spans.append((start, int(bounds[last + 1])))
+        first = last + 1
+    return spans

@@ -5,6 +5,7 @@ in and out (calibration/association.py does the search)."""
 from __future__ import annotations
 
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,10 +41,26 @@ class FeatureCache:
     """The features of a calibration's cloud, computed again only once they may have changed by more
     than settings.refresh_above_m [m] (moved_m) since they were: the outer loop, the weak-direction
     analyses and the final fit share them (each computation is a neighbourhood search and an
-    eigen-decomposition at every return), tile by tile with a tiling."""
+    eigen-decomposition at every return), tile by tile with a tiling. It keeps the last pairs made too
+    (pairs): a weak-direction analysis and the next solve, or the last one and the final fit, pair the same
+    cloud."""
 
     def __init__(self, settings: FeatureSettings, tiling: Tiling | None = None):
         self.settings, self.tiling, self.points_m, self.features = settings, tiling, None, None
+        self.paired: tuple | None = None  # (the gates, the features, the points [m], the pairs)
+
+    def pairs(self, association: Association, points_m: np.ndarray, fibre: np.ndarray, features: Features,
+              gate_m: float, sight: Callable[[], Sight | None]) -> Correspondences:
+        """association.pairs of the points [m] (their fibres) with these features at gate_m [m], the lines of
+        sight made by sight() only when the pairs are made: the last pairs again when the same gates made them
+        from the same points and features."""
+        key = (association.gates, gate_m, association.moving is None)
+        if (self.paired is not None and self.paired[0] == key and self.paired[1] is features
+                and np.array_equal(self.paired[2], points_m)):
+            return self.paired[3]
+        pairs = association.pairs(points_m, fibre, features, gate_m, sight())
+        self.paired = (key, features, points_m, pairs)
+        return pairs
 
     def at(self, points_m: np.ndarray) -> tuple[Features, bool]:
         """(features for the points [m], whether they were computed now)."""

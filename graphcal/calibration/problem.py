@@ -207,8 +207,8 @@ class Problem:
             return self.fixed_pairs
         points_m = self.points(estimate) if points_m is None else points_m
         features = self.cache.at(points_m)[0] if features is None else features
-        return self.association().pairs(points_m, self.data.fibre, features, self.gates.gate_start_m,
-                                        self.sight(estimate, points_m))
+        return self.cache.pairs(self.association(), points_m, self.data.fibre, features, self.gates.gate_start_m,
+                                lambda: self.sight(estimate, points_m))
 
     # --- the factor graph ----------------------------------------------------------------------------
     def blocks(self, estimate: Estimate, pairs: Correspondences) -> list:
@@ -336,8 +336,8 @@ class Problem:
                 features, refreshed = problem.cache.at(points)
                 since_refresh = 0 if refreshed else since_refresh
             since_refresh += 1
-            pairs = problem.fixed_pairs if problem.fixed_pairs is not None else association.pairs(
-                points, problem.data.fibre, features, gate, problem.sight(estimate, points))
+            pairs = problem.fixed_pairs if problem.fixed_pairs is not None else problem.cache.pairs(
+                association, points, problem.data.fibre, features, gate, lambda: problem.sight(estimate, points))
             before, weight_sum = energy_cm2(points[pairs.index_p], points[pairs.index_m], pairs)
             updated = problem.step(estimate, pairs)
             step = step_size(estimate, updated)
