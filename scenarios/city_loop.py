@@ -19,8 +19,15 @@ pitched 20 deg). The recorded INS drifts as a GNSS-aided one does (CITY_INS): a 
 5 mm/sqrt(s) and a 2 cm slow bias (60 s correlation) make a few cm over tens of seconds, the heading walks
 by 0.002 deg/sqrt(s), and a GNSS-like jump of about 3 cm per axis comes every 30 s on average.
 
+traffic=True (--traffic) adds moving traffic (CITY_TRAFFIC, graphcal/simulation/traffic.py's
+DistrictTrafficSpec, drawn from the seed): vehicles overtaking, oncoming and crossing the drive's street, each
+driving its own way through the grid, pedestrians on the pavements and crossing; traffic_density
+(--traffic-density) times 80 vehicles and 60 pedestrians a minute. About a fifth of the returns land on them at
+density 1 (truth/points.parquet's `moving`). Without traffic (the default) nothing moves.
+
 `python scenarios/city_loop.py --duration 600 --size 0.1` writes the recording as it simulates
-(simulate_to: memory stays flat whatever the duration).
+(simulate_to: memory stays flat whatever the duration; the traffic's movers, about 14 kB per second of drive,
+are held whole like the trajectories).
 """
 
 from typing import Literal
