@@ -3,6 +3,8 @@
 sim2_street (a 6 s drive at 6 m/s down a 16 m street, the head pitched 20 deg) simulated twice with the same
 seed, the same true calibration errors and the same range noise: without traffic, and with sim2_street's
 STREET_TRAFFIC (cars overtaking and oncoming, pedestrians walking and crossing; scenarios/street_traffic.py).
+--scenario city_loop: the first --duration seconds of city_loop instead, with and without its CITY_TRAFFIC
+(vehicles overtaking, oncoming and crossing on the district's streets, pedestrians on its pavements).
 The true sensor is off the nominal one as a factory calibration and a measured mounting are: intrinsic
 offsets of 3 cm / 0.3 deg RMS (SECTION_4_5_2_ERRORS), the extrinsic off by 3/3/5 cm and 0.3/0.3/-0.3 deg.
 Both are calibrated with graphcal.calibrate's defaults. Figures per case: the fraction of returns on moving
@@ -27,17 +29,19 @@ RESULTS = Path(__file__).resolve().parent / "results"
 TYPES = ("d_range_cm", "d_azimuth_deg", "d_elevation_deg", "h_z_cm")
 
 
-def _scenario(traffic: bool, size: float, seed: int, range_noise_m: float):
+def _scenario(traffic: bool, size: float, seed: int, range_noise_m: float, scenario: str, duration_s: float):
     from graphcal.simulation.script import load_scenario_builder
     from graphcal.simulation.starts import PITCHED_HEAD, SECTION_4_5_2_ERRORS
 
     extrinsic = PITCHED_HEAD.model_copy(update={"error_lever_arm_m": (0.03, 0.03, 0.05),
                                                 "error_boresight_deg": (0.3, 0.3, -0.3)})
-    street = load_scenario_builder("sim2_street")(size=size, seed=seed, range_noise_m=range_noise_m, traffic=traffic)
+    more = {"duration_s": duration_s} if scenario == "city_loop" else {}
+    street = load_scenario_builder(scenario)(size=size, seed=seed, range_noise_m=range_noise_m, traffic=traffic, **more)
     return street.model_copy(update={"extrinsic": extrinsic, "intrinsic_errors": SECTION_4_5_2_ERRORS})
 
 
-def _case(traffic: bool, size: float, seed: int, range_noise_m: float, settings: dict, queue) -> None:
+def _case(traffic: bool, size: float, seed: int, range_noise_m: float, settings: dict, scenario: str,
+          duration_s: float, queue) -> None:
     import numpy as np
 
     import graphcal
@@ -46,7 +50,7 @@ def _case(traffic: bool, size: float, seed: int, range_noise_m: float, settings:
 
     with tempfile.TemporaryDirectory() as folder:
         started = time.perf_counter()
-        recording = graphcal.Recording.load(graphcal.simulate(_scenario(traffic, size, seed, range_noise_m),
+        recording = graphcal.Recording.load(graphcal.simulate(_scenario(traffic, size, seed, range_noise_m, scenario, duration_s),
                                                               quiet=True).save(Path(folder) / "rec"))
         simulate_s = time.perf_counter() - started
         moving = recording.truth.moving()
@@ -87,6 +91,8 @@ def main() -> None:
                         help="association.moving_sigmas, a number or none (default: calibrate's default)")
     parser.add_argument("--cases", nargs="*", default=["without", "with"], choices=("without", "with"),
                         help="the drive without traffic, with it, or both")
+    parser.add_argument("--scenario", default="sim2_street", choices=("sim2_street", "city_loop"))
+    parser.add_argument("--duration", type=float, default=10.0, help="seconds of city_loop's drive")
     parser.add_argument("--out", type=Path, default=RESULTS / "traffic.json")
     args = parser.parse_args()
     settings = {} if args.robust is None else {"weighting": {"robust": args.robust}}
@@ -95,12 +101,14 @@ def main() -> None:
         settings["association"] = {"moving_sigmas": sigmas}
     cases = {}
     for traffic in [case == "with" for case in args.cases]:
-        row = run_in_process(_case, traffic, args.size, args.seed, args.range_noise, settings)
+        row = run_in_process(_case, traffic, args.size, args.seed, args.range_noise, settings, args.scenario,
+                             args.duration)
         cases["with_traffic" if traffic else "without_traffic"] = row
     ratio = {name: cases["with_traffic"]["intrinsic_rms"][name] / cases["without_traffic"]["intrinsic_rms"][name]
              for name in TYPES} if len(cases) == 2 and all("refused" not in row for row in cases.values()) else {}
     figures = {"machine": platform.platform(), "processor": platform.processor(),
                "date": datetime.datetime.now().isoformat(timespec="seconds"),
+               "scenario": args.scenario, "duration_s": args.duration if args.scenario == "city_loop" else None,
                "size": args.size, "seed": args.seed, "range_noise_m": args.range_noise, "settings": settings,
                **{name: _flat(row) for name, row in cases.items()},
                "rms_ratio_with_to_without": ratio}

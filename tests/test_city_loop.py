@@ -143,8 +143,8 @@ def test_city_ins_drifts_a_few_cm_over_tens_of_seconds():
 @pytest.fixture(scope="module")
 def stamped_city():
     """A few seconds of city_loop with stamps moved off the firing times (each laser stamped earlier by
-    its id: returns come out of time order, across chunks too; a negative time offset) and odometry."""
-    base = CITY(duration_s=2.5, size=0.02, seed=3)
+    its id: returns come out of time order, across chunks too; a negative time offset), odometry and traffic."""
+    base = CITY(duration_s=2.5, size=0.02, seed=3, traffic=True)
     return base.model_copy(update={"odometry": SEED_002_ODOMETRY, "effects": {
         "firing_delay": {"step_s": 2e-4}, "time_offset": {"offset_s": -0.03}}})
 
@@ -160,6 +160,8 @@ def test_streamed_recording_equals_the_in_memory_one(stamped_city, tmp_path):
     for name, values in b.points.read().items():
         np.testing.assert_array_equal(values, columns[name], err_msg=name)
     np.testing.assert_array_equal(b.truth.world_points(), a.truth.world_points())
+    np.testing.assert_array_equal(b.truth.moving(), a.truth.moving())
+    assert a.truth.moving().mean() > 0.05  # the movers' returns cut into row groups as the static ones
     for name in ("recording.yaml", "sensor.yaml", "extrinsic.yaml", "trajectory.csv", "odometry.csv",
                  "truth/intrinsics.csv", "truth/extrinsic.yaml", "truth/trajectory.csv", "truth/effects.yaml"):
         assert filecmp.cmp(saved / name, streamed / name, shallow=False), name
@@ -168,7 +170,8 @@ def test_streamed_recording_equals_the_in_memory_one(stamped_city, tmp_path):
 def test_the_script_streams_a_recording_in_row_groups(tmp_path):
     out = tmp_path / "city"
     subprocess.run([sys.executable, str(SCENARIOS_DIR / "city_loop.py"), "--duration", "3.5", "--size", "0.02",
-                    "--seed", "1", "--out", str(out), "--quiet"], check=True)
+                    "--seed", "1", "--out", str(out), "--quiet", "--traffic", "--traffic-density", "0.5"], check=True)
     recording = Recording.load(out)
     assert recording.truth is not None and np.ptp(recording.trajectory.time) == pytest.approx(3.5)
+    assert 0.02 < recording.truth.moving().mean() < 0.3  # half the default traffic
     assert pq.ParquetFile(out / "points.parquet").metadata.num_row_groups >= 3

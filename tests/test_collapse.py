@@ -128,4 +128,9 @@ def test_auto_estimates_the_trajectory_only_where_the_drive_comes_back():
     assert auto.for_sensor(False, 0.01, revisits=False).mode == "joint"
     assert auto.for_sensor(False, 0.01, revisits=True).mode == "joint_trajectory"
     assert auto.for_sensor(True, 0.01).mode == "intrinsic"
+    # in place but turning (on the turning axis of a turn on the spot): the extrinsic estimated on pairs made again,
+    # the intrinsics held and checked as a static sensor's (no parallax)
+    spun = auto.for_sensor(False, 0.01, one_viewpoint=True)
+    assert spun.mode == "joint" and not spun.association.fixed and spun.static.hold == auto.for_sensor(True).static.hold
+    assert spun.static.hold_soft and spun.static.check_halves and spun.features.voxel_m == 0.1
     assert CalibrationConfig(mode="extrinsic").for_sensor(False, 0.01, revisits=True).mode == "extrinsic"

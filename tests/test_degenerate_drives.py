@@ -71,6 +71,34 @@ def test_a_turn_on_the_spot_names_the_yaw_and_the_height_of_the_lever_arm():
     assert "(a drive past facades, each surface seen from many places, would show them)" in line
 
 
+def test_a_sensor_on_the_turning_axis_turning_on_the_spot_is_not_static():
+    """The lever arm is zero: the sensor stays where it is (its positions span nothing) while the vehicle turns under
+    it. No parallax, so its intrinsics are held as a static sensor's are; but its attitude turns, and the turn shows
+    the boresight's roll and pitch (each scan tilted towards a direction that turns with the vehicle) and the lever
+    arm across the axis (an error in x or y puts the modelled sensor on a circle the data do not make). Only the
+    boresight yaw (turning the whole cloud about the axis) and the lever arm z stay unseen: the turn on the spot's
+    verdict, not the static sensor's. The true boresight is 0.3 deg off in roll, -0.2 deg in pitch, the lever arm
+    3 cm and -2 cm across."""
+    extrinsic = PITCHED_HEAD.model_copy(update={"lever_arm_m": (0.0, 0.0, 1.9), "error_boresight_deg": (0.3, -0.2, 0.0),
+                                                "error_lever_arm_m": (0.03, -0.02, 0.0)})
+    drive = Drive(segments=spin(370.0, 120.0), speed_knots=[(0.0, 0.0)])
+    recording = graphcal.simulate(scenario("spin on the axis", courtyard(), drive, 3.0, size=0.008,
+                                           extrinsic=extrinsic), quiet=True)
+    sensor_m = recording.truth.trajectory.position  # the body origin: the sensor is 1.9 m above it, on the axis
+    assert np.ptp(sensor_m, axis=0).max() < 1e-6
+    result = graphcal.calibrate(recording, quiet=True)
+    assert result.config.mode == "joint"  # the extrinsic is estimated
+    assert {name for name in result.unobservable if not name.startswith("fibre_")} == {"extrinsic.yaw_deg",
+                                                                                     "extrinsic.lever_arm_z_m"}
+    assert "static sensor" not in result.verdict and "a static sensor" not in result.calibration.reasons.values()
+    assert result.verdict.startswith("this drive cannot observe the boresight yaw (a drive along a road would show it)"
+                                     "; the lever arm z (a drive with slopes")
+    assert "124 intrinsic" not in result.verdict and "31 fibre heights (a drive past facades" in result.verdict
+    estimated, truth = result.calibration.extrinsic(), recording.truth.extrinsic
+    np.testing.assert_allclose(estimated.boresight_deg[:2], truth.boresight_deg[:2], atol=0.05)  # 0.3 deg off at start
+    np.testing.assert_allclose(estimated.lever_arm_m[:2], truth.lever_arm_m[:2], atol=0.005)  # 3 cm off at start
+
+
 def test_a_drive_with_turns_on_a_flat_plain_names_what_the_ground_cannot_show():
     """A level head over a plain with nothing on it. The ground's normal is vertical everywhere: a horizontal shift
     (lever arm x, y) or a turn about the vertical (boresight yaw, every fibre's azimuth offset) leaves it on itself,

@@ -174,6 +174,6 @@ class CalibrationPipeline:
         check_within_priors(estimate, problem.nominal, problem.layout(), unobservable, where)
         # one viewpoint (static): the scene's shape between the rings stays in J (docs/reference/math.md); an
         # estimate accepted unconverged: its J says nothing of the model
-        if not data.static and settings.stopping.refuse_unconverged:
+        if not data.one_viewpoint and settings.stopping.refuse_unconverged:
             check_energy_explained(rows[-1]["energy_after_cm2"], final.expected_energy_cm2, data.range_noise_m, where)
 

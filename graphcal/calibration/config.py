@@ -262,10 +262,16 @@ class CalibrationConfig(BaseModel):
         return self.model_copy(update={name: type(getattr(self, name)).model_validate(
             {**getattr(self, name).model_dump(), **fields}) for name, fields in sections.items()})
 
-    def for_sensor(self, static: bool, range_noise_m: float = np.nan, revisits: bool = False) -> CalibrationConfig:
+    def for_sensor(self, static: bool, range_noise_m: float = np.nan, revisits: bool = False,
+                   one_viewpoint: bool | None = None) -> CalibrationConfig:
         """The settings left to the recording (None, mode auto) resolved for a static or a moving sensor whose
         range noise is range_noise_m (as measured when it was not set; NaN: unknown, left as set) and whose
-        drive comes back to where it was or not (revisits)."""
+        drive comes back to where it was or not (revisits). one_viewpoint (None: as static): the sensor stays in
+        place, static or turning on the spot (returns.ReturnData.one_viewpoint); with no parallax its intrinsics
+        take a static sensor's settings (held, checked, voxel features) while the mode and the fixed pairs follow
+        static: a sensor turning on the spot estimates its extrinsic too, on pairs made again as it moves (pairs
+        made once at a boresight 0.3 deg off left its roll 0.19 deg off, made again 0.02 deg)."""
+        one_viewpoint = static if one_viewpoint is None else one_viewpoint
         mode = self.mode
         if mode == "auto":
             mode = "intrinsic" if static else ("joint_trajectory" if revisits else "joint")
@@ -273,7 +279,7 @@ class CalibrationConfig(BaseModel):
         noisy_head = noisy(np.nan if noise_m is None else noise_m)
         voxel_m = self.features.voxel_m
         if voxel_m is None:
-            voxel_m = FEATURE_VOXEL_M if static or noisy_head else 0.0
+            voxel_m = FEATURE_VOXEL_M if one_viewpoint or noisy_head else 0.0
         fixed = static if self.association.fixed is None else self.association.fixed
         lm = (5 if fixed else 2) if self.stopping.lm_iterations is None else self.stopping.lm_iterations
         return self.model_copy(update={"mode": mode}).with_settings(
@@ -281,9 +287,9 @@ class CalibrationConfig(BaseModel):
             weighting={"range_noise_m": noise_m,
                        "pair_noise": self.weighting.pair_noise or ("incidence" if noisy_head else "uniform")},
             stopping={"lm_iterations": lm},
-            static={"hold": (STATIC_HOLD if static else ()) if self.static.hold is None else self.static.hold,
-                    "hold_soft": static if self.static.hold_soft is None else self.static.hold_soft,
-                    "check_halves": static if self.static.check_halves is None else self.static.check_halves})
+            static={"hold": (STATIC_HOLD if one_viewpoint else ()) if self.static.hold is None else self.static.hold,
+                    "hold_soft": one_viewpoint if self.static.hold_soft is None else self.static.hold_soft,
+                    "check_halves": one_viewpoint if self.static.check_halves is None else self.static.check_halves})
 
     def gates(self, phase: Phase) -> PhaseGates:
         """The association gates of a phase."""

@@ -124,7 +124,7 @@ class Problem:
         enough_returns(recording)
         data = prepare(recording, config.trajectory.control_interval_s, config.max_points,
                        np.random.default_rng(config.seed), range_noise_m=config.weighting.range_noise_m)
-        config = config.for_sensor(data.static, data.range_noise_m, revisits(recording.world.poses))
+        config = config.for_sensor(data.static, data.range_noise_m, revisits(recording.world.poses), data.one_viewpoint)
         try:  # the settings allow any head's fibres: this recording's head may have fewer, or fix the one named
             held = held_names(config.static.hold, data.sensor.n_fibres, data.sensor.reference_fibre)
         except ConfigError as error:

@@ -23,7 +23,8 @@ from graphcal.recording.directory import Recording
 from graphcal.recording.sensor import SensorModel
 from graphcal.recording.trajectory_noise import PoseNoise
 
-STATIC_BELOW_M = 1.0  # a sensor whose positions span less than this is static
+STATIC_BELOW_M = 1.0  # a sensor whose positions span less than this sees from one viewpoint ...
+TURNED_DEG = 45.0  # ... and is static unless its heading spans this much [deg]: then it turned on the spot
 REVISIT_WITHIN_M = 5.0  # a drive revisits a place when it passes within this of where it was ...
 REVISIT_AFTER_S = 20.0  # ... at least this much earlier
 
@@ -52,11 +53,25 @@ class ReturnData:
     lever_arm_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     @property
-    def static(self) -> bool:
-        """The sensor's positions span less than STATIC_BELOW_M (a tripod, a parked car; a vehicle turning on the
-        spot moves a sensor mounted off its turning axis around a circle)."""
+    def one_viewpoint(self) -> bool:
+        """The sensor's positions, lever arm included, span less than STATIC_BELOW_M: no parallax (a tripod, a
+        parked car, a sensor on the turning axis of a vehicle turning on the spot; a vehicle turning on the spot
+        moves a sensor mounted off its turning axis around a circle)."""
         sensor_m = self.X_nav + self.R_nav @ self.lever_arm_m
         return bool(np.ptp(sensor_m, axis=0).max() < STATIC_BELOW_M)
+
+    @property
+    def turned(self) -> bool:
+        """The vehicle's heading spans TURNED_DEG or more."""
+        return heading_span_deg(self.R_nav) >= TURNED_DEG
+
+    @property
+    def static(self) -> bool:
+        """One viewpoint and an attitude that does not turn: the whole cloud moves rigidly with the extrinsic and
+        the trajectory. A sensor that stays in place while its heading turns (on the turning axis of a vehicle
+        turning on the spot) is a rotation on the spot, not a static sensor: the turn shows the boresight's roll
+        and pitch and the lever arm across the axis."""
+        return self.one_viewpoint and not self.turned
 
     def sample(self, n: int, rng: np.random.Generator) -> ReturnData:
         """A random subset of n of the returns (all of them when there are no more), same control times."""
@@ -120,6 +135,13 @@ def _read_rows(recording: Recording, max_points: int | None, rng: np.random.Gene
     if max_points is not None and n_rows > max_points:
         rows = np.sort(rng.choice(n_rows, max_points, replace=False))
     return recording.points.take(["time", "fibre", "range", "azimuth"], rows) | {"rows": rows}
+
+
+def heading_span_deg(R_world_body: np.ndarray) -> float:
+    """How far [deg] the heading (the body x axis's direction in the world's horizontal plane) of rotations
+    (N, 3, 3) in time order turns, unwrapped: 360 for a full turn on the spot."""
+    heading_rad = np.unwrap(np.arctan2(R_world_body[:, 1, 0], R_world_body[:, 0, 0]))
+    return float(np.degrees(np.ptp(heading_rad))) if len(heading_rad) else 0.0
 
 
 def revisits(poses: PoseTrack) -> bool:

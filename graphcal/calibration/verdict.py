@@ -17,10 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from graphcal.calibration.observability import TRAJECTORY_GAUGE
-from graphcal.calibration.returns import STATIC_BELOW_M
+from graphcal.calibration.returns import STATIC_BELOW_M, TURNED_DEG, heading_span_deg
 
 RIGID_REASON = "a static sensor: the whole cloud moves rigidly with it"
-TURNED_DEG = 45.0  # a drive whose heading spans this much has turned [deg]
 TILTED_DEG = 2.0  # ... whose up axis swings this far has rolled or pitched [deg]
 
 # what the vehicle must do for each extrinsic axis to move the cloud other than rigidly (the pitch: travel or a turn,
@@ -52,10 +51,9 @@ class Motion:
     @classmethod
     def of(cls, R_world_body: np.ndarray, X_world_body_m: np.ndarray) -> Motion:
         """From the vehicle's poses in time order: rotations (N, 3, 3) and positions (N, 3) [m]."""
-        heading_rad = np.unwrap(np.arctan2(R_world_body[:, 1, 0], R_world_body[:, 0, 0]))
         up_swing_rad = np.ptp(R_world_body[:, :2, 2], axis=0).max()  # the up axis's horizontal part, small angles
         return cls(travelled=bool(np.ptp(X_world_body_m, axis=0).max() >= STATIC_BELOW_M),
-                   turned=bool(np.degrees(np.ptp(heading_rad)) >= TURNED_DEG),
+                   turned=heading_span_deg(R_world_body) >= TURNED_DEG,
                    tilted=bool(np.degrees(up_swing_rad) >= TILTED_DEG))
 
     def shows_with(self, axis: str) -> str:

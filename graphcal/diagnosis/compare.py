@@ -66,7 +66,8 @@ def compare(recording: Recording, simulation: Recording, max_points: int | None 
     sim_points = world_at(sim, with_controls(estimate, sim), pose=False) + sim.origin_m - data.origin_m
     # a moving simulation's features from every return, as for a noise-free head: with 0.1 m voxels (those of a
     # noisy head) the heading-bias recording of bench_diagnose named fibre_horizontal_offset before heading_bias
-    features = features_at(sim_points, CalibrationConfig().for_sensor(sim.static, 0.0).features)
+    settings = CalibrationConfig().for_sensor(sim.static, 0.0, one_viewpoint=sim.one_viewpoint)
+    features = features_at(sim_points, settings.features)
     sim_tree = cKDTree(sim_points)
     rows, nearest, normal = _paired(points, sim_tree, features)
     context = ReturnContext.of(data, recording.world.poses, points, Features(normal, *(np.zeros(len(points)),) * 4),

@@ -4,8 +4,9 @@ street lights, parked cars, trees and street clutter, every choice drawn from a 
 Local frame x east, y north, z up [m]. The streets run along the lines of a grid of n_x x n_y blocks, crossing
 (i, j) at (i pitch, j pitch) with pitch = block_m + street_m (route.py drives them); street_m is the width between
 facades, sidewalk_m of it on each side a 0.15 m high kerb. Each block side is a row of buildings (facades of
-their own height, pilasters and ledges); a ring of buildings faces the outer streets. Nothing moves (a moving
-object makes the simulator rebuild its raycasting scene every 10 ms).
+their own height, pilasters and ledges); a ring of buildings faces the outer streets. Nothing here moves (a moving
+object makes the simulator rebuild its raycasting scene every 10 ms): traffic on these streets is
+traffic.DistrictTrafficSpec's boxes, cast ray by ray.
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ from graphcal.simulation.effects import build_effects
 from graphcal.recording.sensor import CATALOG
 from graphcal.simulation.drive import Drive
 from graphcal.simulation.scene import SceneObject
-from graphcal.simulation.traffic import TrafficSpec
+from graphcal.simulation.traffic import DistrictTrafficSpec, TrafficSpec
 
 _FROZEN = ConfigDict(frozen=True, extra="forbid")
 
@@ -111,7 +111,8 @@ class Scenario(BaseModel):
     seed: int = 0
     scene: list[SceneObject]
     drive: Drive
-    traffic: TrafficSpec | None = Field(None, description="moving vehicles and pedestrians (None: none)")
+    traffic: TrafficSpec | DistrictTrafficSpec | None = Field(
+        None, description="moving vehicles and pedestrians, on a straight street or a grid district (None: none)")
     extrinsic: ExtrinsicSpec = ExtrinsicSpec()
     intrinsic_errors: IntrinsicErrors = IntrinsicErrors()
     range_noise_m: float = Field(0.0, ge=0)

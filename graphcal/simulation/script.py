@@ -44,8 +44,9 @@ def load_scenario_builder(name_or_path: str) -> Callable[..., Scenario]:
 
 
 def run_scenario_script(build: Callable[..., Scenario], argv: list[str] | None = None) -> Path:
-    """Parse --out/--size/--seed/--quiet (and --duration when build takes duration_s), simulate
-    build(size=, seed=[, duration_s=]) and write the recording as it goes (simulate_to: flat memory)."""
+    """Parse --out/--size/--seed/--quiet (and --duration, --traffic, --traffic-density when build takes
+    duration_s, traffic, traffic_density), simulate build(size=, seed=[, duration_s=, ...]) and write the
+    recording as it goes (simulate_to: flat memory)."""
     name = Path(inspect.getfile(build)).stem
     parser = argparse.ArgumentParser(description=(build.__doc__ or name).strip().splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("out") / name, help="recording directory to write")
@@ -54,6 +55,11 @@ def run_scenario_script(build: Callable[..., Scenario], argv: list[str] | None =
     if "duration_s" in inspect.signature(build).parameters:
         parser.add_argument("--duration", type=float, dest="duration_s", help="seconds of drive (the scenario's "
                             "default when not given)")
+    if "traffic" in inspect.signature(build).parameters:
+        parser.add_argument("--traffic", action="store_true", default=None, help="moving vehicles and pedestrians")
+    if "traffic_density" in inspect.signature(build).parameters:
+        parser.add_argument("--traffic-density", type=float, dest="traffic_density",
+                            help="as many times the scenario's movers per minute (with --traffic)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     args = vars(parser.parse_args(argv))
     out, quiet = args.pop("out"), args.pop("quiet")

@@ -181,6 +181,10 @@ class _Scene:
     static: RaycastScene
     movers: list[Mover]
 
+    def __post_init__(self):
+        # (M, 2) each mover's existence [s from the start], to cast a chunk against those that exist then only
+        object.__setattr__(self, "spans", np.array([m.span for m in self.movers], dtype=np.float64).reshape(-1, 2))
+
     @property
     def reflectivity(self) -> np.ndarray:
         """Of the static objects, then of the movers (the indices cast returns)."""
@@ -190,7 +194,10 @@ class _Scene:
         """Rays [m, local frame] fired at elapsed_s (N,) [s from the start] -> (distance m, inf on a miss;
         object index, the movers after the static objects; unit normal; on a mover (bool))."""
         distance, index, normal = self.static.cast(origins, directions, float(np.mean(elapsed_s)))
-        moved_distance, mover, moved_normal = cast_movers(self.movers, origins, directions, elapsed_s, max_range_m)
+        active = np.flatnonzero((self.spans[:, 0] <= elapsed_s.max()) & (self.spans[:, 1] >= elapsed_s.min()))
+        moved_distance, mover, moved_normal = cast_movers([self.movers[k] for k in active], origins, directions,
+                                                          elapsed_s, np.minimum(distance, max_range_m))
+        mover = np.where(mover >= 0, active[np.maximum(mover, 0)] if len(active) else 0, -1)
         on_mover = moved_distance < distance
         distance = np.where(on_mover, moved_distance, distance)
         index = np.where(on_mover, len(self.static.objects) + mover, index)
@@ -202,8 +209,7 @@ def movers(scenario: Scenario) -> list[Mover]:
     """The traffic's movers for the scenario's drive (none without traffic)."""
     if scenario.traffic is None:
         return []
-    drive = scenario.drive
-    return scenario.traffic.movers(lambda t: drive.pose_at(t)[0][:, :2], scenario.duration_s)
+    return scenario.traffic.movers(scenario.drive.pose_at, scenario.duration_s)
 
 
 def _cast_chunk(cycle_start, lidar_start, scenario, rig: _Rig, scene: _Scene, rng):
