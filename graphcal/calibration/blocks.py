@@ -1,6 +1,6 @@
 """The block factors' data of a calibration (factors/point_to_plane.py): one block per fibre of p and
 window of block_controls control intervals of p (per window only when the intrinsics are not estimated),
-successive windows merged up to MIN_BLOCK_ROWS pairs, at most MAX_BLOCK_ROWS pairs each, with each pair's sigma."""
+the fibres of a window merged up to MIN_BLOCK_ROWS pairs, at most MAX_BLOCK_ROWS pairs each, with each pair's sigma."""
 
 from __future__ import annotations
 
@@ -94,27 +94,29 @@ def pose_sigma_m(data: ReturnData, estimate: Estimate, pairs: Correspondences) -
 
 def block_rows(fibre_p: np.ndarray, window: np.ndarray, min_rows: int = MIN_BLOCK_ROWS,
                max_rows: int = MAX_BLOCK_ROWS) -> list[np.ndarray]:
-    """Pair indices of each block: the pairs of one fibre of p and one window of p's control intervals,
-    successive windows of a fibre merged until a block holds at least min_rows pairs (a long drive spreads
-    the capped pairs thin over its windows: without merging, its blocks, each one Python callback, would grow
-    in number with the drive and shrink in rows), in chunks of at most max_rows."""
+    """Pair indices of each block: the pairs of one fibre of p and one window of p's control intervals, the
+    fibres of one window merged in elevation-index order until a block holds at least min_rows pairs (a long
+    drive spreads the capped pairs thin over its windows: without merging, its blocks, each one Python
+    callback, would grow in number with the drive and shrink in rows; merging windows instead would tie every
+    control of a block to every other in its compressed factor, and the graph's elimination with them), in
+    chunks of at most max_rows."""
     if not len(fibre_p):
         return []
-    group = fibre_p.astype(np.int64) * (int(window.max()) + 1) + window
+    group = window.astype(np.int64) * (int(fibre_p.max()) + 1) + fibre_p
     order = np.argsort(group, kind="stable")
     bounds = np.flatnonzero(np.r_[True, np.diff(group[order]) != 0, True])
-    fibre_of = fibre_p[order[bounds[:-1]]]
     blocks = []
-    for start, stop in _merged(bounds, fibre_of, min_rows):
+    for start, stop in _merged(bounds, window[order[bounds[:-1]]], min_rows):
         blocks += np.array_split(order[start:stop], -(-(stop - start) // max_rows))
     return blocks
 
 
-def _merged(bounds: np.ndarray, fibre_of: np.ndarray, min_rows: int) -> list[tuple[int, int]]:
-    """(start, stop) of the merged groups: successive groups (rows bounds[k]:bounds[k + 1], of fibre fibre_of[k])
-    of one fibre joined until they hold min_rows rows; a fibre's short remainder joins its last span."""
+def _merged(bounds: np.ndarray, window_of: np.ndarray, min_rows: int) -> list[tuple[int, int]]:
+    """(start, stop) of the merged groups: successive groups (rows bounds[k]:bounds[k + 1], of window
+    window_of[k]) of one window joined until they hold min_rows rows; a window's short remainder joins its
+    last span."""
     spans: list[tuple[int, int]] = []
-    ends = np.flatnonzero(np.r_[fibre_of[1:] != fibre_of[:-1], True])  # each fibre's last group
+    ends = np.flatnonzero(np.r_[window_of[1:] != window_of[:-1], True])  # each window's last group
     first = 0
     for last in ends:
         start, own = int(bounds[first]), len(spans)
