@@ -39,6 +39,8 @@ def _case(folder: str, queue) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--millions", type=float, nargs="+", default=[4.0, 40.0], help="returns of each case [M]")
+    parser.add_argument("--keep", help="folder where the simulated recordings are kept and found again (default: a "
+                                       "temporary folder, simulated each run)")
     args = parser.parse_args()
     from tools.foreign_sim import simulate
 
@@ -48,9 +50,11 @@ def main() -> None:
         duration_s = max(16.0, millions * 1e6 / FIRINGS_PER_S)
         size = min(1.0, millions * 1e6 / (FIRINGS_PER_S * duration_s))
         with tempfile.TemporaryDirectory() as folder:
-            simulate("box_street", Path(folder) / "r", duration_s=duration_s, size=size, seed=4, mount="tilted")
+            recording = Path(args.keep or folder) / f"box_street_{millions:g}M"
+            if not (recording / "recording.yaml").exists():
+                simulate("box_street", recording, duration_s=duration_s, size=size, seed=4, mount="tilted")
             figures["cases"][f"{millions:g} M"] = {"duration_s": round(duration_s, 1), "size": round(size, 3),
-                                                   **run_in_process(_case, str(Path(folder) / "r"))}
+                                                   **run_in_process(_case, str(recording))}
     RESULTS.mkdir(exist_ok=True)
     report(figures, RESULTS / "diagnose_budget.json")
 
