@@ -4,7 +4,6 @@ the fibres of a window merged up to MIN_BLOCK_ROWS pairs, at most MAX_BLOCK_ROWS
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Iterator
 
 import numpy as np
@@ -124,9 +123,10 @@ def _merged(bounds: np.ndarray, window_of: np.ndarray, min_rows: int) -> list[tu
             if bounds[k + 1] - start >= min_rows:
                 spans.append((start, int(bounds[k + 1])))
                 start = int(bounds[k + 1])
-        if start < bounds[last + 1] and len(spans) > own:
-            spans[-1] = (spans[-1][0], int(bounds[last + 1]))
-        elif start < bounds[last + 1]:
-            spans.append((start, int(bounds[last + 1])))
+        stop = int(bounds[last + 1])
+        if start < stop and len(spans) > own:  # the remainder extends the window's last span
+            spans[-1] = (spans[-1][0], stop)
+        elif start < stop:  # or is the window's only one
+            spans.append((start, stop))
         first = last + 1
     return spans

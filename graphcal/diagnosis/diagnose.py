@@ -24,7 +24,7 @@ from factors.discrepancy import CHANNELS, REGRESSORS, Discrepancy, is_discrepanc
 from factors.effects import CANDIDATES, candidate
 from graphcal.common.atomic import atomic_path
 from graphcal.calibration.config import CalibrationConfig
-from graphcal.calibration.result import Calibration, CalibrationResult
+from graphcal.calibration.result import CalibrationResult
 from graphcal.diagnosis.fit import BLOCK_S, Fit, baseline, refit
 from graphcal.diagnosis.hypotheses import hypotheses
 from graphcal.diagnosis.hypothesis import (

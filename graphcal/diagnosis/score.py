@@ -34,14 +34,13 @@ from factors.discrepancy import is_discrepancy
 from factors.effects import candidate
 from factors.point_to_plane import jacobian_by_key, residuals
 from graphcal.calibration.association import Correspondences
-from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.observability import (
     CONTROL_NAMES,
     EXTRINSIC_NAMES,
     INTRINSIC_NAMES,
     tangent_to_axes,
 )
-from graphcal.calibration.returns import Estimate, ReturnData
+from graphcal.calibration.returns import Estimate
 from graphcal.calibration.keys import E
 from graphcal.calibration.problem import Problem
 from graphcal.diagnosis.context import EffectModel
