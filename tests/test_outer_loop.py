@@ -1,12 +1,14 @@
-"""The outer loop: its stopping rule on a J curve that has stopped falling (on_plateau), and its
-Levenberg-Marquardt on a badly scaled graph (levenberg_marquardt)."""
+"""The outer loop: its stopping rule on a J curve that has stopped falling (on_plateau), the step that
+switches phases and stops it (step_size), and its Levenberg-Marquardt on a badly scaled graph
+(levenberg_marquardt)."""
 
 import gtsam
 import numpy as np
 import pytest
 
 from graphcal.calibration.priors import HELD_SIGMA
-from graphcal.calibration.problem import levenberg_marquardt, on_plateau
+from graphcal.calibration.problem import levenberg_marquardt, on_plateau, step_size
+from graphcal.calibration.returns import Estimate
 
 # fine-phase J [cm^2] of sim6_turn at full size, joint_trajectory (session 7 benchmark): it stops
 # falling near 0.001 while the association's jitter keeps the largest step above tolerance_m
@@ -33,6 +35,28 @@ def test_a_flat_jittering_curve_stops_once_no_new_low_came_in_the_window():
 def test_too_few_iterations_never_stop():
     assert not on_plateau([1.0] * 6, 6, 0.01)
     assert on_plateau([1.0] * 7, 6, 0.01)
+
+
+def _moved(estimate, offset_m, control_steps_m):
+    """The estimate with every offset moved by offset_m and control k translated by control_steps_m[k] along y."""
+    corrections = tuple(c.compose(gtsam.Pose3(gtsam.Rot3(), [0.0, s, 0.0])) for c, s in zip(estimate.corrections,
+                                                                                            control_steps_m))
+    return Estimate(estimate.offsets + offset_m, estimate.extrinsic, corrections)
+
+
+def test_the_coarse_phase_judges_the_controls_by_their_median():
+    start = Estimate(np.zeros((4, 4)), gtsam.Pose3(gtsam.Rot3.Yaw(0.1), [1.0, 0.0, 2.0]),
+                     tuple(gtsam.Pose3() for _ in range(9)))
+    # two controls the coarse pairs barely reach step 8 cm; the others 2 mm; the intrinsics 3 mm
+    steps = np.r_[0.08, 0.08, np.full(7, 0.002)]
+    moved = _moved(start, 0.003, steps)
+    assert step_size(start, moved) == pytest.approx(0.08)
+    assert step_size(start, moved, "coarse") == pytest.approx(0.003)
+    # the median control itself decides once it is the largest
+    assert step_size(start, _moved(start, 0.001, np.full(9, 0.02)), "coarse") == pytest.approx(0.02)
+    # no controls (no trajectory estimated): the calibration's keys alone
+    bare = Estimate(start.offsets, start.extrinsic, ())
+    assert step_size(bare, Estimate(bare.offsets + 0.004, bare.extrinsic, ()), "coarse") == pytest.approx(0.004)
 
 
 def _overshooting_graph():

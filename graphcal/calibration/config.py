@@ -2,7 +2,7 @@
 features, weighting, priors, trajectory, stopping, static sensor), with defaults for a mapping drive.
 
 Lengths in m, angles in deg, times in s. Each stage runs a coarse phase (loose association, the gate
-opening from gate_start_m to gate_max_m) until the largest step falls below stopping.fine_below_m, then a
+opening from gate_start_m to gate_max_m) until its step falls below stopping.fine_below_m, then a
 fine phase (strict association: only clearly planar p and m on the same surface, a fixed gate) until the
 largest step falls below stopping.tolerance_m, J stops falling, or stopping.max_outer_iterations is
 reached. A settings file of the former flat layout is refused with the section each field moved to."""
@@ -155,8 +155,9 @@ class TrajectorySettings(BaseModel):
 
 
 class StoppingSettings(BaseModel):
-    """The outer loop: at most max_outer_iterations per stage (both phases); the fine phase from a largest
-    step below fine_below_m; converged when the largest step (m, or rad x 1 m) falls below tolerance_m or J
+    """The outer loop: at most max_outer_iterations per stage (both phases); the fine phase from a coarse
+    step below fine_below_m (the largest over the intrinsics and the extrinsic, the median over the trajectory's
+    controls: problem.step_size); converged when the largest step (m, or rad x 1 m) falls below tolerance_m or J
     makes no new low (by plateau_improvement) in plateau_iterations; each outer step damped by a prior at the
     current estimate (step_sigma_m, step_sigma_deg); lm_iterations Levenberg-Marquardt iterations per outer
     iteration (None: 2 when the pairs are re-made, 5 on fixed pairs); refuse_unconverged: a run that stops on
@@ -233,11 +234,15 @@ class CalibrationConfig(BaseModel):
     needs, intrinsics and extrinsic, plus trajectory corrections when the drive comes back to where it was;
     a static sensor's intrinsics, held by its checks), how many of the recording's returns to use
     (max_points, a seeded random subset; None: all: the pairs per fibre pair are capped, so more returns
-    mostly sharpen the normals), the seed of every random draw, and the sections."""
+    mostly sharpen the normals), how dense along the drive they must stay (points_per_s, returns a second:
+    when max_points spread over the whole drive would be thinner, they are drawn from spans of the drive at
+    that density, graphcal.recording.subset; None: over the whole drive however thin; not with trajectory
+    corrections, which need the whole drive), the seed of every random draw, and the sections."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
     mode: Mode = "auto"
     max_points: int | None = Field(1_000_000, ge=1000)
+    points_per_s: float | None = Field(None, gt=0)
     seed: int = 0
     association: AssociationSettings = AssociationSettings()
     features: FeatureSettings = FeatureSettings()

@@ -21,6 +21,7 @@ from graphcal.recording.poses import PoseTrack
 from graphcal.recording.range_noise import measured_range_noise_m, noisy
 from graphcal.recording.directory import Recording
 from graphcal.recording.sensor import SensorModel
+from graphcal.recording.subset import subset_rows
 from graphcal.recording.trajectory_noise import PoseNoise
 
 STATIC_BELOW_M = 1.0  # a sensor whose positions span less than this sees from one viewpoint ...
@@ -33,8 +34,9 @@ REVISIT_AFTER_S = 20.0  # ... at least this much earlier
 class ReturnData:
     """Per-return arrays (N) of the returns used (rows: their row in points.parquet), the control
     times [s], the head's range noise [m] (1-sigma; NaN: unknown), the recorded trajectory's white
-    noise (trajectory_noise.PoseNoise) and the nominal lever arm [m, body frame], which places the sensor
-    on the vehicle."""
+    noise (trajectory_noise.PoseNoise), the nominal lever arm [m, body frame], which places the sensor
+    on the vehicle, and the spans [s] (k, 2) of the drive the returns were drawn in (recording.subset; None:
+    the whole drive)."""
 
     sensor: SensorModel
     rows: np.ndarray
@@ -51,6 +53,7 @@ class ReturnData:
     range_noise_m: float
     pose_noise: PoseNoise = PoseNoise.none()
     lever_arm_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    spans_s: np.ndarray | None = None
 
     @property
     def one_viewpoint(self) -> bool:
@@ -101,13 +104,15 @@ class Estimate:
 
 def prepare(recording: Recording, control_interval_s: float, max_points: int | None = None,
             rng: np.random.Generator | None = None, control_times_s: np.ndarray | None = None,
-            range_noise_m: float | None = None) -> ReturnData:
-    """Read the returns (a random subset of max_points if given) and the INS pose at each one's
+            range_noise_m: float | None = None, points_per_s: float | None = None) -> ReturnData:
+    """Read the returns (a random subset of max_points if given, in spans of the drive at points_per_s returns
+    a second when the whole drive would be thinner: recording.subset.subset_rows) and the INS pose at each one's
     time; control times control_interval_s apart from the trajectory's first pose span them,
     unless given; the head's range noise [m] measured from the first returns (range_noise.measured_range_noise_m)
     unless given; the white noise left in the trajectory's poses (WorldTrajectory.pose_noise: none once smoothed out).
     points.parquet is read row group by row group: only the subset is held, whatever the recording's length."""
-    columns = _read_rows(recording, max_points, rng or np.random.default_rng(0))
+    rows, spans_s = subset_rows(recording.points, max_points, rng or np.random.default_rng(0), points_per_s)
+    columns = recording.points.take(["time", "fibre", "range", "azimuth"], rows) | {"rows": rows}
     if range_noise_m is None:  # firing order: the first row group's returns
         first = next(recording.points.iter_batches(["fibre", "range"]))
         range_noise_m = measured_range_noise_m(first["fibre"], first["range"])
@@ -124,17 +129,7 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
                       columns["range"].astype(np.float64), columns["azimuth"].astype(np.float64),
                       time, rotation.as_matrix(), position - origin, control, alpha, control_times, origin, range_noise_m,
                       recording.world.pose_noise,
-                      np.asarray(recording.extrinsic.lever_arm_m, dtype=np.float64))
-
-
-def _read_rows(recording: Recording, max_points: int | None, rng: np.random.Generator) -> dict[str, np.ndarray]:
-    """The rows (a seeded random subset of max_points, sorted; all when there are no more) of time, fibre, range
-    and azimuth, read batch by batch."""
-    n_rows = len(recording.points)
-    rows = np.arange(n_rows)
-    if max_points is not None and n_rows > max_points:
-        rows = np.sort(rng.choice(n_rows, max_points, replace=False))
-    return recording.points.take(["time", "fibre", "range", "azimuth"], rows) | {"rows": rows}
+                      np.asarray(recording.extrinsic.lever_arm_m, dtype=np.float64), spans_s)
 
 
 def heading_span_deg(R_world_body: np.ndarray) -> float:

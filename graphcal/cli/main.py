@@ -216,7 +216,7 @@ def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory
     """
     from graphcal.cli.runs import DiagnoseOptions, diagnosis_run
 
-    from graphcal.diagnosis.diagnose import default_max_points
+    from graphcal.diagnosis.diagnose import default_subset
     from graphcal.recording.directory import Recording
 
     if out is not None:
@@ -224,7 +224,7 @@ def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory
     how = DiagnoseOptions(simulation, rescan, max_effects, refit_iterations, open_world)
     # a settings file says how many returns; else the diagnosis's default subset
     settings = calibration_config(mode, config, None if config is not None else
-                                  {"max_points": default_max_points(Recording.load(recording))})
+                                  default_subset(Recording.load(recording)))
     run = diagnosis_run(recording, settings, how, out, spawn, viewer_points, quiet)
     if not quiet:
         typer.echo(run.diagnosis.summary())

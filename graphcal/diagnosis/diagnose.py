@@ -81,7 +81,7 @@ NAMED_SIGNATURE = {"range_scale": ("range", "range"), "incidence_range_bias": ("
 # pairs over the whole drive, not all its returns (benchmarks/results/diagnose_budget.json). At least
 # DIAGNOSE_MAX_POINTS, DIAGNOSE_POINTS_PER_S a second of drive (300 k over 16 s: a 64 s drive subsampled to 300 k,
 # four times sparser, got two false named findings, none with 1.2 M), at most DIAGNOSE_MAX_POINTS_CAP (the budget:
-# 1.2 M returns of a 43 M-return drive in 352 s, 2.1 GiB)
+# 1.2 M returns of a 43 M-return drive in 352 s, 2.1 GiB), beyond it in spans of the drive at that density
 DIAGNOSE_MAX_POINTS = 300_000
 DIAGNOSE_POINTS_PER_S = 19_000
 DIAGNOSE_MAX_POINTS_CAP = 1_500_000
@@ -295,28 +295,31 @@ def score_all(fit: Fit, names: list[str]) -> tuple[dict, dict, object]:
     return {n: scored[n] for n in names}, {n: scored[n] for n in fit.model.names}, lin
 
 
-def default_max_points(recording: Recording) -> int:
-    """The returns a diagnosis uses by default: DIAGNOSE_POINTS_PER_S a second of the recording's time span, within
-    [DIAGNOSE_MAX_POINTS, DIAGNOSE_MAX_POINTS_CAP] (points.parquet is in time order)."""
+def default_subset(recording: Recording) -> dict[str, float]:
+    """The returns a diagnosis uses by default (CalibrationConfig's max_points and points_per_s):
+    DIAGNOSE_POINTS_PER_S a second of the recording's time span, within [DIAGNOSE_MAX_POINTS,
+    DIAGNOSE_MAX_POINTS_CAP]; a drive longer than the cap holds is diagnosed on spans of it at that density
+    (points.parquet is in time order)."""
     n = len(recording.points)
     if n < 2:
-        return DIAGNOSE_MAX_POINTS
+        return {"max_points": DIAGNOSE_MAX_POINTS, "points_per_s": DIAGNOSE_POINTS_PER_S}
     time_s = recording.points.take(["time"], np.array([0, n - 1]))["time"]
     span_s = float(time_s[-1] - time_s[0])
-    return int(np.clip(DIAGNOSE_POINTS_PER_S * span_s, DIAGNOSE_MAX_POINTS, DIAGNOSE_MAX_POINTS_CAP))
+    return {"max_points": int(np.clip(DIAGNOSE_POINTS_PER_S * span_s, DIAGNOSE_MAX_POINTS, DIAGNOSE_MAX_POINTS_CAP)),
+            "points_per_s": DIAGNOSE_POINTS_PER_S}
 
 
 def diagnose(recording: Recording, config: CalibrationConfig | None = None, candidates: list[str] | None = None,
              max_effects: int = 3, refit_iterations: int = 4, quiet: bool = False,
              open_world: bool = True) -> Diagnosis:
     """Diagnose a recording against graphcal's model calibrated with config (default: joint intrinsics +
-    extrinsic on default_max_points returns). candidates: effect names to test (default: every one of
+    extrinsic on default_subset's returns). candidates: effect names to test (default: every one of
     factors.effects.CANDIDATES); open_world: also a generic discrepancy of every channel against every
     regressor, reported as `discovered` when it explains the residuals better than every named effect (False:
     the named candidates only). At most
     max_effects are added, each re-solved with refit_iterations outer iterations."""
     started = time.perf_counter()
-    config = config or CalibrationConfig(mode="joint", max_points=default_max_points(recording))
+    config = config or CalibrationConfig(mode="joint", **default_subset(recording))
     if config.weighting.pair_noise is None:  # the tests read the whitened costs back in cm2 with sigma0 (score.Linearisation)
         config = config.with_settings(weighting={"pair_noise": "uniform"})
     fit, result = baseline(recording, config, quiet=quiet)
