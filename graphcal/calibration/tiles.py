@@ -15,7 +15,7 @@ or in which order, the tiles run.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -50,6 +50,8 @@ class Tiling:
     tile_m: float
     margin_m: float
     task_map: TaskMap = IN_PROCESS
+    # the last cloud's tiles (an outer iteration cuts the same cloud for its features and for its pairs)
+    _last: list = field(default_factory=list, compare=False, repr=False)
 
     def __post_init__(self):
         if not 0 < self.margin_m < self.tile_m:
@@ -65,7 +67,9 @@ class Tiling:
         return cls(association.tile_m, reach_m + 2 * PROXY_REACH_M, task_map)
 
     def tiles(self, points_m: np.ndarray) -> list[Tile]:
-        """The tiles that hold returns, in key order."""
+        """The tiles that hold returns, in key order (kept for the last cloud cut: the same array object)."""
+        if self._last and self._last[0] is points_m:
+            return self._last[1]
         key = np.floor(points_m[:, :2] / self.tile_m).astype(np.int64)
         order = np.lexsort((key[:, 1], key[:, 0]))
         keys, starts = np.unique(key[order], axis=0, return_index=True)
@@ -79,6 +83,7 @@ class Tiling:
             xy = points_m[near, :2]
             halo = np.sort(near[np.all((xy >= lo) & (xy < hi), axis=1)])
             out.append(Tile((kx, ky), core, halo, np.searchsorted(halo, core)))
+        self._last[:] = [points_m, out]
         return out
 
     def features(self, points_m: np.ndarray, settings: FeatureSettings) -> Features:
@@ -98,9 +103,11 @@ class Tiling:
         """associate's pairs for the candidate p's, tile by tile: each tile pairs the candidates of its core,
         at most gates.most per fibre pair in proportion to its share of the candidates."""
         tiles = self.tiles(cloud.points_m)
+        is_candidate = np.zeros(len(cloud.points_m), bool)
+        is_candidate[candidates] = True
         jobs = []
         for tile in tiles:
-            local = np.searchsorted(tile.halo, np.intersect1d(candidates, tile.core, assume_unique=True))
+            local = np.searchsorted(tile.halo, tile.core[is_candidate[tile.core]])  # the core's candidates, sorted
             most = None if gates.most is None else max(math.ceil(gates.most * len(local) / max(len(candidates), 1)), 1)
             sight = None if cloud.sight is None else cloud.sight.take(tile.halo)
             jobs.append((PairCloud(cloud.points_m[tile.halo], cloud.fibre[tile.halo], cloud.features.take(tile.halo),

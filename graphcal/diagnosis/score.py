@@ -250,14 +250,15 @@ class CandidateTest:
     sigma0_m: float = 1.0
     held_out_se_cm2: float = np.inf
 
-    def significant(self, n_candidates: int, alpha: float = ALPHA) -> bool:
+    def significant(self, n_candidates: int, alpha: float = ALPHA, floor_sigma0: float | None = None) -> bool:
         """Bonferroni over the candidates, a positive BIC gain, confirmed on held-out data (held-out J
         drops by more than the drop's standard error across the held-out time blocks: with millions of
         returns a lower held-out J alone is found everywhere), and large enough to matter: it explains at
-        least floor_sigma0 of sigma0."""
+        least floor_sigma0 of sigma0 (None: the candidate's own, self.floor_sigma0)."""
+        floor = self.floor_sigma0 if floor_sigma0 is None else floor_sigma0
         return bool(self.p_value < alpha / max(n_candidates, 1) and self.bic_gain > 0
                     and self.held_out_cm2[0] - self.held_out_cm2[1] > self.held_out_se_cm2
-                    and self.explained_rms_m >= self.floor_sigma0 * self.sigma0_m)
+                    and self.explained_rms_m >= floor * self.sigma0_m)
 
     @property
     def floor_sigma0(self) -> float:

@@ -1,0 +1,42 @@
+"""Which model of a channel's structure a finding takes (diagnose.generic_if_better): the named winner, or a
+generic discrepancy of its channel that explains the structure better, from test figures made up here."""
+
+import numpy as np
+
+from graphcal.diagnosis.diagnose import generic_if_better
+from graphcal.diagnosis.score import CandidateTest
+
+SIGMA0_M = 0.01
+
+
+def _test(name: str, statistic: float, dof: int, explained_m: float) -> CandidateTest:
+    return CandidateTest(name, dof, statistic, 1e-20, statistic, np.zeros(dof), np.eye(dof), 0.0, 0.0, 0.0, 0.1, [],
+                         (1.0, 0.99), n_clusters=100, explained_rms_m=explained_m, sigma0_m=SIGMA0_M,
+                         held_out_se_cm2=0.001)
+
+
+RANGE_SCALE = _test("range_scale", 398.0, 1, 0.00062)
+RANGE_TIME = "range~time/8/1:2:3:4:5:6:7"  # a discrepancy of the range against the time along the drive
+
+
+def test_a_rival_of_the_channel_that_gains_and_explains_more_takes_the_finding():
+    rival = _test(RANGE_TIME, 608.0, 8, 0.00084)
+    assert not rival.significant(10) and rival.significant(10, floor_sigma0=0.01)  # below the discovery floor only
+    assert generic_if_better(RANGE_SCALE, [RANGE_SCALE], [rival]) is rival
+
+
+def test_the_named_winner_stays_against_weaker_or_foreign_rivals():
+    explains_less = _test(RANGE_TIME, 608.0, 8, 0.0005)
+    gains_less = _test(RANGE_TIME, 390.0, 8, 0.0009)  # BIC gain 390 - 8 ln 100 < 398 - ln 100
+    other_channel = _test("elevation~time/8/1:2:3:4:5:6:7", 900.0, 8, 0.002)
+    for rival in (explains_less, gains_less, other_channel):
+        assert generic_if_better(RANGE_SCALE, [RANGE_SCALE], [rival]) is RANGE_SCALE
+    unsigned = _test("time_offset", 398.0, 1, 0.00062)  # no channel and regressor of its own: never replaced
+    assert generic_if_better(unsigned, [unsigned], [_test(RANGE_TIME, 608.0, 8, 0.00084)]) is unsigned
+
+
+def test_the_own_regressors_discrepancy_needs_to_be_eligible_and_to_gain_more():
+    own = _test("range~range/8/1:2:3:4:5:6:7", 600.0, 8, 0.0015)
+    assert generic_if_better(RANGE_SCALE, [RANGE_SCALE, own]) is own
+    weak = _test("range~range/8/1:2:3:4:5:6:7", 300.0, 8, 0.0015)
+    assert generic_if_better(RANGE_SCALE, [RANGE_SCALE, weak]) is RANGE_SCALE
