@@ -44,6 +44,16 @@ def monterey_recording(tmp_path_factory):
     return import_pcap(MONTEREY, tmp_path_factory.mktemp("monterey") / "rec", quiet=True)
 
 
+def city_drive(folder: Path, duration_s: float, size: float, seed: int):
+    """A city_loop drive of duration_s [s] at size, simulated to disk (truth/ beside it) and loaded."""
+    from graphcal.recording.directory import Recording
+    from graphcal.simulation.script import load_scenario_builder
+    from graphcal.simulation.simulator import simulate_to
+
+    simulate_to(load_scenario_builder("city_loop")(duration_s=duration_s, size=size, seed=seed), folder, quiet=True)
+    return Recording.load(folder)
+
+
 def level_box_street(folder: Path, duration_s: float) -> Path:
     """A recording of tools/foreign_sim: a level head in a box street with cars and poles, 1 cm range noise, a
     5 mm / 0.005 deg white INS (the ordinary mapping car), duration_s [s] of its drive."""

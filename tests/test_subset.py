@@ -6,6 +6,7 @@ import pytest
 
 from graphcal.recording.points import PointTable
 from graphcal.recording.subset import MIN_SPAN_S, rows_before, spread_spans_s, subset_rows
+from conftest import city_drive
 
 
 def _drive(duration_s=300.0, per_s=1000):
@@ -63,13 +64,7 @@ def test_a_drive_no_denser_than_asked_is_drawn_whole_as_without_a_density():
 
 @pytest.fixture(scope="module")
 def city_minute(tmp_path_factory):
-    from graphcal.recording.directory import Recording
-    from graphcal.simulation.script import load_scenario_builder
-    from graphcal.simulation.simulator import simulate_to
-
-    folder = tmp_path_factory.mktemp("city") / "drive"
-    simulate_to(load_scenario_builder("city_loop")(duration_s=40.0, size=0.005, seed=2), folder, quiet=True)
-    return Recording.load(folder)
+    return city_drive(tmp_path_factory.mktemp("city") / "drive", 40.0, 0.005, 2)
 
 
 def test_a_calibration_without_trajectory_reads_spans_and_one_with_it_refuses(city_minute):

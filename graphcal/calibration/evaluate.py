@@ -28,6 +28,9 @@ from graphcal.clouds.metrics import DistanceStats, cloud_to_cloud
 from graphcal.recording.directory import Recording
 
 
+REFERENCE_MAX_POINTS = 20_000_000  # evaluate's true cloud: all of it up to this many returns, else a subset
+
+
 def apply_calibration(calibration: Calibration, recording: Recording) -> np.ndarray:
     """World coordinates [m, the recording's projected CRS] of every return with the
     calibration's offsets, extrinsic and trajectory corrections (interpolated at each return's
@@ -167,19 +170,22 @@ def intrinsic_rms(offsets: np.ndarray, truth: np.ndarray, reference_fibre: int) 
 def evaluate(result: CalibrationResult | Calibration, recording: Recording, max_points: int = 500_000,
              seed: int = 0) -> Evaluation:
     """Compare with truth/ (simulated recordings only). Cloud distances on a random subset of
-    max_points returns (seeded) against the whole true cloud. A Calibration alone (read from
-    calibration.yaml) has no J: energy_cm2 is then NaN."""
+    max_points returns (seeded, the only returns read) against the whole true cloud, or against a seeded
+    subset of REFERENCE_MAX_POINTS of it for a longer recording (its spacing then adds to the distances). A
+    Calibration alone (read from calibration.yaml) has no J: energy_cm2 is then NaN."""
     truth = recording.truth
     if truth is None:
         raise GraphcalError(f"{recording.path or recording.name}: no truth/ folder, nothing to evaluate against")
     cal = result if isinstance(result, Calibration) else result.calibration
     energy = (np.nan, np.nan) if isinstance(result, Calibration) else result.energy_cm2
     sensor = recording.sensor
-    reference_cloud = truth.world_points()
-    rows = np.random.default_rng(seed).choice(len(reference_cloud), min(max_points, len(reference_cloud)), replace=False)
-    data = returns_for(cal, recording)  # read once, georeferenced only at the sampled rows
-    nominal_cloud = world_of(nominal_calibration(recording), data, rows)
-    after_cloud = world_of(cal, data, rows)
+    n_returns = len(recording.points)
+    reference_cloud = truth.world_points() if n_returns <= REFERENCE_MAX_POINTS else truth.world_points_at(np.sort(
+        np.random.default_rng(seed + 1).choice(n_returns, REFERENCE_MAX_POINTS, replace=False)))
+    data = returns_for(cal, recording, max_points, seed)  # the sampled returns only
+    true_cloud = truth.world_points_at(data.rows)
+    nominal_cloud = world_of(nominal_calibration(recording), data)
+    after_cloud = world_of(cal, data)
     true_R, true_t = truth.extrinsic.R_body_lidar, np.asarray(truth.extrinsic.lever_arm_m)
     ext = cal.estimate.extrinsic
     nominal = recording.extrinsic
@@ -191,8 +197,8 @@ def evaluate(result: CalibrationResult | Calibration, recording: Recording, max_
         seen = [f"extrinsic.lever_arm_{axis}_m" not in result.unobservable for axis in "xyz"]
         return float(np.linalg.norm((np.asarray(t) - true_t)[seen]))
 
-    offset = np.mean(after_cloud - reference_cloud[rows], axis=0)
-    gauge_free = remove_gauge(after_cloud, reference_cloud[rows], cal.unobservable)
+    offset = np.mean(after_cloud - true_cloud, axis=0)
+    gauge_free = remove_gauge(after_cloud, true_cloud, cal.unobservable)
     return Evaluation(
         intrinsic_rms(np.zeros_like(truth.intrinsics), truth.intrinsics, sensor.reference_fibre),
         intrinsic_rms(cal.estimate.offsets, truth.intrinsics, sensor.reference_fibre),

@@ -14,7 +14,7 @@ import pyarrow.parquet as pq
 from graphcal.common.atomic import atomic_path
 from graphcal.recording.extrinsic import Extrinsic
 from graphcal.recording.intrinsics import load_offsets_csv, save_offsets_csv
-from graphcal.recording.points import row_group_writer
+from graphcal.recording.points import PointTable, row_group_writer
 from graphcal.recording.trajectory import Trajectory
 from graphcal.common.yamlfile import read_yaml, write_yaml
 
@@ -61,6 +61,14 @@ class Truth:
             table = pq.read_table(self._directory / WORLD_POINTS)
             self._world_points = np.column_stack([table.column(n).to_numpy() for n in "xyz"])
         return self._world_points
+
+    def world_points_at(self, rows: np.ndarray) -> np.ndarray:
+        """(len(rows),3) true world xyz [m] of the given returns (sorted rows of points.parquet), read batch by
+        batch when on disk: only those rows are held, whatever the recording's length."""
+        if self._world_points is not None or self._directory is None:
+            return self.world_points()[rows]
+        columns = PointTable.open(self._directory / WORLD_POINTS).take(list("xyz"), rows)
+        return np.column_stack([columns[n] for n in "xyz"])
 
     def moving(self) -> np.ndarray:
         """(N,) bool: the return is on a moving object of the traffic (all False for a scene without one)."""
