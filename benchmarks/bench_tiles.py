@@ -3,7 +3,9 @@ graphcal.calibration.tiles) in one process, and on Dask LocalClusters of one and
 
 A recording of the independent simulator (tools/foreign_sim, relief_street, tilted mount) is calibrated's
 input: the returns a calibration uses (max_points), placed at the nominal calibration. Each configuration runs
-the stage `repeats` times (the first, which starts the workers and ships the code, is reported apart). Prints
+the stage `repeats` times (the first, which starts the workers and ships the code, is reported apart). In
+process, each tile's job is timed too: their sum and the largest are the part a cluster can spread (two workers
+take at least the larger of half the sum and the largest job), the rest of the stage runs on the driver. Prints
 the figures and writes benchmarks/results/tiles.json. The speed-up target: two workers at least 1.7x one.
 """
 
@@ -20,6 +22,23 @@ from common import machine, peak_gib, report
 
 RESULTS = Path(__file__).resolve().parent / "results"
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools.foreign_sim, from the checkout
+
+
+class TimedInProcess:
+    """graphcal.common.cluster's in-process TaskMap, timing each job [s]."""
+
+    workers = 1
+
+    def __init__(self):
+        self.seconds = []
+
+    def __call__(self, function, jobs):
+        out = []
+        for job in jobs:
+            started = time.perf_counter()
+            out.append(function(job))
+            self.seconds.append(time.perf_counter() - started)
+        return out
 
 
 def main() -> None:
@@ -46,9 +65,10 @@ def main() -> None:
         recording = Recording.load(Path(folder) / "r")
         config = CalibrationConfig(mode="joint", max_points=args.max_points, association={"tile_m": args.tile_m})
         figures["returns"] = len(recording.points)
+        timed = TimedInProcess()
         for address in (None, "local:1", "local:2"):
             with open_task_map(address) as task_map:
-                pipeline = CalibrationPipeline(recording, config, True, task_map)
+                pipeline = CalibrationPipeline(recording, config, True, timed if address is None else task_map)
                 problem = pipeline.problem
                 points = problem.points(pipeline.estimate)
                 seconds = []
@@ -62,6 +82,10 @@ def main() -> None:
                 figures[address or "in process"] = {
                     "tiles": len(problem.tiling.tiles(points)), "returns used": len(points), "pairs": len(pairs),
                     "first s": round(seconds[0], 2), "then s (median)": round(float(np.median(seconds[1:])), 2)}
+                if address is None:  # the jobs of one repeat: features then pairs, one of each a tile
+                    jobs = np.array(timed.seconds[-2 * len(problem.tiling.tiles(points)):])
+                    figures["in process"] |= {"tile jobs s (sum)": round(float(jobs.sum()), 2),
+                                              "largest tile job s": round(float(jobs.max()), 2)}
         one, two = figures["local:1"]["then s (median)"], figures["local:2"]["then s (median)"]
         figures["speed-up, two workers over one"] = round(one / two, 2)
         figures["peak GiB (driver)"] = round(peak_gib(), 2)
