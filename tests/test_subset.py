@@ -29,6 +29,15 @@ def test_spans_hold_the_total_spread_evenly():
     assert spread_spans_s(0.0, 30.0, 40.0).tolist() == [[0.0, 30.0]]
 
 
+def test_the_time_span_is_read_from_the_first_and_last_row_groups(monkeypatch, tmp_path):
+    monkeypatch.setattr("graphcal.recording.points.BATCH_ROWS", 777)
+    points = _drive(60.0, 100)
+    points.save(tmp_path / "points.parquet")
+    saved = PointTable.open(tmp_path / "points.parquet")
+    time_s = points.read(["time"])["time"]
+    assert saved.time_span_s() == points.time_span_s() == (time_s[0], time_s[-1])
+
+
 def test_rows_before_counts_across_batches(monkeypatch):
     monkeypatch.setattr("graphcal.recording.points.BATCH_ROWS", 777)
     points = _drive(60.0, 100)

@@ -180,10 +180,15 @@ def evaluate(result: CalibrationResult | Calibration, recording: Recording, max_
     energy = (np.nan, np.nan) if isinstance(result, Calibration) else result.energy_cm2
     sensor = recording.sensor
     n_returns = len(recording.points)
-    reference_cloud = truth.world_points() if n_returns <= REFERENCE_MAX_POINTS else truth.world_points_at(np.sort(
-        np.random.default_rng(seed + 1).choice(n_returns, REFERENCE_MAX_POINTS, replace=False)))
     data = returns_for(cal, recording, max_points, seed)  # the sampled returns only
-    true_cloud = truth.world_points_at(data.rows)
+    if n_returns <= REFERENCE_MAX_POINTS:
+        reference_cloud = truth.world_points()
+        true_cloud = reference_cloud[data.rows]
+    else:  # the reference's rows and the sampled ones, in one pass over truth/points.parquet
+        reference_rows = np.sort(np.random.default_rng(seed + 1).choice(n_returns, REFERENCE_MAX_POINTS, replace=False))
+        rows = np.union1d(reference_rows, data.rows)
+        read = truth.world_points_at(rows)
+        reference_cloud, true_cloud = (read[np.searchsorted(rows, wanted)] for wanted in (reference_rows, data.rows))
     nominal_cloud = world_of(nominal_calibration(recording), data)
     after_cloud = world_of(cal, data)
     true_R, true_t = truth.extrinsic.R_body_lidar, np.asarray(truth.extrinsic.lever_arm_m)

@@ -314,8 +314,8 @@ def default_subset(recording: Recording) -> dict[str, float]:
     n = len(recording.points)
     if n < 2:
         return {"max_points": DIAGNOSE_MAX_POINTS, "points_per_s": DIAGNOSE_POINTS_PER_S}
-    time_s = recording.points.take(["time"], np.array([0, n - 1]))["time"]
-    span_s = float(time_s[-1] - time_s[0])
+    first_s, last_s = recording.points.time_span_s()
+    span_s = last_s - first_s
     return {"max_points": int(np.clip(DIAGNOSE_POINTS_PER_S * span_s, DIAGNOSE_MAX_POINTS, DIAGNOSE_MAX_POINTS_CAP)),
             "points_per_s": DIAGNOSE_POINTS_PER_S}
 

@@ -191,6 +191,17 @@ class PointTable:
             start += n
         return {name: np.concatenate([part[name] for part in parts]) for name in columns}
 
+    def time_span_s(self) -> tuple[float, float]:
+        """(first, last) time [s] of the returns (points.parquet is in time order): from the first and the last
+        row group only. Needs at least one return."""
+        if self._file is None:
+            return float(self._arrays["time"][0]), float(self._arrays["time"][-1])
+        filled = [k for k in range(self._file.num_row_groups) if self._file.metadata.row_group(k).num_rows]
+        with self._readable():
+            first = self._file.read_row_group(filled[0], columns=["time"]).column("time")
+            last = self._file.read_row_group(filled[-1], columns=["time"]).column("time")
+        return float(first[0].as_py()), float(last[-1].as_py())
+
     def iter_batches(self, columns: Sequence[str], batch_rows: int | None = None) -> Iterator[dict[str, np.ndarray]]:
         """Row batches of the given columns, so that no more than batch_rows rows are in memory
         (BATCH_ROWS, read at call time, when not given)."""

@@ -42,8 +42,8 @@ def subset_rows(points: PointTable, max_points: int | None, rng: np.random.Gener
         return np.arange(n_rows), None
     spans_s = None
     if points_per_s is not None:
-        first_s, last_s = points.take(["time"], np.array([0, n_rows - 1]))["time"]
-        spans_s = spread_spans_s(float(first_s), float(last_s), max_points / points_per_s)
+        first_s, last_s = points.time_span_s()
+        spans_s = spread_spans_s(first_s, last_s, max_points / points_per_s)
         spans_s = None if spans_s[0, 0] <= first_s and spans_s[-1, 1] >= last_s else spans_s
     if spans_s is None:
         return np.sort(rng.choice(n_rows, max_points, replace=False)), None
