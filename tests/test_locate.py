@@ -28,7 +28,7 @@ def _fit(rng):
                            time_s=np.r_[time_s, time_s], sensor=SimpleNamespace(rotation_hz=10.0))
     context = SimpleNamespace(velocity=np.tile([8.0, 0, 0], (2 * N, 1)), omega=np.zeros((2 * N, 3)),
                               sweep_s=data.azimuth_rad / (2 * np.pi * 10.0), elapsed_s=data.time_s,
-                              cos_incidence=np.ones(2 * N))
+                              cos_incidence=np.ones(2 * N), range_m=data.range_m)
     pairs = SimpleNamespace(index_p=index, index_m=index + N, normal=-beam)  # normals of either sign
     cluster = (time_s / 0.05).astype(int)
     return SimpleNamespace(data=data, pairs=pairs, points_m=points, model=SimpleNamespace(context=context),

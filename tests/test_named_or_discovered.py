@@ -40,3 +40,19 @@ def test_the_own_regressors_discrepancy_needs_to_be_eligible_and_to_gain_more():
     assert generic_if_better(RANGE_SCALE, [RANGE_SCALE, own]) is own
     weak = _test("range~range/8/1:2:3:4:5:6:7", 300.0, 8, 0.0015)
     assert generic_if_better(RANGE_SCALE, [RANGE_SCALE, weak]) is RANGE_SCALE
+
+
+def test_a_discrepancy_that_finds_nothing_beyond_the_named_physics_leaves_it_named():
+    """beyond(name): the discrepancy's test with the named winner in its base. A curve that holds the named
+    function gains at least what it gains; the finding is discovered only where something is left."""
+    own = _test("range~range/8/1:2:3:4:5:6:7", 600.0, 8, 0.0015)
+    rival = _test(RANGE_TIME, 608.0, 8, 0.00084)
+    nothing_left = _test("left", 9.0, 8, 0.00005)
+    structure_left = _test("left", 250.0, 8, 0.0005)
+    assert not nothing_left.significant(10, floor_sigma0=0.01) and structure_left.significant(10, floor_sigma0=0.01)
+    for finding, eligible, rivals in ((own, [RANGE_SCALE, own], []), (rival, [RANGE_SCALE], [rival])):
+        assert generic_if_better(RANGE_SCALE, eligible, rivals, lambda name: nothing_left, 10) is RANGE_SCALE
+        assert generic_if_better(RANGE_SCALE, eligible, rivals, lambda name: structure_left, 10) is finding
+    asked = []
+    generic_if_better(RANGE_SCALE, [RANGE_SCALE], [rival], lambda name: asked.append(name) or structure_left, 10)
+    assert asked == [RANGE_TIME]

@@ -22,7 +22,7 @@ from factors.effects import CANDIDATES, candidate
 from factors.world_point import Corrections, Placed, Turn, world_normals, world_points
 from graphcal.calibration.association import Features
 from graphcal.calibration.config import CalibrationConfig
-from graphcal.calibration.returns import Estimate, initial_estimate, prepare, world_at
+from graphcal.calibration.returns import Estimate, initial_estimate, prepare, sight_at, world_at
 from graphcal.calibration.pairing import features_at
 from graphcal.diagnosis.context import EffectModel, ReturnContext, world_with_effects
 from graphcal.diagnosis.diagnose import (
@@ -71,7 +71,7 @@ def compare(recording: Recording, simulation: Recording, max_points: int | None 
     sim_tree = cKDTree(sim_points)
     rows, nearest, normal = _paired(points, sim_tree, features)
     context = ReturnContext.of(data, recording.world.poses, points, Features(normal, *(np.zeros(len(points)),) * 4),
-                               estimate.extrinsic.translation())
+                               estimate.extrinsic.translation(), sight_at(data, with_controls(estimate, data), points))
     names = list(candidates or CANDIDATES)
     estimate = with_controls(estimate, data)
     r, J, columns = _linear_system(data, estimate, context, names, rows, normal[rows], sim_points[nearest[rows]])

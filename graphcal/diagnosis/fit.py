@@ -13,7 +13,7 @@ from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.observability import TRAJECTORY_GAUGE
 from graphcal.calibration.problem import History, Problem, energy_cm2
 from graphcal.calibration.result import CalibrationResult
-from graphcal.calibration.returns import Estimate, ReturnData
+from graphcal.calibration.returns import Estimate, ReturnData, sight_at
 from graphcal.diagnosis.context import EffectModel, ReturnContext
 from graphcal.recording.directory import Recording
 
@@ -80,8 +80,8 @@ def _associated(recording: Recording, problem: Problem, estimate: Estimate, mode
     features = problem.cache.at(points)[0]
     pairs = problem.associate(estimate, points, features)
     if model is None:
-        context = ReturnContext.of(problem.full, recording.world.poses, points, features,
-                                   estimate.extrinsic.translation(), recorded_intensity(recording, problem.full.rows))
+        context = ReturnContext.of(problem.full, recording.world.poses, points, features, estimate.extrinsic.translation(),
+                                   sight_at(problem.full, estimate, points), recorded_intensity(recording, problem.full.rows))
         model = EffectModel((), {}, context)
     return Fit(recording, replace(problem, effects=None), estimate, model, points, features, pairs)
 

@@ -23,7 +23,7 @@ MIN_EFFECT_CM = 0.1  # smaller bin means are reported as nothing, however signif
 
 
 def regressors(fit) -> dict[str, np.ndarray]:
-    """Per pair (the values at p): name -> (K,) regressor."""
+    """Per pair (the values at p): name -> (K,) regressor; the range is the stand-in's (ReturnContext.range_m)."""
     data, p = fit.data, fit.pairs.index_p
     context = fit.model.context
     speed = np.linalg.norm(context.velocity[p], axis=1)
@@ -34,7 +34,7 @@ def regressors(fit) -> dict[str, np.ndarray]:
             "sweep_fraction": context.sweep_s[p] * data.sensor.rotation_hz,
             "time_s": context.elapsed_s[p],
             "distance_m": distance[p],
-            "range_m": data.range_m[p],
+            "range_m": context.range_m[p],
             "incidence_deg": np.degrees(np.arccos(context.cos_incidence[p])),
             "speed_m_s": speed,
             "yaw_rate_deg_s": np.degrees(context.omega[p, 2]),
