@@ -56,3 +56,13 @@ def test_a_discrepancy_that_finds_nothing_beyond_the_named_physics_leaves_it_nam
     asked = []
     generic_if_better(RANGE_SCALE, [RANGE_SCALE], [rival], lambda name: asked.append(name) or structure_left, 10)
     assert asked == [RANGE_TIME]
+
+
+def test_the_time_offset_gives_way_to_a_time_curve_with_a_shape():
+    """A time curve is eligible only for its shape beyond the time offset (diagnose.shape_only): the shape is
+    found first, the offset, the curve's mean, next."""
+    offset = _test("time_offset", 900.0, 1, 0.003)
+    shaped = _test("time~fibre/31/0:31", 700.0, 31, 0.002)
+    assert generic_if_better(offset, [offset, shaped]) is shaped
+    assert generic_if_better(offset, [offset]) is offset
+    assert generic_if_better(offset, [offset, _test(RANGE_TIME, 700.0, 8, 0.002)]) is offset  # another channel's

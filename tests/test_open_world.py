@@ -3,7 +3,7 @@ scenarios/unlisted.py's head that nods twice a turn (its elevation a sinusoid of
 concealed courtyard with 1 cm range noise and surfaces of varied reflectivity. The finder has no candidate for
 it (tests/test_effect_registry.py checks its name appears nowhere in the finder); it must find the right
 channel and regressor, a curve of the right shape, and a lower held-out J. The other unlisted effects and their
-figures at larger sizes: benchmarks.md."""
+figures at larger sizes: benchmarks.md. A recording with the nod and a named effect together gets both."""
 
 import numpy as np
 import pytest
@@ -87,3 +87,20 @@ def test_the_report_shows_the_discovered_curve(wobble, tmp_path):
     assert "Discovered: elevation against azimuth" in page and "data:image/png;base64," in page
     assert wobble.findings[0]["hypotheses"][0] in page
     assert page.count("<tr>") == (len(wobble.candidates) + 1) + (4 + 1)  # the candidates and the header, with heads
+
+
+def test_a_named_and_an_unlisted_effect_together_are_both_found():
+    """The nodding head beside a 5 ms lidar-INS latency (a named candidate): the latency is named and sized, the
+    nod discovered on its channel and regressor, in either order."""
+    rec = graphcal.simulate(UNLISTED_SCENARIO(size=0.03, seed=0, effect="head_wobble", named="time_offset"), quiet=True)
+    config = CalibrationConfig(mode="joint", max_points=60_000, stopping={
+        "max_outer_iterations": 3, "tolerance_m": 1e-3, "refuse_unconverged": False})
+    diagnosis = graphcal.diagnose(rec, config, max_effects=2, refit_iterations=2, quiet=True, open_world=True)
+    by_effect = {f["effect"]: f for f in diagnosis.findings}
+    assert set(by_effect) == {"time_offset", "discovered"}, diagnosis.summary()
+    assert by_effect["time_offset"]["magnitude"] == pytest.approx(0.005, rel=0.2)
+    discovered = by_effect["discovered"]
+    assert (discovered["channel"], discovered["regressor"]) == ("elevation", "azimuth")
+    # twice 0.06 deg peak to peak, the true nod's
+    assert discovered["magnitude"] == pytest.approx(0.12, rel=0.35)
+    assert discovered["energy_cm2"]["held_out_after"] < discovered["energy_cm2"]["held_out_before"]

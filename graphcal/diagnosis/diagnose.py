@@ -294,7 +294,17 @@ def generic_if_better(winner: CandidateTest, eligible: list[CandidateTest], riva
     winner in its base, significant at the named floor among n_candidates (None: not asked). A free curve that holds
     the named function gains at least as much as it and more from whatever is left on a recording of any size:
     a 0.08 deg encoder eccentricity (one cycle a turn) was discovered as the azimuth against the azimuth (two),
-    which lowered the held-out J by 0.6 %."""
+    which lowered the held-out J by 0.6 %.
+
+    A channel's constant (CHANNEL_CONSTANT: the time offset) gives way to any eligible discrepancy of its channel,
+    each tested for its shape beyond that constant: the shape tells the physics, the constant does not, and the
+    constant is named in the next round (a per-laser firing delay growing with the fibre has a mean, a latency:
+    it is discovered, time against fibre, and its mean named next)."""
+    constant_of = {name: channel for channel, name in CHANNEL_CONSTANT.items()}
+    if winner.name in constant_of:  # eligible discrepancies of its channel have a shape beyond it (shape_only)
+        shaped = [t for t in eligible
+                  if is_discrepancy(t.name) and Discrepancy.parse(t.name).channel == constant_of[winner.name]]
+        return max(shaped, key=lambda t: t.bic_gain) if shaped else winner
     signature = NAMED_SIGNATURE.get(winner.name)
     if signature is None:
         return winner
