@@ -74,12 +74,12 @@ CHANNEL_BOUND = {"range": 0.5, "azimuth": 2.0, "elevation": 2.0, "time": 0.5}
 DISCREPANCY_SIZES = (4, 8)
 # channel x regressor pairs not tried: a per-fibre constant of range or angle is an intrinsic offset
 ORDINARY = {("range", "fibre"), ("azimuth", "fibre"), ("elevation", "fibre")}
-# the channel and regressor of a named candidate's signature: it is named only when it explains the residuals at
-# least as well as the generic discrepancy of its own channel and regressor (BIC gain, which prices the latter's
-# extra parameters)
 # the named candidate that is a discrepancy channel's constant (those of range, azimuth and elevation are the
 # per-fibre offsets, ordinary parameters, always in the base)
 CHANNEL_CONSTANT = {"time": "time_offset"}
+# the channel and regressor of a named candidate's signature: it is named only when it explains the residuals at
+# least as well as the generic discrepancy of its own channel and regressor (BIC gain, which prices the latter's
+# extra parameters, where the discrepancy also finds structure beyond it: generic_if_better)
 NAMED_SIGNATURE = {"range_scale": ("range", "range"), "incidence_range_bias": ("range", "incidence"),
                    "azimuth_eccentricity": ("azimuth", "azimuth"), "spin_rate": ("time", "azimuth"),
                    "intra_sweep_motion": ("time", "azimuth")}
