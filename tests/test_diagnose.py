@@ -154,7 +154,8 @@ def test_diagnosis_run_folder(two_effects):
     assert "time_offset" in calibration and "azimuth_eccentricity" in calibration
     manifest = yaml.safe_load((folder / "run.yaml").read_text())
     assert manifest["command"] == "diagnose" and manifest["recording"] == str(rec.path.resolve())
-    assert "Findings" in (folder / "report.html").read_text()
+    page = (folder / "report.html").read_text()
+    assert "Findings" in page and f"graphcal diagnosis report: {folder.name}" in page and ".partial" not in page
     for stage in ("load and validate the recording", "diagnose", "save results", "report", "viewer file"):
         assert manifest["timings_s"][stage] >= 0.0, stage
     assert len(RrdReader(folder / "run.rrd").blueprints()) == 1

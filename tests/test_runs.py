@@ -144,6 +144,8 @@ def test_report_is_self_contained_and_complete(calibrated):
     _, folder = calibrated
     page = (folder / "report.html").read_text()
     assert not re.search(r"(src|href)=['\"](?!data:)", page), "the report links to something outside itself"
+    # it names the run folder, not the working folder the run was written in before it was moved into place
+    assert f"<title>graphcal report: {folder.name}</title>" in page and ".partial" not in page
     images = re.findall(r"src='data:image/png;base64,([A-Za-z0-9+/=]+)'", page)
     assert len(images) == 5  # J curve, residuals, the cloud before/after, corrections, timings
     for image in images:

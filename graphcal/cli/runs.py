@@ -159,7 +159,7 @@ def diagnosis_run(recording_path: Path, config: CalibrationConfig, how: Diagnose
     with run.stage("save results"):
         diagnosis.save(run.path, command=" ".join(["graphcal"] + sys.argv[1:]))
     with run.stage("report"), status("writing report.html", quiet):
-        write_diagnosis_report(run.path)
+        write_diagnosis_report(run.path, run.final)
     with (run.stage("viewer file"), status(f"writing {run.path / RRD}", quiet),
           recording_stream(run.path / RRD, recording.name, spawn) as rec):
         log_diagnosis(rec, recording, diagnosis, run.final, viewer_points or VIEWER_POINTS)
@@ -272,5 +272,5 @@ def _finish_with_report(run: RunFolder, recording_path: Path, quiet: bool) -> No
 
     run.finish(recording=str(Path(recording_path).resolve()))
     with run.stage("report"), status("writing report.html", quiet):
-        write_report(run.path)
+        write_report(run.path, run.final)
     run.finish(recording=str(Path(recording_path).resolve()))

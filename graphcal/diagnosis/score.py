@@ -434,6 +434,8 @@ def _held_out(lin: Linearisation, base: np.ndarray, k: np.ndarray) -> tuple[tupl
     error [cm^2] of the drop between them across the held-out folds of time blocks: each half's drop is a
     ratio (cost difference over weight summed over its folds), its variance the ratio estimator's over the
     folds (residuals within a time block share surfaces and noise; blocks do not)."""
+    if not np.all(lin.half_weight > 0):  # a half of the drive without pairs (a recording of one time block)
+        return (np.nan, np.nan), np.inf
     both = np.r_[base, k]
     costs = np.zeros((2, FOLDS))  # whitened cost of each fold after the step fitted on the other half
     for fit in (0, 1):
@@ -454,8 +456,9 @@ def _held_out(lin: Linearisation, base: np.ndarray, k: np.ndarray) -> tuple[tupl
             return (float(out[0]), float(out[1])), np.inf
         weight = lin.fold_weight[folds]
         ratio = drop[folds].sum() / weight.sum()
-        variance += (np.sum((drop[folds] - ratio * weight) ** 2) / weight.sum() ** 2
-                     * len(folds) / (len(folds) - 1))
+        with np.errstate(over="ignore"):  # a step the held-in half does not bound: an infinite spread
+            variance += (np.sum((drop[folds] - ratio * weight) ** 2) / weight.sum() ** 2
+                         * len(folds) / (len(folds) - 1))
     return (float(out[0]), float(out[1])), float(np.sqrt(variance) / 2 * to_cm2)
 
 

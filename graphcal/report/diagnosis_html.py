@@ -15,16 +15,18 @@ from graphcal.report.html import image, section, table, write_page
 DIAGNOSIS_FILE = "diagnosis.json"
 
 
-def write_diagnosis_report(folder: Path) -> Path:
-    """Write folder/report.html from the run folder's diagnosis.json; returns its path."""
+def write_diagnosis_report(folder: Path, named_as: Path | None = None) -> Path:
+    """Write folder/report.html from the run folder's diagnosis.json; returns its path. named_as: the folder the
+    page names (html.write_report)."""
     folder = Path(folder)
+    named_as = folder if named_as is None else Path(named_as)
     path = folder / DIAGNOSIS_FILE
     if not path.is_file():
         raise RecordingError(folder, "no diagnosis.json", expected="a diagnosis run folder (graphcal diagnose)")
     diagnosis = json.loads(path.read_text(encoding="utf-8"))
-    sections = [_header(folder, diagnosis), _findings(diagnosis), *map(_discovered, _discovered_findings(diagnosis)),
+    sections = [_header(named_as, diagnosis), _findings(diagnosis), *map(_discovered, _discovered_findings(diagnosis)),
                 _candidates(diagnosis)]
-    return write_page(folder, "graphcal diagnosis", sections)
+    return write_page(folder, "graphcal diagnosis", sections, named_as)
 
 
 def _discovered_findings(diagnosis: dict) -> list[dict]:

@@ -41,9 +41,11 @@ th{background:#f2f2f2}td:first-child{text-align:left}img{max-width:100%}pre{back
 .unobservable{color:#888;font-style:italic}.note{color:#555;font-size:.92em}"""
 
 
-def write_report(folder: Path) -> Path:
-    """Write folder/report.html from the run folder's files; returns its path."""
+def write_report(folder: Path, named_as: Path | None = None) -> Path:
+    """Write folder/report.html from the run folder's files; returns its path. named_as: the folder the page
+    names (a run's final place while the run is written in a working folder; None: folder)."""
     folder = Path(folder)
+    named_as = folder if named_as is None else Path(named_as)
     calibration_path = folder / CALIBRATION_FILE
     if not calibration_path.is_file():
         raise RecordingError(folder, "no calibration.yaml", expected="a calibration run folder (graphcal calibrate)")
@@ -51,19 +53,20 @@ def write_report(folder: Path) -> Path:
     manifest = read_yaml(folder / MANIFEST) if (folder / MANIFEST).is_file() else {}
     history = _read_history(folder / "history.csv")
     recording = _recording(manifest)
-    sections = [_header(folder, calibration, manifest, history),
+    sections = [_header(named_as, calibration, manifest, history),
                 section("Energy J per outer iteration", image(figures.energy_png(history)),
                          "J = Σ w (n·(p−m))² / Σ w over the pairs of each outer iteration (eq. 4.4); it is not "
                          "monotonic when the pairs change (the gate opens, the fine phase starts)."),
                 _residuals(folder), _truth(folder), _parameters(calibration, recording), _halves(folder),
                 _timings(manifest)]
-    return write_page(folder, "graphcal report", sections)
+    return write_page(folder, "graphcal report", sections, named_as)
 
 
-def write_page(folder: Path, title: str, sections: list[str]) -> Path:
-    """folder/report.html, atomically: one self-contained page of the sections' HTML, titled title: folder name."""
+def write_page(folder: Path, title: str, sections: list[str], named_as: Path) -> Path:
+    """folder/report.html, atomically: one self-contained page of the sections' HTML, titled title: the name of
+    named_as (write_report)."""
     page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}: "
-            f"{html.escape(folder.name)}</title><style>{_STYLE}</style></head><body>{''.join(sections)}</body></html>")
+            f"{html.escape(named_as.name)}</title><style>{_STYLE}</style></head><body>{''.join(sections)}</body></html>")
     with atomic_path(folder / REPORT) as tmp:
         tmp.write_text(page, encoding="utf-8")
     return folder / REPORT
