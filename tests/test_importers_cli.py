@@ -57,6 +57,9 @@ def test_import_pcap_bad_input_is_one_line(tmp_path):
         assert result.exit_code == 2, result.output
         lines = result.output.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("error: ") and words in lines[0]
+    result = runner.invoke(app, ["import", "pcap", str(pcap), "--position", "100,0,0", "--out", str(tmp_path / "lat")])
+    assert result.exit_code == 2 and "--position: '100,0,0': latitude within +-90 deg" in result.output, result.output
+    assert not (tmp_path / "lat").exists()  # refused before anything is written
     (tmp_path / "taken").mkdir()
     (tmp_path / "taken" / "recording.yaml").write_text("format: graphcal-recording/1\n")
     result = runner.invoke(app, ["import", "pcap", str(pcap), "--out", str(tmp_path / "taken")])
@@ -83,6 +86,11 @@ def test_import_sbet_and_csv_write_trajectory_csv(tmp_path):
     np.testing.assert_allclose(Trajectory.load_csv(tmp_path / "t.csv").rpy_deg, [[1, 2, 100], [1, 2, 95], [1, 2, 90]])
     result = runner.invoke(app, ["import", "csv", str(source), "--columns", "time"])
     assert result.exit_code == 2 and "not FIELD=COLUMN" in result.output
+    before = (tmp_path / "t.csv").read_bytes()
+    for command in (["sbet", str(sbet)], ["csv", str(source), "--delimiter", ";"]):  # an import replaces nothing
+        result = runner.invoke(app, ["import", *command, "--out", str(tmp_path / "t.csv")])
+        assert result.exit_code == 2 and "already exists" in result.output, result.output
+    assert (tmp_path / "t.csv").read_bytes() == before
 
 
 def test_import_kitti(tmp_path):

@@ -709,3 +709,21 @@ def test_take_reads_rows_batch_by_batch_as_indexing_the_whole_column(tmp_path, m
     np.testing.assert_array_equal(taken["fibre"], whole["fibre"][rows])
     with pytest.raises(ValueError, match="sorted"):
         on_disk.take(["range"], rows[::-1])
+
+
+@pytest.mark.parametrize("damage", ["truncated", "short"])
+def test_a_damaged_truth_is_refused_naming_its_file(tmp_path, damage):
+    """truth/points.parquet cut short (a crashed copy) or with fewer rows than points.parquet: evaluation's reads
+    refuse it, naming the file, instead of a pyarrow traceback or a silent misalignment."""
+    from graphcal.simulation.script import load_scenario_builder
+
+    path = graphcal.simulate(load_scenario_builder("sim2_street")(size=0.005, seed=0), quiet=True).save(tmp_path / "r")
+    truth_file = path / "truth" / "points.parquet"
+    if damage == "truncated":
+        truth_file.write_bytes(truth_file.read_bytes()[:-100])
+    else:
+        pq.write_table(pq.read_table(truth_file).slice(0, 10), truth_file)
+    truth = Recording.load(path).truth
+    rows = np.array([0, 5, len(Recording.load(path).points) - 1])
+    with pytest.raises(RecordingError, match="truth/points.parquet"):
+        truth.world_points_at(rows)

@@ -276,9 +276,10 @@ def test_version_quiet_and_help_in_80_columns_on_every_command(calibrated):
     commands = list(leaves(typer.main.get_command(app), []))
     assert len(commands) >= 14
     for command in [[]] + commands:
-        shown = CliRunner().invoke(app, command + ["--help"]).output  # no terminal: its width is not known
+        shown = CliRunner().invoke(app, command + ["--help"], env={"COLUMNS": "80"}).output
         assert "--quiet" in shown or not command, command
         assert max(len(line) for line in shown.splitlines()) <= 80, command
+        assert "\u2026" not in shown, (command, shown)  # nothing cut off to fit
     result = CliRunner().invoke(app, ["info", str(calibrated[0]), "-q"])
     assert result.exit_code == 0 and result.output == ""
 

@@ -125,7 +125,11 @@ def test_calibrate_refuses_a_recording_too_small_to_pair(tmp_path):
 
 
 @pytest.mark.parametrize("script, words", [("def scenario(:\n", "line 1: invalid syntax"),
-                                           ("import math\nx = 1 / 0\n", "line 2: ZeroDivisionError")])
+                                           ("import math\nx = 1 / 0\n", "line 2: ZeroDivisionError"),
+                                           ("def scenario(size, seed):\n    raise RuntimeError('boom')\n",
+                                            "line 2: RuntimeError: boom (the scenario script's scenario() failed)"),
+                                           ("def scenario(size, seed):\n    return 42\n",
+                                            "gave a value of type int, expected a graphcal Scenario")])
 def test_a_broken_scenario_script_is_one_line(script, words, tmp_path):
     path = tmp_path / "broken.py"
     path.write_text(script)

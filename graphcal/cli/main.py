@@ -68,14 +68,14 @@ def simulate(scenario: Annotated[str, typer.Argument(help="scenario name (sim6_t
              force: Force = False,
              quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
     """Simulate a scenario and write its recording (with truth/)."""
-    from graphcal.simulation.script import load_scenario_builder
+    from graphcal.simulation.script import built, load_scenario_builder
     from graphcal.simulation.simulator import simulate as run
 
     if out is not None:  # before the simulation's work
         _not_taken(out, force)
     build = load_scenario_builder(scenario)
     started = time.perf_counter()
-    recording = run(build(size=size, seed=seed), quiet=quiet)
+    recording = run(built(build, size=size, seed=seed), quiet=quiet)
     out = out or _not_taken(Path("out") / recording.name, force)
     recording.save(out)
     if not quiet:
@@ -133,11 +133,10 @@ def calibration_config(mode: str, config: Path | None, overrides: dict | None = 
 @app.command()
 @_clear_errors
 def calibrate(recording: Annotated[Path, typer.Argument(help="recording directory")],
-              mode: Annotated[str, typer.Option(help="auto (what a mapping drive needs), intrinsic, extrinsic, "
-                                                     "trajectory, joint, joint_trajectory, extrinsic_then_intrinsic, "
-                                                     "intrinsic_then_extrinsic")] = "auto",
+              mode: Annotated[str, typer.Option(help="auto (what a mapping drive needs) or a mode listed above")]
+              = "auto",
               config: Annotated[Path | None, typer.Option(help="YAML file of CalibrationConfig settings")] = None,
-              out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-calibrate-<UTC time>)")] = None,
+              out: Annotated[Path | None, typer.Option(help="run folder (default: a new one in runs/)")] = None,
               evaluate: Annotated[bool, typer.Option(help="compare with truth/ when the recording has one")] = True,
               dask: Annotated[str | None, typer.Option(help="compute the features and pairs tile by tile on Dask: "
                                                             "local, local:N (N worker processes here) or a "
@@ -145,6 +144,9 @@ def calibrate(recording: Annotated[Path, typer.Argument(help="recording director
               spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, force: Force = False,
               quiet: Quiet = False) -> None:
     """Self-calibrate a recording into a run folder: results, run.rrd, report.html.
+
+    Modes: intrinsic, extrinsic, trajectory, joint, joint_trajectory, extrinsic_then_intrinsic,
+    intrinsic_then_extrinsic (docs/reference/command-line.md).
 
     The run folder gets calibration.yaml (estimates, 1-sigmas, unobservable parameters),
     config.yaml, history.csv, residuals.parquet, pairs_nominal.parquet, pairs_calibrated.parquet,
@@ -202,7 +204,7 @@ def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory
                                                       help="also test a smooth error of every channel against every "
                                                            "regressor, reported as discovered (default), or only the "
                                                            "named candidates")] = True,
-             out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-diagnose-<UTC time>)")] = None,
+             out: Annotated[Path | None, typer.Option(help="run folder (default: a new one in runs/)")] = None,
              spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, force: Force = False,
              quiet: Quiet = False) -> None:
     """Find where the model and the recording disagree, name the physics left out, model it, show the
@@ -237,7 +239,7 @@ def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory
 def deskew(recording: Annotated[Path, typer.Argument(help="recording directory")],
            source: Annotated[str, typer.Option(help="motion during the sweep: ins, odometry, or none (raw scans)")] = "ins",
            cloud_format: Annotated[str, typer.Option("--format", help="ply, las, laz, or uos (3DTK .3d)")] = "ply",
-           out: Annotated[Path | None, typer.Option(help="run folder (default runs/<name>-deskew-<source>-<UTC time>)")]
+           out: Annotated[Path | None, typer.Option(help="run folder (default: a new one in runs/)")]
            = None,
            gyro: Annotated[bool, typer.Option(help="odometry: yaw from the gyro column when there is one")] = True,
            spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, force: Force = False,
@@ -284,8 +286,8 @@ def evaluate_command(calibration: Annotated[Path, typer.Argument(help="run folde
 @_clear_errors
 def apply_command(calibration: Annotated[Path, typer.Argument(help="run folder or calibration.yaml")],
                   recording: Annotated[Path, typer.Argument(help="recording directory")],
-                  out: Annotated[Path | None, typer.Option(help=".las, .laz or .ply file (default: cloud.laz in a "
-                                                                 "run folder runs/<name>-apply-<UTC time>)")] = None,
+                  out: Annotated[Path | None, typer.Option(help=".las, .laz or .ply file (default: cloud.laz in "
+                                                                 "a new run folder in runs/)")] = None,
                   force: Force = False, quiet: Quiet = False) -> None:
     """Write the recording's cloud corrected by a calibration (LAS, LAZ or PLY).
 
@@ -403,6 +405,16 @@ def _numbers(text: str | None, option: str, count: int = 3) -> tuple[float, ...]
     return values
 
 
+def _position(text: str | None) -> tuple[float, float, float] | None:
+    """--position 'LAT,LON,ALT' (deg, deg, m), or ConfigError naming it when a number or an angle is out of range."""
+    from graphcal.common.errors import ConfigError
+
+    values = _numbers(text, "--position")
+    if values is not None and not (abs(values[0]) <= 90 and abs(values[1]) <= 180):
+        raise ConfigError(f"--position: {text!r}: latitude within +-90 deg and longitude within +-180 deg expected")
+    return values
+
+
 def _print_import(recording, out: Path, quiet: bool) -> None:
     """The notes of an imported recording and where it was written, unless quiet."""
     if not quiet:
@@ -448,7 +460,7 @@ def import_pcap_command(
     extrinsic = _extrinsic(lever_arm, boresight)
     options = {"model": model, "calibration": read_velodyne_calibration(calibration) if calibration else None,
                "trajectory": _read_trajectory(trajectory) if trajectory else None,
-               "position": _numbers(position, "--position"), "attitude_deg": _numbers(attitude, "--attitude"),
+               "position": _position(position), "attitude_deg": _numbers(attitude, "--attitude"),
                "extrinsic": extrinsic, "interpolate_azimuth": not block_azimuth, "crs": crs, "quiet": quiet}
     if pcap.is_dir() or pcap.suffix.lower() in (".bag", ".db3", ".mcap"):
         from graphcal.importers.velodyne_rosbag import import_rosbag
@@ -514,7 +526,7 @@ def import_ouster_command(
     out = _imported_recording_folder(out, pcap.stem)  # before the import's work
     recording = import_ouster(pcap, read_ouster_metadata(metadata), out,
                               trajectory=_read_trajectory(trajectory) if trajectory else None,
-                              position=_numbers(position, "--position"), attitude_deg=_numbers(attitude, "--attitude"),
+                              position=_position(position), attitude_deg=_numbers(attitude, "--attitude"),
                               mount=_extrinsic(lever_arm, boresight), crs=crs, quiet=quiet)
     _print_import(recording, out, quiet)
 
@@ -546,6 +558,7 @@ def import_sbet_command(sbet: Annotated[Path, typer.Argument(help="Applanix SBET
     """Applanix SBET -> trajectory.csv (geodetic, ENU attitude, GPS seconds of week)."""
     from graphcal.importers.sbet import import_sbet
 
+    _not_taken(out)  # before the import's work
     span = None if start is None and end is None else (start if start is not None else -float("inf"),
                                                        end if end is not None else float("inf"))
     trajectory = import_sbet(sbet, span)
@@ -560,7 +573,7 @@ def import_sbet_command(sbet: Annotated[Path, typer.Argument(help="Applanix SBET
 def import_csv_command(
         csv: Annotated[Path, typer.Argument(help="trajectory CSV with a header line")],
         out: Annotated[Path, typer.Option(help="trajectory.csv to write")] = Path("trajectory.csv"),
-        columns: Annotated[str, typer.Option(help="FIELD=COLUMN,... e.g. time=gps_s,lat=latitude,heading=hdg")] = "",
+        columns: Annotated[str, typer.Option(help="FIELD=COLUMN pairs, comma-separated (e.g. time=gps_s, lat=latitude)")] = "",
         position: Annotated[str, typer.Option(help="geodetic (lat, lon, alt) or projected (x, y, z)")] = "geodetic",
         attitude: Annotated[str, typer.Option(help="enu (roll, pitch, yaw) or ned (roll, pitch, heading)")] = "enu",
         radians: Annotated[bool, typer.Option(help="angles in radians (default degrees)")] = False,
@@ -574,6 +587,7 @@ def import_csv_command(
         import_trajectory_csv,
     )
 
+    _not_taken(out)  # before the import's work
     mapping = {}
     for pair in filter(None, columns.split(",")):
         field, sep, column = pair.partition("=")

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from graphcal.common.atomic import atomic_path
+from graphcal.common.errors import RecordingError
 from graphcal.recording.extrinsic import Extrinsic
 from graphcal.recording.intrinsics import load_offsets_csv, save_offsets_csv
 from graphcal.recording.points import PointTable, row_group_writer
@@ -58,8 +58,8 @@ class Truth:
     def world_points(self) -> np.ndarray:
         """(N,3) true world xyz [m] of every return, in the order of points.parquet."""
         if self._world_points is None:
-            table = pq.read_table(self._directory / WORLD_POINTS)
-            self._world_points = np.column_stack([table.column(n).to_numpy() for n in "xyz"])
+            columns = self._table().read(list("xyz"))
+            self._world_points = np.column_stack([columns[n] for n in "xyz"])
         return self._world_points
 
     def world_points_at(self, rows: np.ndarray) -> np.ndarray:
@@ -67,15 +67,27 @@ class Truth:
         batch when on disk: only those rows are held, whatever the recording's length."""
         if self._world_points is not None or self._directory is None:
             return self.world_points()[rows]
-        columns = PointTable.open(self._directory / WORLD_POINTS).take(list("xyz"), rows)
+        table = self._table()
+        if len(rows) and rows[-1] >= len(table):
+            raise RecordingError(table.path, f"{len(table)} rows, none for return {rows[-1]} of points.parquet",
+                                 expected="a true world position for every return")
+        columns = table.take(list("xyz"), rows)
         return np.column_stack([columns[n] for n in "xyz"])
+
+    def _table(self) -> PointTable:
+        """truth/points.parquet (RecordingError naming it when it is missing, not Parquet or lacks x, y, z)."""
+        table = PointTable.open(self._directory / WORLD_POINTS)
+        missing = [name for name in "xyz" if name not in table.column_names]
+        if missing:
+            raise RecordingError(table.path, f"no column {', '.join(missing)}", expected="columns x, y, z [m]")
+        return table
 
     def moving(self) -> np.ndarray:
         """(N,) bool: the return is on a moving object of the traffic (all False for a scene without one)."""
         if self._moving is None:
-            path = self._directory / WORLD_POINTS if self._directory is not None else None
-            if path is not None and MOVING in pq.read_schema(path).names:
-                self._moving = pq.read_table(path, columns=[MOVING]).column(MOVING).to_numpy()
+            table = self._table() if self._directory is not None else None
+            if table is not None and MOVING in table.column_names:
+                self._moving = table.read([MOVING])[MOVING]
             else:
                 self._moving = np.zeros(len(self.world_points()), dtype=bool)
         return self._moving

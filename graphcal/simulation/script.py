@@ -10,6 +10,8 @@ import traceback
 from collections.abc import Callable
 from pathlib import Path
 
+from pydantic import ValidationError
+
 from graphcal.common.errors import ConfigError
 from graphcal.recording.points import PointTable
 from graphcal.simulation.scenario import Scenario
@@ -34,13 +36,35 @@ def load_scenario_builder(name_or_path: str) -> Callable[..., Scenario]:
     except SyntaxError as error:
         raise ConfigError(f"{path}: line {error.lineno}: {error.msg} (the scenario script does not parse)") from None
     except Exception as error:  # the script's own code failed as it was loaded
-        line = next((frame.lineno for frame in reversed(traceback.extract_tb(error.__traceback__))
-                     if Path(frame.filename) == path), None)
-        raise ConfigError(f"{path}{f': line {line}' if line else ''}: {type(error).__name__}: {error} "
+        raise ConfigError(f"{_where(path, error)}: {type(error).__name__}: {error} "
                           "(the scenario script failed as it was loaded)") from None
     if not hasattr(module, "scenario"):
         raise ConfigError(f"{path}: a scenario script must define scenario(size=..., seed=...)")
     return module.scenario
+
+
+def built(build: Callable[..., Scenario], **settings) -> Scenario:
+    """build(**settings): the scenario a script's scenario() gives, or ConfigError naming the script (and the line
+    where its code failed) when it fails or gives something other than a Scenario. A setting out of range is
+    pydantic's ValidationError, which names the field."""
+    path = Path(build.__code__.co_filename)
+    try:
+        scenario = build(**settings)
+    except (ConfigError, ValidationError):
+        raise
+    except Exception as error:  # the script's own code failed
+        raise ConfigError(f"{_where(path, error)}: {type(error).__name__}: {error} "
+                          "(the scenario script's scenario() failed)") from None
+    if not isinstance(scenario, Scenario):
+        raise ConfigError(f"{path}: scenario() gave a value of type {type(scenario).__name__}, expected a graphcal Scenario")
+    return scenario
+
+
+def _where(path: Path, error: Exception) -> str:
+    """path, with the line of the script where error was raised when it was raised there."""
+    line = next((frame.lineno for frame in reversed(traceback.extract_tb(error.__traceback__))
+                 if Path(frame.filename) == path), None)
+    return f"{path}{f': line {line}' if line else ''}"
 
 
 def run_scenario_script(build: Callable[..., Scenario], argv: list[str] | None = None) -> Path:
@@ -64,7 +88,7 @@ def run_scenario_script(build: Callable[..., Scenario], argv: list[str] | None =
     args = vars(parser.parse_args(argv))
     out, quiet = args.pop("out"), args.pop("quiet")
     started = time.perf_counter()
-    simulate_to(build(**{key: value for key, value in args.items() if value is not None}), out, quiet=quiet)
+    simulate_to(built(build, **{key: value for key, value in args.items() if value is not None}), out, quiet=quiet)
     if not quiet:
         print(f"{len(PointTable.open(out / 'points.parquet')):,} returns written to {out} "
               f"in {time.perf_counter() - started:.1f} s")
