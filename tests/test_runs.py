@@ -432,3 +432,21 @@ def test_a_re_run_into_an_existing_out_is_refused_unless_forced(calibrated, tmp_
     result = CliRunner().invoke(app, apply)
     assert result.exit_code == 2 and "--force" in result.output and cloud.read_bytes() == b"old"
     assert CliRunner().invoke(app, apply + ["--force"]).exit_code == 0 and cloud.read_bytes() != b"old"
+
+
+def test_trajectory_corrections_apply_only_to_their_own_drive(calibrated, tmp_path):
+    """calibration.yaml records the drive it was made on: its trajectory corrections are refused on another drive
+    (the same scenario with another seed spans the same times with the same number of returns), for apply and
+    evaluate, and written again from the file it is the same drive."""
+    recording_path, folder = calibrated
+    assert yaml.safe_load((folder / "calibration.yaml").read_text())["drive"]["name"] == Recording.load(
+        recording_path).name
+    other = graphcal.simulate(SIM6(size=0.02, seed=2), quiet=True).save(tmp_path / "other")
+    for command in (["apply", str(folder), str(other), "--out", str(tmp_path / "cloud.laz")],
+                    ["evaluate", str(folder), str(other)]):
+        result = CliRunner().invoke(app, command)
+        assert result.exit_code == 2 and "trajectory corrections were made on" in result.output, result.output
+    assert not (tmp_path / "cloud.laz").exists()
+    calibration = graphcal.Calibration.load(folder, Recording.load(recording_path).sensor)
+    from graphcal.calibration.result import drive_of
+    assert calibration.drive == drive_of(Recording.load(recording_path))

@@ -18,7 +18,7 @@ from graphcal.calibration.checks import (
 from graphcal.calibration.config import CalibrationConfig, Phase
 from graphcal.calibration.observability import EXTRINSIC_NAMES, TRAJECTORY_GAUGE
 from graphcal.calibration.problem import PHASES, FinalFit, History, Problem
-from graphcal.calibration.result import Calibration, CalibrationResult
+from graphcal.calibration.result import Calibration, CalibrationResult, drive_of
 from graphcal.calibration.returns import Estimate, initial_estimate
 from graphcal.calibration.static_sensor import halves_over_draws, pair_draws, soft_over_draws
 from graphcal.calibration.verdict import RIGID_REASON, Motion, verdict
@@ -149,7 +149,7 @@ class CalibrationPipeline:
             held += rigid
             reasons |= {name: RIGID_REASON for name in rigid}
         calibration = Calibration(data.sensor.model, data.sensor.reference_fibre, estimate, data.control_times_s,
-                                  tuple(unobservable), tuple(held), reasons)
+                                  tuple(unobservable), tuple(held), reasons, drive_of(self.recording))
         return CalibrationResult(calibration, final.uncertainty, estimated, self.history.rows,
                                  data.rows[final.pairs.index_p], final.residual_m, final.pairs.weight, config,
                                  time.perf_counter() - self.started, self.timings,

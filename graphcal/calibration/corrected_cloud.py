@@ -16,7 +16,7 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from graphcal.calibration.evaluate import apply_calibration
-from graphcal.calibration.result import Calibration
+from graphcal.calibration.result import Calibration, drive_of
 from graphcal.clouds.formats import cloud_writer
 from graphcal.common.errors import ConfigError, RecordingError
 from graphcal.recording.points import PointTable
@@ -41,11 +41,17 @@ def read_residuals(path: Path, n_points: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def corrections_cover(calibration: Calibration, recording: Recording, path: Path) -> None:
-    """ConfigError when the calibration's trajectory corrections (made on one drive) are at times the recording's
-    trajectory never reaches: they cannot be this drive's."""
+    """ConfigError when the calibration's trajectory corrections (made on one drive) are not this recording's: it
+    was made on another (calibration.drive), or at times the recording's trajectory never reaches."""
     times = calibration.control_times_s
     if len(times) == 0:
         return
+    if calibration.drive is not None and calibration.drive != drive_of(recording):
+        made_on = calibration.drive
+        raise ConfigError(f"{path}: the calibration's trajectory corrections were made on {made_on['name']} "
+                          f"({made_on['returns']:,} returns), not on {recording.path or recording.name} "
+                          f"({len(recording.points):,} returns): they apply only to the drive they were made on "
+                          "(a calibration without them, mode joint or intrinsic, applies to any drive of the unit)")
     first, last = recording.world.poses.span
     if times[-1] < first or times[0] > last:
         raise ConfigError(f"{path}: the calibration's trajectory corrections cover {times[0]:.3f}-{times[-1]:.3f} s, "

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import datetime
+import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -49,6 +50,24 @@ def calibration_file(path: str | Path) -> Path:
     path = Path(path)
     return path / CALIBRATION_FILE if path.is_dir() else path
 
+FINGERPRINT_RETURNS = 10_000
+DRIVE_KEYS = ("name", "returns", "time_span_s", "fingerprint")
+
+
+def drive_of(recording) -> dict:
+    """What tells one recording from another in calibration.yaml (`drive`): its name, its number of returns, the
+    time span of its returns [s] and a fingerprint of its first FINGERPRINT_RETURNS ranges and of its recorded
+    trajectory (two simulations of one scenario with different seeds share the rest, and a noise-free head its
+    ranges)."""
+    first, last = recording.points.time_span_s()
+    ranges = next(recording.points.iter_batches(["range"], FINGERPRINT_RETURNS))["range"]
+    digest = hashlib.sha256(np.ascontiguousarray(ranges, dtype=np.float64).tobytes())
+    digest.update(recording.trajectory.fingerprint().encode())
+    fingerprint = digest.hexdigest()[:16]
+    return {"name": recording.name, "returns": len(recording.points), "time_span_s": [first, last],
+            "fingerprint": fingerprint}
+
+
 @dataclass(frozen=True)
 class Calibration:
     """The estimate alone, as calibration.yaml holds it: offsets (n_fibres, 4) in (m, rad, rad, m)
@@ -57,7 +76,8 @@ class Calibration:
     data cannot observe (unobservable), of those held at their nominal value (held: calibration.yaml
     writes them null), and why each unobservable one is (reasons: {name: plain words}). An unobservable
     parameter that is not held keeps the value the fit gave it along what the data see of it in
-    combination with others (weak_directions.py): its sigma is then close to its prior's."""
+    combination with others (weak_directions.py): its sigma is then close to its prior's. drive: the recording
+    it was made on (drive_of; None: not known), which its trajectory corrections belong to."""
 
     sensor_model: str
     reference_fibre: int
@@ -66,6 +86,7 @@ class Calibration:
     unobservable: tuple[str, ...] = ()
     held: tuple[str, ...] = ()
     reasons: dict = field(default_factory=dict)
+    drive: dict | None = None
 
     def extrinsic(self) -> Extrinsic:
         pose = self.estimate.extrinsic
@@ -118,9 +139,14 @@ class Calibration:
         if len(times) == 1 or np.any(np.diff(times) <= 0):
             raise RecordingError(path, "control times not increasing", field="trajectory_corrections.time",
                                  expected="none, or at least two strictly increasing times")
+        drive = data.get("drive")
+        if drive is not None and (not isinstance(drive, dict) or set(drive) != set(DRIVE_KEYS)):
+            raise RecordingError(path, f"drive is {drive!r}", field="drive",
+                                 expected=f"{', '.join(DRIVE_KEYS)} of the recording it was made on")
         return cls(model, sensor.reference_fibre,
                    Estimate(offsets_from_file_units(offsets), pose_of(extrinsic), tuple(corrections)), np.asarray(times),
-                   tuple(data.get("unobservable") or ()), tuple(held), dict(data.get("unobservable_reasons") or {}))
+                   tuple(data.get("unobservable") or ()), tuple(held), dict(data.get("unobservable_reasons") or {}),
+                   drive)
 
 
 SIGMA_MARGINALS = "gtsam.Marginals at the final pairs, sigma0 the noise of one pair"
@@ -230,7 +256,7 @@ class CalibrationResult:
                 "intrinsics": rows, "extrinsic": extrinsic, "trajectory_corrections": corrections,
                 "effects": list(self.effects), "unobservable": sorted(unobservable),
                 "unobservable_reasons": {name: cal.reasons[name] for name in sorted(cal.reasons)},
-                "verdict": self.verdict,
+                "verdict": self.verdict, **({} if cal.drive is None else {"drive": cal.drive}),
                 "energy_cm2": {"before": float(before), "after": float(after)},
                 "provenance": {"sigma": (SIGMA_MARGINALS if self.shared_returns_uncertainty is None else SIGMA_SHARED)
                                + ("" if self.cluster_robust_uncertainty is None else SIGMA_WIDENED),

@@ -171,6 +171,7 @@ def diagnosis_run(recording_path: Path, config: CalibrationConfig, how: Diagnose
 def evaluation_run(calibration_path: Path, recording_path: Path, quiet: bool = False) -> tuple[Evaluation, Path]:
     """Evaluate a calibration (run folder or calibration.yaml) against the recording's truth/;
     writes evaluation.yaml next to calibration.yaml and refreshes report.html if there is one."""
+    from graphcal.calibration.corrected_cloud import corrections_cover
     from graphcal.calibration.evaluate import evaluate
     from graphcal.calibration.result import Calibration, calibration_file
     from graphcal.common.errors import RecordingError
@@ -181,6 +182,7 @@ def evaluation_run(calibration_path: Path, recording_path: Path, quiet: bool = F
         raise RecordingError(Path(recording_path) / "truth", "not found",
                              expected="a simulated recording's truth/ to evaluate against (real data has none)")
     calibration = Calibration.load(calibration_path, recording.sensor)
+    corrections_cover(calibration, recording, calibration_file(calibration_path))
     effects_not_applied(calibration_path, quiet)
     folder = calibration_file(calibration_path).parent
     with status("comparing with truth/", quiet):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+import io
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,9 +47,20 @@ class Trajectory:
     def save_csv(self, path: Path) -> None:
         """Write trajectory.csv; the times exactly (17 significant digits: a pose at a return's own time, as an
         importer may place one, still covers it when read back)."""
-        values = np.column_stack([self.time, self.position, self.rpy_deg])
-        write_csv_columns(path, self.columns, values, formats=["%.17g"] + ["%.10f" if self.geodetic else "%.6f"] * 2
-                          + ["%.6f"] + ["%.8f"] * 3)
+        write_csv_columns(path, self.columns, self._values(), formats=self._formats())
+
+    def fingerprint(self) -> str:
+        """A digest of the poses as trajectory.csv holds them: the same for this trajectory and for it written and
+        read back."""
+        buffer = io.BytesIO()
+        np.savetxt(buffer, self._values(), delimiter=",", fmt=self._formats())
+        return hashlib.sha256(buffer.getvalue()).hexdigest()
+
+    def _values(self) -> np.ndarray:
+        return np.column_stack([self.time, self.position, self.rpy_deg])
+
+    def _formats(self) -> list[str]:
+        return ["%.17g"] + ["%.10f" if self.geodetic else "%.6f"] * 2 + ["%.6f"] + ["%.8f"] * 3
 
     @classmethod
     def load_csv(cls, path: Path) -> Trajectory:
