@@ -283,10 +283,11 @@ def test_optional_scan_column_may_be_absent_and_other_int_float_widths_are_accep
     ("azimuth", 77, -np.inf, ["value -inf at row index 77", "expected finite numbers"]),
     ("time", 10, np.nan, ["value nan at row index 10", "expected finite numbers"]),
     ("range", 999, -1.5, ["negative range -1.5 at row index 999", "expected ranges >= 0 m"]),
+    ("range", 998, 787762.0, ["range 787762.0 at row index 998", "within 100,000 m"]),  # a flipped exponent bit
     ("fibre", 321, 40, ["fibre id 40 at row index 321", "0..31"]),
     ("fibre", 322, -1, ["fibre id -1 at row index 322", "0..31"]),
     ("intensity", 55, 300.0, ["intensity 300.0 at row index 55", "reflectivity within 0-255"]),
-], ids=["range-nan", "intensity-inf", "azimuth-minus-inf", "time-nan", "negative-range", "fibre-40",
+], ids=["range-nan", "intensity-inf", "azimuth-minus-inf", "time-nan", "negative-range", "range-beyond", "fibre-40",
         "fibre-negative", "intensity-above-255"])
 def test_bad_point_value(rec_dir, column, row, value, fragments):
     rewrite_points(rec_dir, lambda table: set_value(table, column, row, value))

@@ -25,6 +25,8 @@ SCHEMA = {
     "scan": (pa.int32(), ("int",), False),
 }
 BATCH_ROWS = 1 << 20
+# no lidar measures farther (an airborne one flies a few km up): beyond it a range is damaged or not in metres
+MAX_RANGE_M = 100_000.0
 
 
 def point_schema(column_names: Sequence[str]) -> pa.Schema:
@@ -277,6 +279,8 @@ def _check_batch(batch, start, previous_time, n_fibres, source) -> None:
         fail("fibre", (fibre < 0) | (fibre >= n_fibres), "fibre id", f"an id of sensor.yaml, 0..{n_fibres - 1}")
     if (batch["range"] < 0).any():
         fail("range", batch["range"] < 0, "negative range", "ranges >= 0 m")
+    if (batch["range"] > MAX_RANGE_M).any():
+        fail("range", batch["range"] > MAX_RANGE_M, "range", f"ranges within {MAX_RANGE_M:,.0f} m (metres given?)")
     intensity = batch["intensity"]
     if len(intensity) and (intensity.min() < 0 or intensity.max() > 255):
         fail("intensity", (intensity < 0) | (intensity > 255), "intensity", "reflectivity within 0-255")
