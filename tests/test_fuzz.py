@@ -243,7 +243,8 @@ def _import_inputs(root: Path) -> dict[str, tuple[list[str], list[Path]]]:
 
 def test_mutated_import_inputs_are_refused_or_imported_into_a_valid_recording(tmp_path, command_built_once):
     """Every importer on its own small input with one file mutated (bit flips, truncation, empty, garbage, or in a
-    text file hostile numbers and lines): a clean refusal, or a recording that `graphcal info` then accepts."""
+    text file hostile numbers and lines): a clean refusal that leaves nothing, or a recording that `graphcal info`
+    then accepts."""
     outcome = collections.Counter()
     rng = np.random.default_rng(11)
     for importer, (command, files) in _import_inputs(tmp_path / "inputs").items():
@@ -255,6 +256,7 @@ def test_mutated_import_inputs_are_refused_or_imported_into_a_valid_recording(tm
             out = tmp_path / f"{importer}{case}"
             code, output = _exit_code(command + ["--out", str(out), "-q"])
             assert code in (0, 2), (importer, target.name, output)
+            assert code == 0 or not out.exists(), (importer, target.name, "a refused import left", out)
             if code == 0:
                 info = _exit_code(["info", str(out), "-q"])
                 assert info[0] == 0, (importer, target.name, info[1])

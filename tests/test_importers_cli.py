@@ -1,5 +1,7 @@
 """`graphcal import pcap|kitti|sbet|csv`: files written, notes printed, bad input in one line."""
 
+from pathlib import Path
+
 import numpy as np
 from test_importers_kitti import _unit_hdl64e, _write_drive
 from test_importers_trajectory import _sbet_records
@@ -107,3 +109,23 @@ def test_import_of_a_folder_that_is_no_bag_is_one_line(tmp_path):
     result = CliRunner().invoke(app, ["import", "pcap", str(tmp_path / "photos"), "--out", str(tmp_path / "rec")])
     assert result.exit_code == 2 and result.output.count("\n") == 1, result.output
     assert "not a readable ROS bag" in result.output and not (tmp_path / "rec").exists()
+
+
+def test_an_import_refused_after_it_began_to_write_leaves_nothing(tmp_path, monkeypatch):
+    """A recording folder an import had begun to write is removed when the import is then refused; a folder that was
+    there, empty, before is not removed."""
+    from graphcal.common.errors import RecordingError
+
+    def refused(source, trajectory, out, **options):
+        Path(out).mkdir(parents=True, exist_ok=True)
+        (Path(out) / "points.parquet").write_bytes(b"half")
+        raise RecordingError(source, "refused after writing began")
+
+    monkeypatch.setattr("graphcal.importers.las_cloud.import_las", refused)
+    (tmp_path / "sbet.csv").write_text("time,lat,lon,alt,roll,pitch,yaw\n0,45,6,300,0,0,0\n1,45,6,300,0,0,0\n")
+    (tmp_path / "empty").mkdir()
+    for out, kept in ((tmp_path / "new", False), (tmp_path / "empty", True)):
+        result = CliRunner().invoke(app, ["import", "las", str(tmp_path / "x.las"), "--trajectory",
+                                          str(tmp_path / "sbet.csv"), "--out", str(out)])
+        assert result.exit_code == 2 and "refused after writing began" in result.output, result.output
+        assert out.exists() == kept

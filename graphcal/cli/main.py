@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import math
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -33,6 +34,9 @@ def _options(version: Annotated[bool, typer.Option("--version", callback=_versio
     """Target-free lidar self-calibration with a GTSAM factor graph."""
 
 
+_IMPORTING: list[Path] = []  # the recording folder an import is writing (none once it ends)
+
+
 def _clear_errors(command):
     """Turn graphcal's own errors into one line on stderr and exit code 2 (3 for a refused result)."""
     @functools.wraps(command)
@@ -46,6 +50,8 @@ def _clear_errors(command):
             return command(*args, **kwargs)
         except GraphcalError as error:
             abandon_unpublished()
+            for folder in _IMPORTING:  # what a refused import had begun to write
+                shutil.rmtree(folder, ignore_errors=True)
             typer.echo(f"error: {error}", err=True)
             raise typer.Exit(3 if isinstance(error, CalibrationError) else 2) from None
         except ValidationError as error:  # a setting out of range (simulate --size 0, a scenario's field)
@@ -53,6 +59,8 @@ def _clear_errors(command):
             where = ".".join(str(part) for part in first["loc"]) or error.title
             typer.echo(f"error: {error.title} {where}: {first['msg']} (got {first.get('input')!r})", err=True)
             raise typer.Exit(2) from None
+        finally:
+            _IMPORTING.clear()
     return wrapper
 
 
@@ -475,10 +483,14 @@ def import_pcap_command(
 
 
 def _imported_recording_folder(out: Path | None, name: str) -> Path:
-    """Where an import writes: `out`, or out/<name> (a plain folder name); never over an existing recording."""
+    """Where an import writes: `out`, or out/<name> (a plain folder name); never over an existing recording. The
+    folder is removed if the import is then refused (_clear_errors), unless it was there, empty, before."""
     from graphcal.common.run_folder import folder_name
 
-    return _not_taken(out or Path("out") / folder_name(name))
+    out = _not_taken(out or Path("out") / folder_name(name))
+    if not out.exists():
+        _IMPORTING.append(out)
+    return out
 
 
 def _not_taken(path: Path, force: bool | None = None) -> Path:
