@@ -278,6 +278,9 @@ def test_version_quiet_and_help_in_80_columns_on_every_command(calibrated):
     for command in [[]] + commands:
         shown = CliRunner().invoke(app, command + ["--help"], env={"COLUMNS": "80"}).output
         assert "--quiet" in shown or not command, command
+        if command:  # -q says what it does
+            quiet_line = next(line for line in shown.splitlines() if "--quiet" in line)
+            assert quiet_line.split("<bool>")[-1].strip(" \u2502"), (command, quiet_line)
         assert max(len(line) for line in shown.splitlines()) <= 80, command
         assert "\u2026" not in shown, (command, shown)  # nothing cut off to fit
     result = CliRunner().invoke(app, ["info", str(calibrated[0]), "-q"])

@@ -65,6 +65,7 @@ def _clear_errors(command):
 
 
 Force = Annotated[bool, typer.Option("--force", help="replace what --out names (once the new result is complete)")]
+Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="no progress bars or summary")]
 
 
 @app.command()
@@ -74,7 +75,7 @@ def simulate(scenario: Annotated[str, typer.Argument(help="scenario name (sim6_t
              size: Annotated[float, typer.Option(help="fraction of the sensor's firings kept")] = 1.0,
              seed: Annotated[int, typer.Option(help="seed of every random draw")] = 0,
              force: Force = False,
-             quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+             quiet: Quiet = False) -> None:
     """Simulate a scenario and write its recording (with truth/)."""
     from graphcal.simulation.script import built, load_scenario_builder
     from graphcal.simulation.simulator import simulate as run
@@ -114,7 +115,6 @@ def info(recording: Annotated[Path, typer.Argument(help="recording directory")],
 
 
 Spawn = Annotated[bool, typer.Option("--spawn", help="also stream to a live rerun viewer (needs a display)")]
-Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="no progress bars or summary")]
 ViewerPoints = Annotated[int, typer.Option(help="returns drawn per cloud in run.rrd (a random subset)", min=1000)]
 
 
@@ -319,7 +319,7 @@ def export_command(run: Annotated[Path, typer.Argument(help="calibration run fol
                    original: Annotated[Path | None, typer.Option("--from", help="the unit's own calibration file: "
                                                                                 "only the calibrated fields change")]
                    = None,
-                   quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+                   quiet: Quiet = False) -> None:
     """Write a calibration's intrinsics in the vendor's format (docs/howto/export-calibration.md).
 
     Example: graphcal export runs/latest --format velodyne-xml --from db.xml --out db-calibrated.xml
@@ -453,7 +453,7 @@ def import_pcap_command(
                                                             "extrinsic is read from when --lever-arm and --boresight "
                                                             "are not given (default: the frame of the bag's Odometry "
                                                             "or Imu)")] = None,
-        quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+        quiet: Quiet = False) -> None:
     """Velodyne pcap (or ROS bag) -> recording. Without --trajectory the sensor is taken as STATIC
     at the GPRMC fix of its position packets (or --position). From a bag, the extrinsic is the bag's
     /tf_static chain from the body frame to the packets' frame unless --lever-arm/--boresight give one.
@@ -526,7 +526,7 @@ def import_ouster_command(
         attitude: Annotated[str, typer.Option(help="static attitude ROLL,PITCH,YAW (deg, ENU)")] = "0,0,0",
         lever_arm: Annotated[str | None, typer.Option(help="Ouster sensor frame -> body lever arm X,Y,Z (m)")] = None,
         boresight: Annotated[str | None, typer.Option(help="Ouster sensor frame -> body ROLL,PITCH,YAW (deg)")] = None,
-        quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+        quiet: Quiet = False) -> None:
     """Ouster pcap + metadata JSON -> recording (docs/howto/import-ouster.md). Without --trajectory the
     sensor is taken as STATIC at --position.
 
@@ -549,7 +549,7 @@ def import_kitti_command(
         drive: Annotated[Path, typer.Argument(help="KITTI raw drive folder (..._drive_NNNN_sync)")],
         out: Annotated[Path | None, typer.Option(help="recording directory (default out/<drive name>)")] = None,
         calibration: Annotated[Path | None, typer.Option(help="db.xml or ROS YAML to start the fibre fit from")] = None,
-        quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+        quiet: Quiet = False) -> None:
     """KITTI raw drive -> recording. Per-return times are DERIVED from the azimuth (KITTI has none)."""
     from graphcal.importers.kitti import import_kitti
     from graphcal.importers.velodyne_calibration import read_velodyne_calibration
@@ -566,7 +566,7 @@ def import_sbet_command(sbet: Annotated[Path, typer.Argument(help="Applanix SBET
                         out: Annotated[Path, typer.Option(help="trajectory.csv to write")] = Path("trajectory.csv"),
                         start: Annotated[float | None, typer.Option(help="first GPS second of week to keep")] = None,
                         end: Annotated[float | None, typer.Option(help="last GPS second of week to keep")] = None,
-                        quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+                        quiet: Quiet = False) -> None:
     """Applanix SBET -> trajectory.csv (geodetic, ENU attitude, GPS seconds of week)."""
     from graphcal.importers.sbet import import_sbet
 
@@ -591,7 +591,7 @@ def import_csv_command(
         radians: Annotated[bool, typer.Option(help="angles in radians (default degrees)")] = False,
         delimiter: Annotated[str, typer.Option(help="column separator")] = ",",
         time_offset: Annotated[float, typer.Option(help="seconds added to the time column")] = 0.0,
-        quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+        quiet: Quiet = False) -> None:
     """A CSV trajectory with your own column names and units -> trajectory.csv of the recording format."""
     from graphcal.common.errors import ConfigError
     from graphcal.importers.trajectory_csv import (
@@ -630,7 +630,7 @@ def import_pcd_command(
         = None,
         pose_at: Annotated[str, typer.Option(help="a frame's pose is at its scan's first (start) or last (end) "
                                                   "return")] = "end",
-        quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+        quiet: Quiet = False) -> None:
     """PCD scans with ring and per-point time + per-frame poses -> recording (docs/howto/import-pcd.md).
 
     Example: graphcal import pcd top_center_lidar --poses top_center_lidar-enu.txt
@@ -678,7 +678,7 @@ def import_pointcloud2_command(
         body_frame: Annotated[str | None, typer.Option(help="the body's frame in the bag's tf, where the extrinsic "
                                                             "is read from (default: the bag trajectory's frame; "
                                                             "needed with --trajectory)")] = None,
-        quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+        quiet: Quiet = False) -> None:
     """ROS PointCloud2 scans with ring and per-point time -> recording (docs/howto/import-pointcloud2.md).
 
     Example: graphcal import pointcloud2 drive.bag --topic /velodyne_points --calibration VLP16db.yaml
@@ -710,7 +710,7 @@ def import_las_command(
         calibration: Annotated[Path | None, typer.Option(help="db.xml or ROS velodyne YAML the producer used")] = None,
         ring_field: Annotated[str | None, typer.Option(help="dimension holding the laser (default: ring, channel, "
                                                             "laser_id, laser, else point_source_id)")] = None,
-        quiet: Annotated[bool, typer.Option("--quiet", "-q")] = False) -> None:
+        quiet: Quiet = False) -> None:
     """Georeferenced LAS/LAZ + its trajectory -> recording, raw values by undoing the georeferencing
     (docs/howto/import-las.md).
 
