@@ -51,7 +51,9 @@ def test_import_pcap_bad_input_is_one_line(tmp_path):
     runner = CliRunner()
     result = runner.invoke(app, ["import", "pcap", str(cut), "--out", str(tmp_path / "cut")])
     assert result.exit_code == 0 and "cut short" in result.output, result.output  # the whole records are kept
-    for arguments, words in ((["import", "pcap", str(pcap), "--position", "45,6"], "--position: '45,6' is not 3"),
+    (tmp_path / "empty.pcap").write_bytes(b"")
+    for arguments, words in ((["import", "pcap", str(tmp_path / "empty.pcap")], "empty.pcap: empty file (expected"),
+                             (["import", "pcap", str(pcap), "--position", "45,6"], "--position: '45,6' is not 3"),
                              (["import", "pcap", str(pcap), "--position", "nan,nan,nan"], "finite numbers"),
                              (["import", "pcap", str(pcap), "--attitude", "inf,0,0"], "--attitude: 'inf,0,0'"),
                              (["import", "pcap", str(pcap), "--model", "VLP-32"], "unknown Velodyne model")):

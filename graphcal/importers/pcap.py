@@ -97,7 +97,7 @@ def _global_header(path: Path, head: bytes) -> tuple[str, float, int]:
         raise RecordingError(path, "pcapng file", expected="a classic libpcap file (convert it with "
                                                            "'editcap -F pcap IN OUT')")
     if len(head) < 24 or head[:4] not in _MAGIC:
-        raise RecordingError(path, f"first bytes {head[:4].hex()}",
+        raise RecordingError(path, f"first bytes {head[:4].hex()}" if head else "empty file",
                              expected="a libpcap file (magic a1b2c3d4 or a1b23c4d)")
     order, tick = _MAGIC[head[:4]]
     link = struct.unpack_from(order + "I", head, 20)[0]
