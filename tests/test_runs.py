@@ -449,6 +449,7 @@ def test_trajectory_corrections_apply_only_to_their_own_drive(calibrated, tmp_pa
                     ["evaluate", str(folder), str(other)]):
         result = CliRunner().invoke(app, command)
         assert result.exit_code == 2 and "trajectory corrections were made on" in result.output, result.output
+        assert "calibration.yaml: " in result.output  # the file at fault, not the cloud to write
     assert not (tmp_path / "cloud.laz").exists()
     calibration = graphcal.Calibration.load(folder, Recording.load(recording_path).sensor)
     from graphcal.calibration.result import drive_of

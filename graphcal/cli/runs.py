@@ -204,6 +204,7 @@ def apply_run(calibration_path: Path, recording_path: Path, out: Path | None = N
     from graphcal.clouds.formats import STREAMED_SUFFIXES
     from graphcal.calibration.corrected_cloud import (
         RESIDUALS,
+        corrections_cover,
         read_residuals,
         write_corrected_cloud,
     )
@@ -219,6 +220,7 @@ def apply_run(calibration_path: Path, recording_path: Path, out: Path | None = N
     else:
         run, recording = None, Recording.load(recording_path)
     calibration = Calibration.load(calibration_path, recording.sensor)
+    corrections_cover(calibration, recording, calibration_file(calibration_path))  # named by its file
     not_applied = effects_not_applied(calibration_path, quiet)
     folder = calibration_file(calibration_path).parent
     made_from = (read_yaml(folder / MANIFEST) or {}).get("recording") if (folder / MANIFEST).is_file() else None
