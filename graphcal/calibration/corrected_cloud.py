@@ -60,11 +60,13 @@ def corrections_cover(calibration: Calibration, recording: Recording, path: Path
 
 
 def write_corrected_cloud(path: Path, calibration: Calibration, recording: Recording,
-                          residuals: tuple[np.ndarray, np.ndarray] | None = None, quiet: bool = False) -> Path:
+                          residuals: tuple[np.ndarray, np.ndarray] | None = None, quiet: bool = False,
+                          calibration_path: Path | None = None) -> Path:
     """Every return of `recording` placed with `calibration`, written by the file's suffix
     (.las, .laz, .ply) BATCH_ROWS returns at a time (memory stays flat: about 1 kB per return of
-    a batch); residuals: (rows, residual [m]) of the calibration's own recording."""
-    corrections_cover(calibration, recording, path)
+    a batch); residuals: (rows, residual [m]) of the calibration's own recording; calibration_path: the file the
+    calibration was read from, which a refusal of its trajectory corrections names (None: path)."""
+    corrections_cover(calibration, recording, calibration_path or path)
     n_points = len(recording.points)
     residual = np.full(n_points, np.nan, dtype=np.float32)
     if residuals is not None:

@@ -414,12 +414,16 @@ def _numbers(text: str | None, option: str, count: int = 3) -> tuple[float, ...]
 
 
 def _position(text: str | None) -> tuple[float, float, float] | None:
-    """--position 'LAT,LON,ALT' (deg, deg, m), or ConfigError naming it when a number or an angle is out of range."""
+    """--position 'LAT,LON,ALT' (deg, deg, m), or ConfigError naming it when a value is beyond trajectory.csv's
+    limits (GEODETIC_LIMITS)."""
     from graphcal.common.errors import ConfigError
+    from graphcal.recording.trajectory import GEODETIC_LIMITS
 
     values = _numbers(text, "--position")
-    if values is not None and not (abs(values[0]) <= 90 and abs(values[1]) <= 180):
-        raise ConfigError(f"--position: {text!r}: latitude within +-90 deg and longitude within +-180 deg expected")
+    if values is not None and any(abs(v) > limit for v, limit in zip(values, GEODETIC_LIMITS)):
+        lat, lon, height = GEODETIC_LIMITS
+        raise ConfigError(f"--position: {text!r}: latitude within +-{lat:g} deg, longitude within +-{lon:g} deg "
+                          f"and height within +-{height:g} m expected")
     return values
 
 

@@ -204,7 +204,6 @@ def apply_run(calibration_path: Path, recording_path: Path, out: Path | None = N
     from graphcal.clouds.formats import STREAMED_SUFFIXES
     from graphcal.calibration.corrected_cloud import (
         RESIDUALS,
-        corrections_cover,
         read_residuals,
         write_corrected_cloud,
     )
@@ -220,19 +219,18 @@ def apply_run(calibration_path: Path, recording_path: Path, out: Path | None = N
     else:
         run, recording = None, Recording.load(recording_path)
     calibration = Calibration.load(calibration_path, recording.sensor)
-    corrections_cover(calibration, recording, calibration_file(calibration_path))  # named by its file
     not_applied = effects_not_applied(calibration_path, quiet)
     folder = calibration_file(calibration_path).parent
     made_from = (read_yaml(folder / MANIFEST) or {}).get("recording") if (folder / MANIFEST).is_file() else None
     residuals = None
     if made_from and Path(made_from).resolve() == Path(recording_path).resolve() and (folder / RESIDUALS).is_file():
         residuals = read_residuals(folder / RESIDUALS, len(recording.points))
-    path = out or run.path / "cloud.laz"
+    path, named = out or run.path / "cloud.laz", calibration_file(calibration_path)
     if run is None:
-        write_corrected_cloud(path, calibration, recording, residuals, quiet)
+        write_corrected_cloud(path, calibration, recording, residuals, quiet, named)
     else:
         with run.stage("apply and write"):
-            write_corrected_cloud(path, calibration, recording, residuals, quiet)
+            write_corrected_cloud(path, calibration, recording, residuals, quiet, named)
         run.finish(recording=str(Path(recording_path).resolve()), calibration=str(Path(calibration_path).resolve()),
                    cloud=path.name, residuals="from the calibration's final fit" if residuals else "none (NaN)",
                    effects_not_applied=not_applied)

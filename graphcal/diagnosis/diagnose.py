@@ -318,8 +318,7 @@ def generic_if_better(winner: CandidateTest, eligible: list[CandidateTest], riva
         return generic[0]
     better = [t for t in rivals if Discrepancy.parse(t.name).channel == signature[0]
               and t.bic_gain > winner.bic_gain and t.explained_rms_m > winner.explained_rms_m]
-    better = [t for t in sorted(better, key=lambda t: -t.bic_gain) if leaves_structure(t)][:1]
-    return better[0] if better else winner
+    return next((t for t in sorted(better, key=lambda t: -t.bic_gain) if leaves_structure(t)), winner)
 
 
 def shape_only(name: str, names: list[str]) -> list[str]:

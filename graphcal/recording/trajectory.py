@@ -17,6 +17,8 @@ PROJECTED_COLUMNS = ("time", "x", "y", "z", "roll", "pitch", "yaw")
 
 MAX_GRID_M = 1e8  # no map projection's easting or northing is larger (UTM: < 1e7)
 MAX_HEIGHT_M = 1e5  # above the atmosphere, below the deepest mine: not a vehicle's height
+# |lat| [deg], |lon| [deg], |height| [m] of a geodetic position
+GEODETIC_LIMITS = (90.0, 180.0, MAX_HEIGHT_M)
 
 
 @dataclass(frozen=True)
@@ -82,7 +84,7 @@ class Trajectory:
             raise RecordingError(path, f"time {float(self.time[row - 1])!r} does not increase after "
                                        f"{float(self.time[row - 2])!r}",
                                  field="time", row=row, expected="strictly increasing times")
-        limits = (90.0, 180.0, MAX_HEIGHT_M) if self.geodetic else (MAX_GRID_M, MAX_GRID_M, MAX_HEIGHT_M)
+        limits = GEODETIC_LIMITS if self.geodetic else (MAX_GRID_M, MAX_GRID_M, MAX_HEIGHT_M)
         units = ("degrees", "degrees", "metres") if self.geodetic else ("metres",) * 3
         for name, column, limit, unit in zip(self.columns[1:4], self.position.T, limits, units):
             out = np.flatnonzero(np.abs(column) > limit)
