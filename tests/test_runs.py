@@ -454,3 +454,22 @@ def test_trajectory_corrections_apply_only_to_their_own_drive(calibrated, tmp_pa
     calibration = graphcal.Calibration.load(folder, Recording.load(recording_path).sensor)
     from graphcal.calibration.result import drive_of
     assert calibration.drive == drive_of(Recording.load(recording_path))
+
+
+def test_evaluating_against_another_drive_leaves_the_runs_own_evaluation(calibrated, tmp_path):
+    """A calibration without trajectory corrections applies to any drive of the unit: evaluated against another
+    drive's truth, the result goes to evaluation-<recording>.yaml beside it, naming that recording, and the run's
+    own evaluation.yaml and report are not rewritten with another drive's figures."""
+    recording_path, folder = calibrated
+    copy = shutil.copytree(folder, tmp_path / "copy")
+    data = yaml.safe_load((copy / "calibration.yaml").read_text())
+    data.pop("trajectory_corrections", None)
+    (copy / "calibration.yaml").write_text(yaml.safe_dump(data))
+    own, report = ((copy / name).read_bytes() for name in ("evaluation.yaml", "report.html"))
+    other = graphcal.simulate(SIM6(size=0.02, seed=2), quiet=True).save(tmp_path / "other")
+    result = CliRunner().invoke(app, ["evaluate", str(copy), str(other)])
+    assert result.exit_code == 0, result.output
+    written = copy / f"evaluation-{Recording.load(other).name}.yaml"
+    assert f"wrote {written}" in result.output
+    assert yaml.safe_load(written.read_text())["recording"] == str(other)
+    assert (copy / "evaluation.yaml").read_bytes() == own and (copy / "report.html").read_bytes() == report

@@ -170,11 +170,14 @@ def diagnosis_run(recording_path: Path, config: CalibrationConfig, how: Diagnose
 
 def evaluation_run(calibration_path: Path, recording_path: Path, quiet: bool = False) -> tuple[Evaluation, Path]:
     """Evaluate a calibration (run folder or calibration.yaml) against the recording's truth/;
-    writes evaluation.yaml next to calibration.yaml and refreshes report.html if there is one."""
+    writes evaluation.yaml next to calibration.yaml and refreshes report.html if there is one. Against another
+    drive than the one it was made on (calibration.yaml's `drive`), the evaluation is written beside it as
+    evaluation-<recording>.yaml and the run's own evaluation and report are left as they are."""
     from graphcal.calibration.corrected_cloud import corrections_cover
     from graphcal.calibration.evaluate import evaluate
-    from graphcal.calibration.result import Calibration, calibration_file
+    from graphcal.calibration.result import Calibration, calibration_file, drive_of
     from graphcal.common.errors import RecordingError
+    from graphcal.common.run_folder import folder_name
     from graphcal.report.html import EVALUATION, REPORT, write_report
 
     recording = Recording.load(recording_path)
@@ -190,10 +193,12 @@ def evaluation_run(calibration_path: Path, recording_path: Path, quiet: bool = F
     energy = (read_yaml(calibration_file(calibration_path)) or {}).get("energy_cm2") or {}
     if "before" in energy:
         evaluation = replace(evaluation, energy_cm2=(energy["before"], energy["after"]))
-    write_yaml(folder / EVALUATION, evaluation.to_dict())
-    if (folder / REPORT).is_file():
+    own_drive = calibration.drive is None or calibration.drive == drive_of(recording)
+    path = folder / (EVALUATION if own_drive else f"evaluation-{folder_name(recording.name)}.yaml")
+    write_yaml(path, {**evaluation.to_dict(), "recording": str(recording_path)})
+    if own_drive and (folder / REPORT).is_file():
         write_report(folder)
-    return evaluation, folder / EVALUATION
+    return evaluation, path
 
 
 def apply_run(calibration_path: Path, recording_path: Path, out: Path | None = None, quiet: bool = False) -> Path:
