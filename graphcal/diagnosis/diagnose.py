@@ -146,7 +146,8 @@ class Diagnosis:
     candidates the data could not tell apart, the residual field's top locations, every candidate's
     first-round test, the candidates the model already mimics entirely, the tests of candidates at
     their known size (graphcal.diagnosis.hypothesis), J before/after [cm^2], and the effects withdrawn:
-    significant by their score test, not once re-solved with the model (score.wald_at_refit).
+    significant by their score test, not once re-solved with the model (score.wald_at_refit), or discrepancies
+    that do not lower J once re-solved.
     locations are those of the final fit, locations_baseline those of the fit without any effect."""
 
     findings: list[dict]
@@ -383,16 +384,20 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
         tests, modelled, lin = score_all(fit, names)
         tests = sized_by_held_out(tests)
         if added is not None:  # the effect added last, with its sigma at the refit
-            winner, before, hypothesis = added
+            winner, before, hypothesis, control = added
             at_refit = modelled[winner.name]
             statistic, p_value = wald_at_refit(fit.model.values[winner.name], at_refit)
-            if hypothesis is None and p_value >= ALPHA / (len(names) + 1):
-                # not significant once re-solved: withdrawn, back to the fit without it
-                withdrawn.append(_withdrawn(winner, fit, at_refit.sigma, statistic, p_value))
+            # not significant once re-solved, or a discrepancy that, modelled, does not lower J: withdrawn, back to
+            # the fit without it
+            unlowered = control is not None and fit.energy_cm2 >= control
+            if hypothesis is None and (p_value >= ALPHA / (len(names) + 1) or unlowered):
+                withdrawn.append(_withdrawn(winner, fit, at_refit.sigma, statistic, p_value,
+                                            control if unlowered else None))
                 fit, names, tests, modelled, lin = previous
                 not_separable = [n for n in not_separable if n["named"] != winner.name]
             else:
-                findings.append(_finding(winner, fit, before, at_refit, hypothesis, previous and previous[0]))
+                findings.append(_finding(winner, fit, before if control is None else control, at_refit, hypothesis,
+                                         previous and previous[0]))
             added = None
         if first_round is None:
             first_round = [_row(t, recording, len(names)) for t in sorted(tests.values(), key=lambda t: t.log10_p)]
@@ -406,7 +411,7 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
             accepted = [h for h in hypotheses if h.accepted(ALPHA / len(names))]
             if accepted:
                 hypothesis = max(accepted, key=lambda h: h.statistic)
-                added, fit = (tests[hypothesis.name], fit.energy_cm2, hypothesis), hypothesis.fit
+                added, fit = (tests[hypothesis.name], fit.energy_cm2, hypothesis, None), hypothesis.fit
                 continue
         significant = [t for t in tests.values() if t.identifiable and t.significant(len(names))
                        and t.name not in {w["effect"] for w in withdrawn}]
@@ -432,8 +437,12 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
         active = fit.model.names + (winner.name,)
         prior = {n: float(max(10 * np.abs(fit.model.values.get(n, winner.theta)).max(), 10 * np.sqrt(
             np.max(np.diag(winner.covariance))))) for n in active}
+        # a discrepancy's refit is compared with the fit without it re-solved as long: the refit also goes on
+        # converging what the baseline left, which lowers J whatever the curve does
+        control = (refit(fit, fit.model.names, {n: prior[n] for n in fit.model.names}, refit_iterations).energy_cm2
+                   if is_discrepancy(winner.name) else None)
         fit = refit(fit, active, prior, refit_iterations)
-        added = (winner, before, None)
+        added = (winner, before, None, control)
     energy["after"] = fit.energy_cm2
     if added is None:  # the last round scored the final fit (modelled)
         findings = [at_final_fit(f, fit, modelled) for f in findings]
@@ -484,6 +493,7 @@ def _finding(test: CandidateTest, fit: Fit, energy_before: float, at_refit: Cand
     """The finding of an effect added: its size at the refit (fit) with its sigma there (at_refit), what
     absorbed it (its score test at the fit before it was added, fit_before) and the evidence: the score test's, with its
     held-out J, or for a candidate tested at its known size that test's (truncated cost, no held-out J).
+    energy_before: J [cm^2] of the fit before it was added (for a discrepancy, that fit re-solved as long).
     A discrepancy's is `discovered` (RECORDING.md "Discovered effects")."""
     sigma = at_refit.sigma
     value = fit.model.values[test.name]
@@ -551,15 +561,31 @@ def _binned(fit: Fit, regressor: str) -> dict:
     return binned_against(fit, regressor_values(fit.model.context.context(fit.pairs.index_p), regressor))
 
 
-def _withdrawn(test: CandidateTest, fit: Fit, sigma: float, statistic: float, p_value: float) -> dict:
-    """An effect significant by its score test but not at its refit (fit): its size there, both tests."""
+def _withdrawn(test: CandidateTest, fit: Fit, sigma: float, statistic: float, p_value: float,
+               energy_before: float | None = None) -> dict:
+    """An effect significant by its score test but not at its refit (fit): its size there, both tests; or a
+    discrepancy whose refit does not lower J below the fit without it re-solved as long (energy_before [cm^2],
+    given only then; J on each fit's own pairs). The linear test predicts the fall of J; a curve that fits misfit
+    the model makes (pairs across the edges of near cars on the independent simulator's clean street: 1.1 deg of
+    elevation at 2 m, held-out J predicted 1.10 -> 1.07 cm²) raises J once the returns are placed with it and
+    paired again (0.843 -> 0.870 cm²): it does not sharpen the cloud, and a discovery must."""
     magnitude = candidate(test.name).magnitude_of(fit.model.values[test.name])
-    statement = (f"{test.name} was significant in the linear test ({display(test.name, test.magnitude)}, chi2 "
-                 f"{test.statistic:.3g}) but not once re-solved with it ({display(test.name, magnitude)} ± "
-                 f"{display(test.name, sigma)}, chi2 {statistic:.3g}, p {p_value:.2g}): withdrawn")
+    refit = f"{display(test.name, magnitude)} ± {display(test.name, sigma)}, chi2 {statistic:.3g}, p {p_value:.2g}"
+    if energy_before is None:
+        reason = f"it is not significant once re-solved with it ({refit})"
+    else:
+        reason = (f"it does not lower J once re-solved with it ({refit}; J {energy_before:.3g} cm² without it, "
+                  f"{fit.energy_cm2:.3g} cm² with it)")
+    if is_discrepancy(test.name):
+        model = Discrepancy.parse(test.name)
+        what = f"a curve of the {model.channel} against the {model.regressor}"
+    else:
+        what = test.name
+    statement = (f"{what} was significant in the linear test ({display(test.name, test.magnitude)}, chi2 "
+                 f"{test.statistic:.3g}) but {reason}: withdrawn")
     return {"effect": test.name, "magnitude": magnitude, "sigma": sigma, "unit": candidate(test.name).unit,
             "statement": statement, "score_statistic": test.statistic, "refit_statistic": statistic,
-            "refit_p_value": p_value}
+            "refit_p_value": p_value, "energy_cm2": {"before": energy_before, "after": fit.energy_cm2}}
 
 
 def _calibration(result: CalibrationResult, fit: Fit, findings: list[dict]) -> CalibrationResult:
