@@ -434,15 +434,11 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
                                       "named": winner.name, "would_separate": SEPARATING_DATA.get(
                                           frozenset(pair), DEFAULT_SEPARATING_DATA)})
         before, previous = fit.energy_cm2, (fit, names, tests, modelled, lin)
-        active = fit.model.names + (winner.name,)
-        prior = {n: float(max(10 * np.abs(fit.model.values.get(n, winner.theta)).max(), 10 * np.sqrt(
-            np.max(np.diag(winner.covariance))))) for n in active}
         # a discrepancy's refit is compared with the fit without it re-solved as long: the refit also goes on
         # converging what the baseline left, which lowers J whatever the curve does
-        control = (refit(fit, fit.model.names, {n: prior[n] for n in fit.model.names}, refit_iterations).energy_cm2
+        control = (_refit_with(fit, winner, refit_iterations, added=False).energy_cm2
                    if is_discrepancy(winner.name) else None)
-        fit = refit(fit, active, prior, refit_iterations)
-        added = (winner, before, None, control)
+        fit, added = _refit_with(fit, winner, refit_iterations), (winner, before, None, control)
     energy["after"] = fit.energy_cm2
     if added is None:  # the last round scored the final fit (modelled)
         findings = [at_final_fit(f, fit, modelled) for f in findings]
@@ -451,6 +447,16 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
     findings += unexplained(final)
     return Diagnosis(findings, not_separable, final, located, first_round, concealed, energy,
                      time.perf_counter() - started, at_known_size, calibration, fit, withdrawn)
+
+
+def _refit_with(fit: Fit, test: CandidateTest, iterations: int, added: bool = True) -> Fit:
+    """The fit re-solved (refit) with a test's effect added to those it models (added False: re-solved as long
+    without it, the control its refit is compared with); each effect's prior ten times its size or the test's
+    sigma, whichever is larger (loose: it keeps a weak effect from running off, not from its size)."""
+    active = fit.model.names + ((test.name,) if added else ())
+    floor = 10 * np.sqrt(np.max(np.diag(test.covariance)))
+    prior = {n: float(max(10 * np.abs(fit.model.values.get(n, test.theta)).max(), floor)) for n in active}
+    return refit(fit, active, prior, iterations)
 
 
 def at_final_fit(finding: dict, fit: Fit, modelled: dict[str, CandidateTest]) -> dict:
