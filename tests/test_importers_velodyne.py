@@ -9,7 +9,7 @@ import pytest
 import velodyne_decoder as vd
 import yaml
 from scipy.spatial import cKDTree
-from velodyne_reference import reference_xyz
+from velodyne_reference import decoder_minus_model, reference_xyz
 from velodyne_synth import (
     data_packet,
     pcap_file,
@@ -81,15 +81,6 @@ SYNTHETIC = {  # model: (capture settings, velodyne-decoder model, calibration f
 }
 
 
-def _manual_minus_model(sensor, fibre, azimuth_rad):
-    """velodyne-decoder 3.1 (like the HDL-64E manual) puts the vertical offset V straight up
-    (xy = D cos e, z = D sin e + V); graphcal's model (like ROS velodyne_pointcloud) shifts the beam
-    by V perpendicular to it. The difference, decoder minus graphcal, in graphcal's sensor frame."""
-    v, e = sensor.vertical_offset_m[fibre], np.radians(sensor.elevation_deg[fibre])
-    a = azimuth_rad + np.radians(sensor.azimuth_offset_deg[fibre])
-    return np.column_stack([v * np.sin(e) * np.cos(a), -v * np.sin(e) * np.sin(a), v * (1.0 - np.cos(e))])
-
-
 @needs_calibrations
 @pytest.mark.parametrize("case", sorted(SYNTHETIC))
 def test_model_reproduces_velodyne_decoder_xyz(case, tmp_path):
@@ -97,7 +88,7 @@ def test_model_reproduces_velodyne_decoder_xyz(case, tmp_path):
     reference decoder's with the same calibration file, to 0.1 mm. The decoder rounds each
     interpolated azimuth to 0.01 deg: its azimuth must be ours rounded down or up. HDL-64E: the
     two-point range correction is switched off (graphcal drops it) and the decoder's convention
-    for the vertical offset is added (_manual_minus_model)."""
+    for the vertical offset is added (decoder_minus_model)."""
     settings, vd_model, calibration_file = SYNTHETIC[case]
     calibration_path = CALIBRATIONS / calibration_file
     if case == "HDL-64E":
@@ -123,7 +114,7 @@ def test_model_reproduces_velodyne_decoder_xyz(case, tmp_path):
     error = np.full(len(range_m), np.inf)
     for rounding in (np.floor, np.ceil):
         azimuth = np.radians(np.mod(rounding(centi_deg), 36000) / 100)
-        xyz = recording.sensor.to_xyz(fibre, range_m, azimuth) + _manual_minus_model(recording.sensor, fibre, azimuth)
+        xyz = recording.sensor.to_xyz(fibre, range_m, azimuth) + decoder_minus_model(recording.sensor, fibre, azimuth)
         error = np.minimum(error, tree.query(xyz)[0])
     assert error.max() < 1e-4, error.max()
     assert recording.sensor.model == case.split()[0] and recording.source["model"] == case.split()[0]

@@ -20,3 +20,12 @@ def reference_xyz(packets: np.ndarray, stamps: np.ndarray, model: str, calibrati
         clouds.append(decoder.decode(float(stamp), data.tobytes(), False))
     clouds.append(decoder.finish(False))
     return np.concatenate([cloud[1] for cloud in clouds if cloud is not None])[:, :3]
+
+
+def decoder_minus_model(sensor, fibre, azimuth_rad):
+    """velodyne-decoder 3.1 (like the HDL-64E manual) puts the vertical offset V straight up
+    (xy = D cos e, z = D sin e + V); graphcal's model (like ROS velodyne_pointcloud) shifts the beam
+    by V perpendicular to it. The difference, decoder minus graphcal, in graphcal's sensor frame."""
+    v, e = sensor.vertical_offset_m[fibre], np.radians(sensor.elevation_deg[fibre])
+    a = azimuth_rad + np.radians(sensor.azimuth_offset_deg[fibre])
+    return np.column_stack([v * np.sin(e) * np.cos(a), -v * np.sin(e) * np.sin(a), v * (1.0 - np.cos(e))])
