@@ -473,3 +473,47 @@ def test_evaluating_against_another_drive_leaves_the_runs_own_evaluation(calibra
     assert f"wrote {written}" in result.output
     assert yaml.safe_load(written.read_text())["recording"] == str(other)
     assert (copy / "evaluation.yaml").read_bytes() == own and (copy / "report.html").read_bytes() == report
+
+
+def test_what_a_killed_process_left_is_removed_by_the_next_write_of_the_same_name(tmp_path):
+    """A process killed (SIGKILL) inside an atomic write or a run leaves its hidden working folder; the next write
+    of the same name on this host removes it, and leaves alone what a live process or another host is writing."""
+    import os
+    import signal
+    import socket
+    import subprocess
+    import sys
+
+    from graphcal.common.atomic import atomic_directory, atomic_path
+    from graphcal.common.run_folder import RunFolder
+
+    killed = f"""
+import os, signal, sys
+from pathlib import Path
+from graphcal.common.atomic import atomic_directory, atomic_path
+from graphcal.common.run_folder import RunFolder
+root = Path(sys.argv[1])
+run = RunFolder.create(root / "run", "rec", "calibrate")
+(run.path / "calibration.yaml").write_text("half")
+with atomic_path(root / "cloud.laz") as tmp:
+    tmp.write_text("half")
+    with atomic_directory(root / "rec") as folder:
+        (folder / "points.parquet").write_text("half")
+        os.kill(os.getpid(), signal.SIGKILL)
+"""
+    child = subprocess.run([sys.executable, "-c", killed, str(tmp_path)])
+    assert child.returncode == -signal.SIGKILL
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert len(left) == 3 and all(name.startswith((".run.partial-", ".cloud.laz.", ".rec.")) for name in left), left
+    elsewhere = tmp_path / f".rec.other-{socket.gethostname()}-999999.abc.tmp"  # another host's
+    live = tmp_path / f".rec.{socket.gethostname()}-{os.getpid()}.abc.tmp"  # a process still writing
+    elsewhere.mkdir()
+    live.mkdir()
+    with atomic_directory(tmp_path / "rec") as folder:
+        (folder / "points.parquet").write_text("whole")
+    with atomic_path(tmp_path / "cloud.laz") as tmp:
+        tmp.write_text("whole")
+    run = RunFolder.create(tmp_path / "run", "rec", "calibrate")
+    run.finish(recording="/data/rec")
+    run.publish()
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([elsewhere.name, live.name, "cloud.laz", "rec", "run"])

@@ -14,7 +14,7 @@ Commands use it as
     run.finish(recording=str(path))
     run.publish()                            # run.path becomes run.final, whole
 
-A run is written into a hidden sibling folder (.<name>.partial-<pid>) and moved to its place only when complete,
+A run is written into a hidden sibling folder (.<name>.partial-<host>-<pid>) and moved to its place only when complete,
 so an interrupted run (even a SIGKILL) never leaves a folder that mixes a new calibration with an old report: a
 re-run into an existing --out replaces it at the end, or leaves it as it was.
 """
@@ -33,6 +33,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from graphcal.common.atomic import remove_abandoned, working_tag
 from graphcal.common.errors import ConfigError, RecordingError
 from graphcal.common.yamlfile import read_yaml, write_yaml
 
@@ -72,7 +73,9 @@ class RunFolder:
         final = Path(out) if out is not None else root / f"{folder_name(recording_name)}-{command}-{utc_stamp()}"
         if final.exists() and not final.is_dir():
             raise ConfigError(f"{final}: --out names a file; a run folder is a directory")
-        working = final.parent / f".{final.name}.partial-{os.getpid()}"
+        working = final.parent / f".{final.name}.partial-{working_tag()}"
+        for kind in ("partial", "replaced"):  # what a killed run of the same folder left
+            remove_abandoned(final.parent, f".{final.name}.{kind}-")
         if working.exists():
             shutil.rmtree(working)
         working.mkdir(parents=True)
@@ -84,7 +87,7 @@ class RunFolder:
         """Move the complete run to its place (replacing a previous run there) and point runs/latest at it. A
         recording inside the folder it replaces (the demo's out/recording, an input rather than a result) is kept."""
         if self.path != self.final:
-            replaced = self.final.parent / f".{self.final.name}.replaced-{os.getpid()}"
+            replaced = self.final.parent / f".{self.final.name}.replaced-{working_tag()}"
             if self.final.exists():
                 for child in self.final.iterdir():
                     if (child / "recording.yaml").is_file() and not (self.path / child.name).exists():
