@@ -521,7 +521,7 @@ def _finding(test: CandidateTest, fit: Fit, energy_before: float, at_refit: Cand
         evidence = {"statistic": hypothesis.statistic, "dof": hypothesis.blocks - 1, "p_value": hypothesis.p_value,
                     "test": "refit at the known size, truncated cost per time block (graphcal.diagnosis.hypothesis)"}
     if is_discrepancy(test.name):
-        return _discovered(test, fit, fit_before, at_refit, gain) | {"evidence": evidence}
+        return _discovered(test, fit, fit_before, at_refit, gain, energy_before) | {"evidence": evidence}
     statement = (f"the recording shows {candidate(test.name).physics} ({test.name}: {display(test.name, magnitude)} "
                  f"± {display(test.name, sigma)}), which the model left out; it was absorbed by {absorbed[0]} "
                  f"(correlation {absorbed[1]:+.2f}, concealment R² {test.concealment_r2:.2f}); adding it lowers "
@@ -534,10 +534,12 @@ def _finding(test: CandidateTest, fit: Fit, energy_before: float, at_refit: Cand
                            "held_out_after": held_after}}
 
 
-def _discovered(test: CandidateTest, fit: Fit, fit_before: Fit, at_refit: CandidateTest, gain: str) -> dict:
+def _discovered(test: CandidateTest, fit: Fit, fit_before: Fit, at_refit: CandidateTest, gain: str,
+                energy_before: float) -> dict:
     """A discrepancy's finding: its channel, regressor, curve with 1-sigma band (covariance at the refit),
     peak-to-peak magnitude, what absorbed it at the fit before (fit_before), the physics that could produce
-    it, and the residuals binned against its regressor before and after it was added."""
+    it, the residuals binned against its regressor before and after it was added, and J before it
+    (energy_before: the fit without it re-solved as long) and after."""
     model = Discrepancy.parse(test.name)
     value, covariance = model.without_boresight(fit.model.values[test.name], at_refit.covariance)
     curve = model.curve(value, covariance)
@@ -558,7 +560,7 @@ def _discovered(test: CandidateTest, fit: Fit, fit_before: Fit, at_refit: Candid
             "absorbed_by": [a for a, _ in test.absorbed_by], "mdb": test.mdb, "concealment_r2": test.concealment_r2,
             "binned_residual_cm": {"before": _binned(fit_before, model.regressor),
                                    "after": _binned(fit, model.regressor)},
-            "energy_cm2": {"before": fit_before.energy_cm2, "after": fit.energy_cm2, "held_out_before": held_before,
+            "energy_cm2": {"before": energy_before, "after": fit.energy_cm2, "held_out_before": held_before,
                            "held_out_after": held_after}}
 
 
