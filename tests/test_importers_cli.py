@@ -110,7 +110,10 @@ def test_import_of_a_folder_that_is_no_bag_is_one_line(tmp_path):
     (tmp_path / "photos" / "a.txt").write_text("not a bag")
     result = CliRunner().invoke(app, ["import", "pcap", str(tmp_path / "photos"), "--out", str(tmp_path / "rec")])
     assert result.exit_code == 2 and result.output.count("\n") == 1, result.output
-    assert "not a readable ROS bag" in result.output and not (tmp_path / "rec").exists()
+    assert "photos: a folder without metadata.yaml: not a rosbag2 recording" in result.output
+    assert not (tmp_path / "rec").exists()
+    result = CliRunner().invoke(app, ["import", "pointcloud2", str(tmp_path / "photos"), "--out", str(tmp_path / "rec")])
+    assert result.exit_code == 2 and "a folder without metadata.yaml" in result.output, result.output
 
 
 def test_an_import_refused_after_it_began_to_write_leaves_nothing(tmp_path, monkeypatch):

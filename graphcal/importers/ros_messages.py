@@ -47,12 +47,22 @@ class RosBag:
         return ", ".join(sorted(f"{t.name} ({t.msgtype})" for t in self.topics)) or "none"
 
 
+BAG_EXPECTED = "a rosbag1 file, a rosbag2 folder with its metadata.yaml, or an MCAP or db3 file"
+
+
+def check_bag_path(path: Path) -> None:
+    """RecordingError naming path when it cannot be a bag: absent, or a folder without a rosbag2 metadata.yaml."""
+    if not path.exists():
+        raise RecordingError(path, "bag not found")
+    if path.is_dir() and not (path / "metadata.yaml").is_file():
+        raise RecordingError(path, "a folder without metadata.yaml: not a rosbag2 recording", expected=BAG_EXPECTED)
+
+
 @contextmanager
 def open_bag(path: str | Path) -> Iterator[RosBag]:
     """Open a bag of any container (see the module docstring); RecordingError for an unreadable one."""
     path = Path(path)
-    if not path.exists():
-        raise RecordingError(path, "bag not found")
+    check_bag_path(path)
     try:
         from rosbags.highlevel import AnyReader
         from rosbags.typesys import Stores, get_typestore
@@ -66,8 +76,7 @@ def open_bag(path: str | Path) -> Iterator[RosBag]:
         raise
     except Exception as error:  # rosbags' own (no metadata.yaml, a damaged file, a cut message)
         raise RecordingError(path, f"not a readable ROS bag: {type(error).__name__}: {error}",
-                             expected="a rosbag1 file, a rosbag2 folder with its metadata.yaml, or an MCAP or "
-                                      "db3 file") from None
+                             expected=BAG_EXPECTED) from None
 
 
 def ros_bag(path: Path, connections: list, messages, deserialize) -> RosBag:

@@ -21,7 +21,7 @@ import numpy as np
 from graphcal.common.errors import ConfigError, GraphcalError, RecordingError
 from graphcal.common.progress import progress
 from graphcal.common.yamlfile import read_yaml
-from graphcal.importers.ros_messages import RosBag, Topic, ros_bag
+from graphcal.importers.ros_messages import BAG_EXPECTED, RosBag, Topic, check_bag_path, ros_bag
 from graphcal.importers.ros_tf import bag_extrinsic, header_frame
 from graphcal.importers.ros_trajectory import trajectory_frame
 from graphcal.importers.velodyne_calibration import VelodyneCalibration
@@ -91,8 +91,7 @@ def velodyne_bag(bag: Path) -> Iterator[RosBag]:
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore
     except ImportError:
         raise ConfigError('reading ROS bags needs rosbags: pip install "graphcal[rosbag]"') from None
-    if not bag.exists():
-        raise RecordingError(bag, "bag not found")
+    check_bag_path(bag)
     store = get_typestore(Stores.ROS2_HUMBLE)
     for name, definition in _DEFINITIONS.items():
         store.register(get_types_from_msg(definition, name))
@@ -103,7 +102,7 @@ def velodyne_bag(bag: Path) -> Iterator[RosBag]:
         raise
     except Exception as error:  # rosbags' own (a folder without metadata.yaml, an empty or damaged bag, a cut message)
         raise RecordingError(bag, f"not a readable ROS bag: {type(error).__name__}: {error}",
-                             expected="a rosbag1 file or a rosbag2 folder with its metadata.yaml") from None
+                             expected=BAG_EXPECTED) from None
 
 
 def _chunk(data: list[np.ndarray], stamps: list[float], before: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
