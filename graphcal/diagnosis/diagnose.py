@@ -574,15 +574,15 @@ def _withdrawn(test: CandidateTest, fit: Fit, sigma: float, statistic: float, p_
     """An effect significant by its score test but not at its refit (fit): its size there, both tests; or a
     discrepancy whose refit does not lower J below the fit without it re-solved as long (energy_before [cm^2],
     given only then; J on each fit's own pairs). The linear test predicts the fall of J; a curve that fits misfit
-    the model makes (pairs across the edges of near cars on the independent simulator's clean street: 1.1 deg of
-    elevation at 2 m, held-out J predicted 1.10 -> 1.07 cm²) raises J once the returns are placed with it and
+    the model makes (the independent simulator's clean street, suspected: pairs across the edges of near cars;
+    1.1 deg of elevation at 2 m, held-out J predicted 1.10 -> 1.07 cm²) raises J once the returns are placed with it and
     paired again (0.843 -> 0.870 cm²): it does not sharpen the cloud, and a discovery must."""
     magnitude = candidate(test.name).magnitude_of(fit.model.values[test.name])
-    refit = f"{display(test.name, magnitude)} ± {display(test.name, sigma)}, chi2 {statistic:.3g}, p {p_value:.2g}"
+    resolved = f"{display(test.name, magnitude)} ± {display(test.name, sigma)}, chi2 {statistic:.3g}, p {p_value:.2g}"
     if energy_before is None:
-        reason = f"it is not significant once re-solved with it ({refit})"
+        reason = f"it is not significant once re-solved with it ({resolved})"
     else:
-        reason = (f"it does not lower J once re-solved with it ({refit}; J {energy_before:.3g} cm² without it, "
+        reason = (f"it does not lower J once re-solved with it ({resolved}; J {energy_before:.3g} cm² without it, "
                   f"{fit.energy_cm2:.3g} cm² with it)")
     if is_discrepancy(test.name):
         model = Discrepancy.parse(test.name)
