@@ -26,7 +26,7 @@ from factors.effects import CANDIDATES, candidate
 from graphcal.common.atomic import atomic_path
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.result import CalibrationResult
-from graphcal.diagnosis.fit import BLOCK_S, Fit, baseline, refit
+from graphcal.diagnosis.fit import BLOCK_S, Fit, baseline, on_pairs_of, refit
 from graphcal.diagnosis.hypotheses import hypotheses
 from graphcal.diagnosis.hypothesis import (
     TESTED_AT_KNOWN_SIZE,
@@ -389,15 +389,15 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
             statistic, p_value = wald_at_refit(fit.model.values[winner.name], at_refit)
             # not significant once re-solved, or a discrepancy that, modelled, does not lower J: withdrawn, back to
             # the fit without it
-            unlowered = control is not None and fit.energy_cm2 >= control
+            compared = None if control is None else (control.energy_cm2, on_pairs_of(fit, control))
+            unlowered = compared is not None and compared[1] >= compared[0]
             if hypothesis is None and (p_value >= ALPHA / (len(names) + 1) or unlowered):
                 withdrawn.append(_withdrawn(winner, fit, at_refit.sigma, statistic, p_value,
-                                            control if unlowered else None))
+                                            compared if unlowered else None))
                 fit, names, tests, modelled, lin = previous
                 not_separable = [n for n in not_separable if n["named"] != winner.name]
             else:
-                findings.append(_finding(winner, fit, before if control is None else control, at_refit, hypothesis,
-                                         previous and previous[0]))
+                findings.append(_finding(winner, fit, before, at_refit, hypothesis, previous and previous[0], compared))
             added = None
         if first_round is None:
             first_round = [_row(t, recording, len(names)) for t in sorted(tests.values(), key=lambda t: t.log10_p)]
@@ -434,10 +434,9 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
                                       "named": winner.name, "would_separate": SEPARATING_DATA.get(
                                           frozenset(pair), DEFAULT_SEPARATING_DATA)})
         before, previous = fit.energy_cm2, (fit, names, tests, modelled, lin)
-        # a discrepancy's refit is compared with the fit without it re-solved as long: the refit also goes on
-        # converging what the baseline left, which lowers J whatever the curve does
-        control = (_refit_with(fit, winner, refit_iterations, added=False).energy_cm2
-                   if is_discrepancy(winner.name) else None)
+        # a discrepancy's refit is compared with the fit without it re-solved as long (the refit also goes on
+        # converging what the baseline left, which lowers J whatever the curve does), on that fit's pairs
+        control = _refit_with(fit, winner, refit_iterations, added=False) if is_discrepancy(winner.name) else None
         fit, added = _refit_with(fit, winner, refit_iterations), (winner, before, None, control)
     energy["after"] = fit.energy_cm2
     if added is None:  # the last round scored the final fit (modelled)
@@ -495,20 +494,23 @@ def unexplained(locations: list[dict]) -> list[dict]:
 
 
 def _finding(test: CandidateTest, fit: Fit, energy_before: float, at_refit: CandidateTest,
-             hypothesis: HypothesisTest | None = None, fit_before: Fit | None = None) -> dict:
+             hypothesis: HypothesisTest | None = None, fit_before: Fit | None = None,
+             compared: tuple[float, float] | None = None) -> dict:
     """The finding of an effect added: its size at the refit (fit) with its sigma there (at_refit), what
     absorbed it (its score test at the fit before it was added, fit_before) and the evidence: the score test's, with its
     held-out J, or for a candidate tested at its known size that test's (truncated cost, no held-out J).
-    energy_before: J [cm^2] of the fit before it was added (for a discrepancy, that fit re-solved as long).
+    energy_before: J [cm^2] of the fit before it was added; compared (a discrepancy's): J of that fit re-solved
+    as long without it and J with it, both on the pairs of the former (the J its statement gives).
     A discrepancy's is `discovered` (RECORDING.md "Discovered effects")."""
     sigma = at_refit.sigma
     value = fit.model.values[test.name]
     magnitude = candidate(test.name).magnitude_of(value)
     absorbed = test.absorbed_by[0]
+    energy_before, energy_after = compared or (energy_before, fit.energy_cm2)
     if hypothesis is None:
         held_before, held_after = test.held_out_cm2
         gain = (f"held-out J from {held_before:.3g} to {held_after:.3g} cm² and J from {energy_before:.3g} to "
-                f"{fit.energy_cm2:.3g} cm²")
+                f"{energy_after:.3g} cm²")
         evidence = {"statistic": test.statistic, "dof": test.dof, "p_value": test.p_value, "log10_p": test.log10_p,
                     "bic_gain": test.bic_gain, "naive_statistic": test.naive_statistic}
     else:
@@ -521,7 +523,8 @@ def _finding(test: CandidateTest, fit: Fit, energy_before: float, at_refit: Cand
         evidence = {"statistic": hypothesis.statistic, "dof": hypothesis.blocks - 1, "p_value": hypothesis.p_value,
                     "test": "refit at the known size, truncated cost per time block (graphcal.diagnosis.hypothesis)"}
     if is_discrepancy(test.name):
-        return _discovered(test, fit, fit_before, at_refit, gain, energy_before) | {"evidence": evidence}
+        return _discovered(test, fit, fit_before, at_refit, gain, (energy_before, energy_after)) | {
+            "evidence": evidence}
     statement = (f"the recording shows {candidate(test.name).physics} ({test.name}: {display(test.name, magnitude)} "
                  f"± {display(test.name, sigma)}), which the model left out; it was absorbed by {absorbed[0]} "
                  f"(correlation {absorbed[1]:+.2f}, concealment R² {test.concealment_r2:.2f}); adding it lowers "
@@ -535,11 +538,11 @@ def _finding(test: CandidateTest, fit: Fit, energy_before: float, at_refit: Cand
 
 
 def _discovered(test: CandidateTest, fit: Fit, fit_before: Fit, at_refit: CandidateTest, gain: str,
-                energy_before: float) -> dict:
+                energies: tuple[float, float]) -> dict:
     """A discrepancy's finding: its channel, regressor, curve with 1-sigma band (covariance at the refit),
     peak-to-peak magnitude, what absorbed it at the fit before (fit_before), the physics that could produce
-    it, the residuals binned against its regressor before and after it was added, and J before it
-    (energy_before: the fit without it re-solved as long) and after."""
+    it, the residuals binned against its regressor before and after it was added, and J (energies: the fit
+    without it re-solved as long, and with it, on the former's pairs)."""
     model = Discrepancy.parse(test.name)
     value, covariance = model.without_boresight(fit.model.values[test.name], at_refit.covariance)
     curve = model.curve(value, covariance)
@@ -560,7 +563,7 @@ def _discovered(test: CandidateTest, fit: Fit, fit_before: Fit, at_refit: Candid
             "absorbed_by": [a for a, _ in test.absorbed_by], "mdb": test.mdb, "concealment_r2": test.concealment_r2,
             "binned_residual_cm": {"before": _binned(fit_before, model.regressor),
                                    "after": _binned(fit, model.regressor)},
-            "energy_cm2": {"before": energy_before, "after": fit.energy_cm2, "held_out_before": held_before,
+            "energy_cm2": {"before": energies[0], "after": energies[1], "held_out_before": held_before,
                            "held_out_after": held_after}}
 
 
@@ -570,20 +573,21 @@ def _binned(fit: Fit, regressor: str) -> dict:
 
 
 def _withdrawn(test: CandidateTest, fit: Fit, sigma: float, statistic: float, p_value: float,
-               energy_before: float | None = None) -> dict:
+               compared: tuple[float, float] | None = None) -> dict:
     """An effect significant by its score test but not at its refit (fit): its size there, both tests; or a
-    discrepancy whose refit does not lower J below the fit without it re-solved as long (energy_before [cm^2],
-    given only then; J on each fit's own pairs). The linear test predicts the fall of J; a curve that fits misfit
-    the model makes (the independent simulator's clean street, suspected: pairs across the edges of near cars;
-    1.1 deg of elevation at 2 m, held-out J predicted 1.10 -> 1.07 cm²) raises J once the returns are placed with it and
-    paired again (0.843 -> 0.870 cm²): it does not sharpen the cloud, and a discovery must."""
+    discrepancy whose refit does not lower J (compared, given only then: J of the fit without it re-solved as
+    long, and J with it, both on the former's pairs [cm^2]). The linear test predicts the fall of J; a curve that
+    fits misfit the model makes (the independent simulator's clean street, suspected: pairs across the edges of
+    near cars; 1.1 deg of elevation at 2 m, held-out J predicted 1.10 -> 1.07 cm²) does not place the returns
+    better once re-solved with it: it does not sharpen the cloud, and a discovery must. The same pairs for both:
+    on each fit's own, a curve that lets more pairs through the gates raises J without placing any return worse."""
     magnitude = candidate(test.name).magnitude_of(fit.model.values[test.name])
     resolved = f"{display(test.name, magnitude)} ± {display(test.name, sigma)}, chi2 {statistic:.3g}, p {p_value:.2g}"
-    if energy_before is None:
+    if compared is None:
         reason = f"it is not significant once re-solved with it ({resolved})"
     else:
-        reason = (f"it does not lower J once re-solved with it ({resolved}; J {energy_before:.3g} cm² without it, "
-                  f"{fit.energy_cm2:.3g} cm² with it)")
+        reason = (f"it does not lower J once re-solved with it ({resolved}; on the same pairs J {compared[0]:.3g} cm² "
+                  f"without it, {compared[1]:.3g} cm² with it)")
     if is_discrepancy(test.name):
         model = Discrepancy.parse(test.name)
         what = f"a curve of the {model.channel} against the {model.regressor}"
@@ -591,9 +595,10 @@ def _withdrawn(test: CandidateTest, fit: Fit, sigma: float, statistic: float, p_
         what = test.name
     statement = (f"{what} was significant in the linear test ({display(test.name, test.magnitude)}, chi2 "
                  f"{test.statistic:.3g}) but {reason}: withdrawn")
+    before, after = compared or (None, fit.energy_cm2)
     return {"effect": test.name, "magnitude": magnitude, "sigma": sigma, "unit": candidate(test.name).unit,
             "statement": statement, "score_statistic": test.statistic, "refit_statistic": statistic,
-            "refit_p_value": p_value, "energy_cm2": {"before": energy_before, "after": fit.energy_cm2}}
+            "refit_p_value": p_value, "energy_cm2": {"before": before, "after": after}}
 
 
 def _calibration(result: CalibrationResult, fit: Fit, findings: list[dict]) -> CalibrationResult:

@@ -86,6 +86,13 @@ def _associated(recording: Recording, problem: Problem, estimate: Estimate, mode
     return Fit(recording, replace(problem, effects=None), estimate, model, points, features, pairs)
 
 
+def on_pairs_of(fit: Fit, other: Fit) -> float:
+    """J [cm^2] of fit's returns, placed at its estimate, on other's pairs (their rows, normals and weights): two
+    fits of the same returns compared on the same pairs."""
+    pairs = other.pairs
+    return energy_cm2(fit.points_m[pairs.index_p], fit.points_m[pairs.index_m], pairs)[0]
+
+
 def recorded_intensity(recording: Recording, rows: np.ndarray) -> np.ndarray | None:
     """The intensity of the returns at rows (sorted) of points.parquet, or None when they have none (all zero)."""
     intensity = recording.points.take(["intensity"], rows)["intensity"]
