@@ -193,7 +193,9 @@ def evaluation_run(calibration_path: Path, recording_path: Path, quiet: bool = F
     energy = (read_yaml(calibration_file(calibration_path)) or {}).get("energy_cm2") or {}
     if "before" in energy:
         evaluation = replace(evaluation, energy_cm2=(energy["before"], energy["after"]))
-    own_drive = calibration.drive is None or calibration.drive == drive_of(recording)
+    # trajectory corrections passed corrections_cover only on their own drive: its fingerprint is not made again
+    own_drive = (len(calibration.control_times_s) > 0 or calibration.drive is None
+                 or calibration.drive == drive_of(recording))
     path = folder / (EVALUATION if own_drive else f"evaluation-{folder_name(recording.name)}.yaml")
     write_yaml(path, {**evaluation.to_dict(), "recording": str(recording_path)})
     if own_drive and (folder / REPORT).is_file():
