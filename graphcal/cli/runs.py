@@ -190,12 +190,12 @@ def evaluation_run(calibration_path: Path, recording_path: Path, quiet: bool = F
     folder = calibration_file(calibration_path).parent
     with status("comparing with truth/", quiet):
         evaluation = evaluate(calibration, recording)
-    energy = (read_yaml(calibration_file(calibration_path)) or {}).get("energy_cm2") or {}
-    if "before" in energy:
-        evaluation = replace(evaluation, energy_cm2=(energy["before"], energy["after"]))
     # trajectory corrections passed corrections_cover only on their own drive: its fingerprint is not made again
     own_drive = (len(calibration.control_times_s) > 0 or calibration.drive is None
                  or calibration.drive == drive_of(recording))
+    energy = (read_yaml(calibration_file(calibration_path)) or {}).get("energy_cm2") or {}
+    if own_drive and "before" in energy:  # J of the drive it was made on: not this one's
+        evaluation = replace(evaluation, energy_cm2=(energy["before"], energy["after"]))
     path = folder / (EVALUATION if own_drive else f"evaluation-{folder_name(recording.name)}.yaml")
     write_yaml(path, {**evaluation.to_dict(), "recording": str(recording_path)})
     if own_drive and (folder / REPORT).is_file():
