@@ -490,7 +490,7 @@ def test_what_a_killed_process_left_is_removed_by_the_next_write_of_the_same_nam
     from graphcal.common.atomic import atomic_directory, atomic_path
     from graphcal.common.run_folder import RunFolder
 
-    killed = f"""
+    killed = """
 import os, signal, sys
 from pathlib import Path
 from graphcal.common.atomic import atomic_directory, atomic_path
