@@ -49,8 +49,10 @@ def remove_abandoned(directory: Path, prefix: str) -> list[Path]:
         tag = re.match(r"(.+)-(\d+)(\.|$)", entry.name[len(prefix):])
         if tag is None or tag.group(1) != host or _alive(int(tag.group(2))):
             continue
-        shutil.rmtree(entry, ignore_errors=True) if entry.is_dir() and not entry.is_symlink() else entry.unlink(
-            missing_ok=True)
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry, ignore_errors=True)
+        else:
+            entry.unlink(missing_ok=True)
         removed.append(entry)
     return removed
 

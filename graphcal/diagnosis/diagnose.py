@@ -26,7 +26,7 @@ from factors.effects import CANDIDATES, candidate
 from graphcal.common.atomic import atomic_path
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.result import CalibrationResult
-from graphcal.diagnosis.fit import BLOCK_S, Fit, baseline, on_pairs_of, refit
+from graphcal.diagnosis.fit import BLOCK_S, Fit, baseline, refit
 from graphcal.diagnosis.hypotheses import hypotheses
 from graphcal.diagnosis.hypothesis import (
     TESTED_AT_KNOWN_SIZE,
@@ -389,7 +389,7 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
             statistic, p_value = wald_at_refit(fit.model.values[winner.name], at_refit)
             # not significant once re-solved, or a discrepancy that, modelled, does not lower J: withdrawn, back to
             # the fit without it
-            compared = None if control is None else (control.energy_cm2, on_pairs_of(fit, control))
+            compared = None if control is None else (control.energy_cm2, fit.energy_on(control.pairs))
             unlowered = compared is not None and compared[1] >= compared[0]
             if hypothesis is None and (p_value >= ALPHA / (len(names) + 1) or unlowered):
                 withdrawn.append(_withdrawn(winner, fit, at_refit.sigma, statistic, p_value,

@@ -48,7 +48,12 @@ class Fit:
 
     @property
     def energy_cm2(self) -> float:
-        return energy_cm2(self.points_m[self.pairs.index_p], self.points_m[self.pairs.index_m], self.pairs)[0]
+        return self.energy_on(self.pairs)
+
+    def energy_on(self, pairs: Correspondences) -> float:
+        """J [cm^2] of the returns placed at this fit's estimate on the given pairs (their rows, normals and
+        weights): two fits of the same returns compared on the same pairs."""
+        return energy_cm2(self.points_m[pairs.index_p], self.points_m[pairs.index_m], pairs)[0]
 
     def clusters(self) -> tuple[np.ndarray, np.ndarray]:
         """Per pair: cluster id (time block x voxel of p) and time block (BLOCK_S long; its parity is the
@@ -84,13 +89,6 @@ def _associated(recording: Recording, problem: Problem, estimate: Estimate, mode
                                    sight_at(problem.full, estimate, points), recorded_intensity(recording, problem.full.rows))
         model = EffectModel((), {}, context)
     return Fit(recording, replace(problem, effects=None), estimate, model, points, features, pairs)
-
-
-def on_pairs_of(fit: Fit, other: Fit) -> float:
-    """J [cm^2] of fit's returns, placed at its estimate, on other's pairs (their rows, normals and weights): two
-    fits of the same returns compared on the same pairs."""
-    pairs = other.pairs
-    return energy_cm2(fit.points_m[pairs.index_p], fit.points_m[pairs.index_m], pairs)[0]
 
 
 def recorded_intensity(recording: Recording, rows: np.ndarray) -> np.ndarray | None:
