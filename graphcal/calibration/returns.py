@@ -36,7 +36,8 @@ class ReturnData:
     times [s], the head's range noise [m] (1-sigma; NaN: unknown), the recorded trajectory's white
     noise (trajectory_noise.PoseNoise), the nominal lever arm [m, body frame], which places the sensor
     on the vehicle, and the spans [s] (k, 2) of the drive the returns were drawn in (recording.subset; None:
-    the whole drive)."""
+    the whole drive); smoothing_error: the error smoothing left in the recorded poses, shared by the returns fired
+    within its interval_s (WorldTrajectory.smoothing_error)."""
 
     sensor: SensorModel
     rows: np.ndarray
@@ -54,6 +55,7 @@ class ReturnData:
     pose_noise: PoseNoise = PoseNoise.none()
     lever_arm_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
     spans_s: np.ndarray | None = None
+    smoothing_error: PoseNoise = PoseNoise.none()
 
     @property
     def one_viewpoint(self) -> bool:
@@ -109,7 +111,8 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
     a second when the whole drive would be thinner: recording.subset.subset_rows) and the INS pose at each one's
     time; control times control_interval_s apart from the trajectory's first pose span them,
     unless given; the head's range noise [m] measured from the first returns (range_noise.measured_range_noise_m)
-    unless given; the white noise left in the trajectory's poses (WorldTrajectory.pose_noise: none once smoothed out).
+    unless given; the white noise left in the trajectory's poses (WorldTrajectory.pose_noise: none once smoothed out)
+    and the error the smoothing left (WorldTrajectory.smoothing_error).
     points.parquet is read row group by row group: only the subset is held, whatever the recording's length."""
     rows, spans_s = subset_rows(recording.points, max_points, rng or np.random.default_rng(0), points_per_s)
     columns = recording.points.take(["time", "fibre", "range", "azimuth"], rows) | {"rows": rows}
@@ -129,7 +132,8 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
                       columns["range"].astype(np.float64), columns["azimuth"].astype(np.float64),
                       time, rotation.as_matrix(), position - origin, control, alpha, control_times, origin, range_noise_m,
                       recording.world.pose_noise,
-                      np.asarray(recording.extrinsic.lever_arm_m, dtype=np.float64), spans_s)
+                      np.asarray(recording.extrinsic.lever_arm_m, dtype=np.float64), spans_s,
+                      recording.world.smoothing_error)
 
 
 def heading_span_deg(R_world_body: np.ndarray) -> float:

@@ -13,6 +13,16 @@ whitening, eta_k the pair's own independent part (the INCIDENCE_FLOOR and plane-
 with P the priors' information (the nominal values are off by their priors' sigmas: the estimate
 inherits that error where the data see little), a sandwich (docs/reference/math.md "Observability"). With no return
 shared and unit weights it is H^-1.
+
+Returns fired close in time share their pose too. The error smoothing leaves in the recorded poses
+(ReturnData.smoothing_error: sigma_t [m] and sigma_a [rad] per axis, one draw per interval tau) moves every
+return fired in a window of tau alike: by dX + e x l, l the return minus the body's position. A window w adds
+
+    sum_w sum_c sigma_c^2 h_wc h_wc^T,   h_wc = sum_{pairs k} s_k (b_kc [p in w] - b'_kc [m in w]) a_k,
+
+b_k = (n_k, l_p x n_k) over the components c (translation, rotation), b'_k the same at m: a common error of a
+few tens of milliseconds of poses moves the thousands of pairs that saw them together, which no pair's own
+sigma can say.
 """
 
 from __future__ import annotations
@@ -26,7 +36,7 @@ import scipy.sparse as sparse
 from factors.point_to_plane import Block, residuals
 from graphcal.calibration.association import Correspondences
 from graphcal.calibration.observability import DenseMarginals
-from graphcal.calibration.returns import Estimate, ReturnData, rays_at
+from graphcal.calibration.returns import Estimate, ReturnData, rays_at, world_at
 
 RETURNS_PER_CHUNK = 200_000  # rows of g computed at once (memory: about 38 nonzeros each)
 
@@ -75,7 +85,26 @@ def shared_returns_covariance(linearised: Linearised, pairs: Correspondences, da
     for first in range(0, S.shape[0], RETURNS_PER_CHUNK):
         G = S[first:first + RETURNS_PER_CHUNK] @ A  # rows g_r
         meat += (G.T @ G).toarray()
-    return linearised.sandwich(meat)
+    return linearised.sandwich(meat + shared_poses_meat(linearised, pairs, data, estimate))
+
+
+def shared_poses_meat(linearised: Linearised, pairs: Correspondences, data: ReturnData, estimate: Estimate) -> np.ndarray:
+    """sum_w sum_c sigma_c^2 h_wc h_wc^T (module docstring): what the error left in the smoothed poses
+    (data.smoothing_error) adds to the information's meat, in the graph's columns (zero when none is left)."""
+    noise, A = data.smoothing_error, linearised.A
+    if not noise.interval_s > 0 or not len(pairs):
+        return np.zeros((A.shape[1], A.shape[1]))
+    p, m = pairs.index_p, pairs.index_m
+    points = world_at(data, estimate, False, np.r_[p, m])
+    window = np.floor((data.time_s[np.r_[p, m]] - data.time_s.min()) / noise.interval_s).astype(np.int64)
+    arms = np.cross(points - data.X_nav[np.r_[p, m]], np.tile(pairs.normal, (2, 1)))
+    sign = np.r_[np.ones(len(p)), -np.ones(len(m))] * np.tile(linearised.scale, 2)
+    coefficients = np.column_stack([np.tile(pairs.normal, (2, 1)) * noise.position_m, arms * noise.attitude_rad])
+    rows = window[:, None] * 6 + np.arange(6)  # (window, component)
+    columns = np.broadcast_to(np.tile(np.arange(len(p)), 2)[:, None], rows.shape)
+    H = sparse.csr_matrix(((sign[:, None] * coefficients).ravel(), (rows.ravel(), columns.ravel())),
+                          shape=(6 * (int(window.max()) + 1), len(p))) @ A
+    return (H.T @ H).toarray()
 
 
 def whitened_jacobian(blocks: list[tuple[np.ndarray, Block]], values: gtsam.Values, column: dict[int, int],

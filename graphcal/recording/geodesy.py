@@ -34,7 +34,9 @@ class WorldTrajectory:
 
     poses: body -> world; scale_factor: grid scale k at each fix (dimensionless);
     convergence_deg: meridian convergence gamma at each fix [deg]; measured_noise: the white noise measured on
-    the recorded poses (PoseNoise.none() where not measured), smoothed out of them when noise_smoothed_out.
+    the recorded poses (PoseNoise.none() where not measured), smoothed out of them when noise_smoothed_out;
+    smoothing_error: the error the smoothing leaves in the poses, shared by those within its interval_s
+    (PoseNoise.none() when not smoothed).
     """
 
     crs: CRS
@@ -43,12 +45,14 @@ class WorldTrajectory:
     convergence_deg: np.ndarray
     measured_noise: PoseNoise = field(default_factory=PoseNoise.none)
     noise_smoothed_out: bool = False
+    smoothing_error: PoseNoise = field(default_factory=PoseNoise.none)
 
     def smoothed(self) -> WorldTrajectory:
         """The same trajectory with the white noise of its poses measured and, above the floor, smoothed out
         (trajectory_noise.smoothed_poses)."""
-        poses, noise = smoothed_poses(self.poses)
-        return replace(self, poses=poses, measured_noise=noise, noise_smoothed_out=poses is not self.poses)
+        poses, noise, left = smoothed_poses(self.poses)
+        return replace(self, poses=poses, measured_noise=noise, noise_smoothed_out=poses is not self.poses,
+                       smoothing_error=left)
 
     @property
     def white_noise(self) -> PoseNoise:
@@ -58,7 +62,7 @@ class WorldTrajectory:
     @property
     def pose_noise(self) -> PoseNoise:
         """The white noise left in the poses: what was measured, none once smoothed out (what smoothing leaves is
-        not white)."""
+        not white: smoothing_error)."""
         return PoseNoise.none() if self.noise_smoothed_out else self.measured_noise
 
 

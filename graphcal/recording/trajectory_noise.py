@@ -8,7 +8,9 @@ range_noise.py measures a head's range noise.
 
 Noise above a floor (an INS re-solved at every epoch, not a smoothed trajectory) is smoothed out before
 anything uses the poses: each position axis and attitude angle is a cubic smoothing spline whose penalty follows
-the discrepancy principle window by window (docs/reference/math.md "The trajectory's jitter").
+the discrepancy principle window by window (docs/reference/math.md "The trajectory's jitter"). What the
+smoothing leaves is not white: an error of a fraction of the noise, shared by the poses of a few tens of
+milliseconds (smoothing_error), which every return fired then shares.
 """
 
 from __future__ import annotations
@@ -27,14 +29,16 @@ UNIFORM_TOLERANCE = 0.01  # relative spread of five samples' intervals for their
 SMOOTH_ABOVE_M = 1e-3
 SMOOTH_ABOVE_RAD = np.radians(1e-3)
 PENALTY_WINDOW_S = 1.0  # seconds of each window where a channel's penalty is chosen
+LEFT_NOISE_SEED = 0  # the white noise the smoother is run on to measure what it leaves
 PENALTY_SPAN = 2.0  # decades between the least and the largest window penalty (the weights' conditioning)
 PENALTY_BISECTIONS = 8  # halvings of the log10 penalty's bracket [-12, 6]: 0.07 decade
 
 
 @dataclass(frozen=True)
 class PoseNoise:
-    """1-sigma white noise of the recorded poses: position [m] per axis, attitude [rad] per axis, at
-    samples interval_s [s] apart (the median interval). NaN: too few evenly spaced samples to tell."""
+    """1-sigma noise of the recorded poses: position [m] per axis, attitude [rad] per axis, one draw per
+    interval_s [s] (white noise: the median sample interval; what smoothing leaves: the time its error is shared
+    over). NaN: too few evenly spaced samples to tell."""
 
     position_m: float
     attitude_rad: float
@@ -71,19 +75,22 @@ def measured_pose_noise(poses: PoseTrack) -> PoseNoise:
     return PoseNoise(_robust_sigma(position), _robust_sigma(attitude), float(np.median(np.diff(time))))
 
 
-def smoothed_poses(poses: PoseTrack) -> tuple[PoseTrack, PoseNoise]:
+def smoothed_poses(poses: PoseTrack) -> tuple[PoseTrack, PoseNoise, PoseNoise]:
     """The poses with their white noise smoothed out where it is above SMOOTH_ABOVE_M or SMOOTH_ABOVE_RAD (the
-    same object, unchanged, where it is below or cannot be measured), and the noise measured on them. Each
-    position axis [m] and attitude angle (roll, pitch, unwrapped yaw [deg]) is a cubic smoothing spline of time
-    (scipy make_smoothing_spline) with penalties chosen for that channel's own noise (_smoothed_channel)."""
+    same object, unchanged, where it is below or cannot be measured), the noise measured on them, and the error
+    the smoothing leaves (_PenaltyWindows.smoothed; PoseNoise.none() when not smoothed). Each position axis [m]
+    and attitude angle (roll, pitch, unwrapped yaw [deg]) is a cubic smoothing spline of time (scipy
+    make_smoothing_spline) with penalties chosen for that channel's own noise (_PenaltyWindows.smoothed)."""
     noise = measured_pose_noise(poses)
     if not (noise.position_m > SMOOTH_ABOVE_M or noise.attitude_rad > SMOOTH_ABOVE_RAD):
-        return poses, noise
+        return poses, noise, PoseNoise.none()
     rpy_deg = poses.rpy_deg
     rpy_deg[:, 2] = unwrap_deg(rpy_deg[:, 2])
     channels = np.column_stack([poses.position_m, rpy_deg])
-    smooth = _PenaltyWindows.of(poses.time).smoothed(channels)
-    return PoseTrack(poses.time, smooth[:, :3], rotation_from_rpy_deg(smooth[:, 3:])), noise
+    smooth, left, shared_s = _PenaltyWindows.of(poses.time).smoothed(channels)
+    left_noise = PoseNoise(float(np.sqrt(np.mean(left[:3] ** 2))), float(np.radians(np.sqrt(np.mean(left[3:] ** 2)))),
+                           shared_s)
+    return PoseTrack(poses.time, smooth[:, :3], rotation_from_rpy_deg(smooth[:, 3:])), noise, left_noise
 
 
 def _robust_sigma(differences: np.ndarray) -> float:
@@ -107,32 +114,41 @@ class _PenaltyWindows:
         size = max(int(round(PENALTY_WINDOW_S / float(np.median(np.diff(time_s))))), 20)
         return cls(time_s, _even_runs(time_s), np.arange(0, max(len(time_s) - size, 0) + 1, size), size)
 
-    def smoothed(self, channels: np.ndarray) -> np.ndarray:
+    def smoothed(self, channels: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """(N,C) channels, each smoothed for its own white noise (_robust_sigma of its fourth differences over
         the even runs); a channel whose noise is nil is returned unchanged. The smoothing follows the motion: a
         penalty is chosen on each window (_discrepancy_log_penalties, at most PENALTY_SPAN decades above the
         channel's smallest), and the spline's weights make each window's penalty its own (weight = the largest
         penalty over this window's, log-interpolated between window centres). One penalty for the whole drive
         cuts the corners of the turns by several noise sigmas, a lateral error that the lever arm's height then
-        takes up against the roll in the turn."""
+        takes up against the roll in the turn.
+
+        Also what the smoothing leaves of the noise: (C,) its 1-sigma per channel (in the channel's unit) and the
+        time [s] over which it is shared. The spline is linear in the values once its penalties are chosen, so the
+        same spline run on unit white noise (seeded) leaves its noise's share g^2 (the mean of the squared smoother
+        weights): sigma g per channel, and, as the spline averages about 1/g^2 samples, an error shared by the
+        samples of interval / g^2 (docs/reference/math.md "The trajectory's jitter")."""
         sigma = (np.array([_robust_sigma(channels[self.runs, k] @ FOURTH_DIFFERENCE)
                            for k in range(channels.shape[1])]) if len(self.runs) else np.zeros(channels.shape[1]))
         noisy = np.flatnonzero(sigma > 0)
+        left = np.zeros(channels.shape[1])
         if not len(noisy):
-            return channels
+            return channels, left, 0.0
         time_s, size = self.time_s, self.size
         log_penalty = np.array([_discrepancy_log_penalties(time_s[a:a + size], channels[a:a + size, noisy],
                                                            sigma[noisy]) for a in self.starts])
         log_penalty = np.minimum(log_penalty, log_penalty.min(axis=0) + PENALTY_SPAN)
         centres_s = time_s[np.minimum(self.starts + size // 2, len(time_s) - 1)]
-        smooth = channels.copy()
+        smooth, unit = channels.copy(), np.random.default_rng(LEFT_NOISE_SEED).standard_normal(len(time_s))
         for column, k in enumerate(noisy):
             log_weight = log_penalty[:, column].max() - np.interp(time_s, centres_s, log_penalty[:, column])
+            weight, penalty = 10.0 ** log_weight, 10.0 ** log_penalty[:, column].max()
             offset = channels[0, k]
-            spline = make_smoothing_spline(time_s, channels[:, k] - offset, w=10.0 ** log_weight,
-                                           lam=10.0 ** log_penalty[:, column].max())
-            smooth[:, k] = spline(time_s) + offset
-        return smooth
+            smooth[:, k] = make_smoothing_spline(time_s, channels[:, k] - offset, w=weight, lam=penalty)(time_s) + offset
+            unit_left = make_smoothing_spline(time_s, unit, w=weight, lam=penalty)(time_s)
+            left[k] = sigma[k] * np.sqrt(np.mean(unit_left ** 2))
+        share = np.mean((left[noisy] / sigma[noisy]) ** 2)
+        return smooth, left, float(np.median(np.diff(time_s)) / share)
 
 
 def _roughness(time_s: np.ndarray) -> np.ndarray:
