@@ -47,7 +47,9 @@ class OnCluster:
         return max(len(self.client.scheduler_info().get("workers", {})), 1)
 
     def __call__(self, function: Callable, jobs: Sequence) -> list:
-        return self.client.gather(self.client.map(function, list(jobs), pure=False))
+        # each job's arrays go straight to one worker (scatter), not through the scheduler inside a task graph
+        held = self.client.scatter(list(jobs), hash=False)
+        return self.client.gather(self.client.map(function, held, pure=False))
 
 
 IN_PROCESS = InProcess()
