@@ -4,7 +4,7 @@ The independent simulator (tools/foreign_sim) fires its lasers in its own order 
 the encoder a per-revolution error, draws intensity from reflectivity, incidence and distance, adds white
 INS noise, and carries true intrinsic and extrinsic errors; on top of that each case switches on
 departures (tools/foreign_sim/departures.py) that graphcal's candidates name, written from their
-physics there, not from graphcal's definitions. Each case is a box_street drive (level mount, 16 s)
+physics there, not from graphcal's definitions. Each case is a box_street drive (--mount, level by default; 16 s)
 diagnosed with the calibration mode the effect needs (joint: intrinsics and extrinsic; the candidates
 are then what is left), named candidates only unless --open-world, on max_points returns, the baseline
 stopped after at most 6 outer iterations (as bench_diagnose.py); a baseline the calibration refuses is
@@ -60,7 +60,7 @@ def _config(max_points: int, outer_iterations: int):
         "max_outer_iterations": outer_iterations, "tolerance_m": 1e-4, "refuse_unconverged": False})
 
 
-def _case(name: str, size: float, duration_s: float, seed: int, max_points: int, outer_iterations: int,
+def _case(name: str, mount: str, size: float, duration_s: float, seed: int, max_points: int, outer_iterations: int,
           open_world: bool, queue) -> None:
     import graphcal
     from graphcal.common.errors import CalibrationError
@@ -68,7 +68,7 @@ def _case(name: str, size: float, duration_s: float, seed: int, max_points: int,
 
     with tempfile.TemporaryDirectory() as folder:
         directory = simulate("box_street", Path(folder) / name, duration_s=duration_s, size=size, seed=seed,
-                             mount="level", departures=Departures(**CASES[name]))
+                             mount=mount, departures=Departures(**CASES[name]))
         recording = graphcal.Recording.load(directory)
         truth = injected(recording.truth.effects)
         started = time.perf_counter()
@@ -108,6 +108,8 @@ def main() -> None:
     parser.add_argument("--size", type=float, default=0.1, help="fraction of the head's firings simulated")
     parser.add_argument("--duration", type=float, default=16.0, help="seconds of drive")
     parser.add_argument("--seed", type=int, default=0, help="the simulator's seed (scene, drive, offsets, noise)")
+    parser.add_argument("--mount", choices=("level", "tilted"), default="level",
+                        help="the head level on the roof, or pitched 12 deg on its mount")
     parser.add_argument("--max-points", type=int, default=80_000, help="returns each diagnosis uses")
     parser.add_argument("--outer-iterations", type=int, default=6, help="the baseline's outer iterations at most")
     parser.add_argument("--open-world", action="store_true", help="also the generic discrepancies (default: named "
@@ -117,7 +119,7 @@ def main() -> None:
     args = parser.parse_args()
     figures = {"machine": machine(),
                "date": datetime.date.today().isoformat(),
-               "settings": {"family": "box_street", "mount": "level", "size": args.size, "duration_s": args.duration,
+               "settings": {"family": "box_street", "mount": args.mount, "size": args.size, "duration_s": args.duration,
                             "seed": args.seed, "max_points": args.max_points, "mode": "joint",
                             "max_outer_iterations": args.outer_iterations,
                             "open_world": args.open_world},
@@ -125,7 +127,7 @@ def main() -> None:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     for case in args.cases:  # the figures written after each case: a long run keeps what it measured
         print(f"running {case} ...", flush=True)
-        figures["cases"][case] = run_in_process(_case, case, args.size, args.duration, args.seed, args.max_points,
+        figures["cases"][case] = run_in_process(_case, case, args.mount, args.size, args.duration, args.seed, args.max_points,
                                                  args.outer_iterations, args.open_world)
         print(json.dumps(figures["cases"][case], indent=1), flush=True)
         with atomic_path(args.out) as tmp:
