@@ -150,7 +150,8 @@ class Calibration:
 
 
 SIGMA_MARGINALS = "gtsam.Marginals at the final pairs, sigma0 the noise of one pair"
-SIGMA_SHARED = "range noise of each return counted once over the pairs that share it (sandwich, docs/reference/math.md)"
+SIGMA_SHARED = ("range noise of each return, and the error smoothing left in the poses (where smoothed), counted once "
+                "over the pairs that share it (sandwich, docs/reference/math.md)")
 SIGMA_WIDENED = ", each widened to the pairs' own residual spread over 0.5 s blocks where larger (cluster-robust sandwich)"
 
 
