@@ -20,6 +20,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from factors.discrepancy import CHANNELS, REGRESSORS, Discrepancy, is_discrepancy, regressor_values
 from factors.effects import CANDIDATES, candidate
@@ -358,6 +359,9 @@ def default_subset(recording: Recording) -> dict[str, float]:
             "points_per_s": DIAGNOSE_POINTS_PER_S}
 
 
+# the score tests' eigen-decompositions are modest and many: BLAS threads beside open3d's, GTSAM's or another
+# job only spin (monterey's static HDL-32E on the 2-core machine beside a benchmark: 67 s with them, 16 s without)
+@threadpool_limits.wrap(limits=1, user_api="blas")
 def diagnose(recording: Recording, config: CalibrationConfig | None = None, candidates: list[str] | None = None,
              max_effects: int = 3, refit_iterations: int = 4, quiet: bool = False,
              open_world: bool = True) -> Diagnosis:
