@@ -1,9 +1,10 @@
 """Which model of a channel's structure a finding takes (diagnose.generic_if_better): the named winner, or a
-generic discrepancy of its channel that explains the structure better, from test figures made up here."""
+generic discrepancy of its channel that explains the structure better; and a discrepancy that an eligible named
+candidate explains gives way to it (diagnose.named_if_it_explains); from test figures made up here."""
 
 import numpy as np
 
-from graphcal.diagnosis.diagnose import generic_if_better
+from graphcal.diagnosis.diagnose import generic_if_better, named_if_it_explains
 from graphcal.diagnosis.score import CandidateTest
 
 SIGMA0_M = 0.01
@@ -66,3 +67,23 @@ def test_the_time_offset_gives_way_to_a_time_curve_with_a_shape():
     assert generic_if_better(offset, [offset, shaped]) is shaped
     assert generic_if_better(offset, [offset]) is offset
     assert generic_if_better(offset, [offset, _test(RANGE_TIME, 700.0, 8, 0.002)]) is offset  # another channel's
+
+
+def test_a_discrepancy_a_named_candidate_explains_gives_way_to_it():
+    """beyond(discrepancy, named): the discrepancy's test with the named candidate in its base. Where some named
+    candidate leaves it nothing, the one leaving least takes the finding (a latency's azimuth shift in the turns,
+    discovered as the azimuth against the yaw rate, is the time offset, not the spin rate that also absorbs part of
+    it); where each leaves structure, the discrepancy stays; a named winner is never replaced."""
+    curve = _test("azimuth~yaw_rate/8/1:2:3:4:5:6:7", 900.0, 8, 0.002)
+    latency = _test("time_offset", 500.0, 1, 0.0015)
+    spin = _test("spin_rate", 700.0, 1, 0.0016)
+    left = {"time_offset": _test("left", 3.0, 8, 0.00002), "spin_rate": _test("left", 9.0, 8, 0.00005)}
+    assert not any(t.significant(10, floor_sigma0=0.01) for t in left.values())
+    assert named_if_it_explains(curve, [curve, spin, latency], lambda name, base: left[base], 10) is latency
+    structure = _test("left", 400.0, 8, 0.0015)
+    assert structure.significant(10)
+    assert named_if_it_explains(curve, [curve, spin, latency], lambda name, base: structure, 10) is curve
+    assert named_if_it_explains(curve, [curve], lambda name, base: left[base], 10) is curve  # no named eligible
+    asked = []
+    assert named_if_it_explains(latency, [curve, latency], lambda name, base: asked.append(base) or structure, 10) is latency
+    assert not asked
