@@ -94,16 +94,17 @@ def shared_poses_meat(linearised: Linearised, pairs: Correspondences, data: Retu
     noise, A = data.smoothing_error, linearised.A
     if not noise.interval_s > 0 or not len(pairs):
         return np.zeros((A.shape[1], A.shape[1]))
-    p, m = pairs.index_p, pairs.index_m
-    points = world_at(data, estimate, False, np.r_[p, m])
-    window = np.floor((data.time_s[np.r_[p, m]] - data.time_s.min()) / noise.interval_s).astype(np.int64)
-    arms = np.cross(points - data.X_nav[np.r_[p, m]], np.tile(pairs.normal, (2, 1)))
-    sign = np.r_[np.ones(len(p)), -np.ones(len(m))] * np.tile(linearised.scale, 2)
-    coefficients = np.column_stack([np.tile(pairs.normal, (2, 1)) * noise.position_m, arms * noise.attitude_rad])
+    n_pairs = len(pairs)
+    returns = np.r_[pairs.index_p, pairs.index_m]  # each pair's p, then each pair's m
+    normals = np.tile(pairs.normal, (2, 1))
+    arms = np.cross(world_at(data, estimate, False, returns) - data.X_nav[returns], normals)
+    window = np.floor((data.time_s[returns] - data.time_s.min()) / noise.interval_s).astype(np.int64)
+    sign = np.r_[np.ones(n_pairs), -np.ones(n_pairs)] * np.tile(linearised.scale, 2)
+    coefficients = np.column_stack([normals * noise.position_m, arms * noise.attitude_rad])
     rows = window[:, None] * 6 + np.arange(6)  # (window, component)
-    columns = np.broadcast_to(np.tile(np.arange(len(p)), 2)[:, None], rows.shape)
+    columns = np.broadcast_to(np.tile(np.arange(n_pairs), 2)[:, None], rows.shape)
     H = sparse.csr_matrix(((sign[:, None] * coefficients).ravel(), (rows.ravel(), columns.ravel())),
-                          shape=(6 * (int(window.max()) + 1), len(p))) @ A
+                          shape=(6 * (int(window.max()) + 1), n_pairs)) @ A
     return (H.T @ H).toarray()
 
 

@@ -448,10 +448,12 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
         rivals = [t for t in tests.values() if is_discrepancy(t.name) and t.identifiable and plausible(t, recording)
                   and t.significant(len(names), floor_sigma0=PRACTICAL_FLOOR_SIGMA0)]
         named = max(group, key=functools.partial(name_preference, leader=leader, recording=recording))
-        winner = generic_if_better(named, eligible, rivals, lambda n: score_candidate(
-            lin, n, [c for c in shape_only(n, names) if c != named.name]), len(names))
-        winner = named_if_it_explains(winner, eligible, lambda n, base: score_candidate(
-            lin, n, [c for c in shape_only(n, names) if c != base]), len(names))
+
+        def beyond(name: str, base: str) -> CandidateTest:  # name's test with the candidate base in its base
+            return score_candidate(lin, name, [c for c in shape_only(name, names) if c != base])
+
+        winner = generic_if_better(named, eligible, rivals, lambda n: beyond(n, named.name), len(names))
+        winner = named_if_it_explains(winner, eligible, beyond, len(names))
         for other in group:
             if other.name != winner.name:
                 pair = sorted((winner.name, other.name))
