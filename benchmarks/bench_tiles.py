@@ -2,7 +2,12 @@
 graphcal.calibration.tiles) in one process, and on Dask LocalClusters of one and two worker processes.
 
 A recording of the independent simulator (tools/foreign_sim, relief_street, tilted mount) is calibrated's
-input: the returns a calibration uses (max_points), placed at the nominal calibration. Each configuration runs
+input: the returns a calibration uses (max_points), placed at the nominal calibration. The configurations: in
+process; LocalClusters of one and two workers (`--dask local:N`: a worker's libraries, open3d's thread pool
+among them, use every core, so one worker already keeps both of this machine's cores busy in the features'
+neighbour searches); and clusters of one and two single-core workers (`--dask tcp://...`: a scheduler and
+`dask worker` processes started here, each confined to one core before it loads anything, as a worker per core
+of a cluster is). Each configuration runs
 the stage `repeats` times (the first, which starts the workers and ships the code, is reported apart). The
 time spent in the task map's calls (the tiles' jobs, shipped out and gathered back) is timed apart from the
 stage's driver side (splitting the cloud into tiles, merging their pairs); in process, each tile's job is timed
@@ -15,9 +20,14 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import json
+import os
+import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 from common import machine, peak_gib, report
@@ -37,7 +47,7 @@ class Timed:
     def workers(self) -> int:
         return self.task_map.workers
 
-    def __call__(self, function, jobs):
+    def __call__(self, function, jobs, costs=None):
         started = time.perf_counter()
         if self.per_job:
             out = []
@@ -46,9 +56,34 @@ class Timed:
                 out.append(function(job))
                 self.jobs.append(time.perf_counter() - begun)
         else:
-            out = self.task_map(function, jobs)
+            out = self.task_map(function, jobs, costs)
         self.calls.append(time.perf_counter() - started)
         return out
+
+
+@contextmanager
+def single_core_cluster(workers: int, folder: Path) -> Iterator[str]:
+    """A scheduler and `workers` dask worker processes of one thread, the i-th confined to core i (from its
+    start, so that its libraries' thread pools see one core); the scheduler's address."""
+    dask = Path(sys.executable).with_name("dask")
+    file = folder / f"scheduler-{workers}.json"
+    processes = [subprocess.Popen([dask, "scheduler", "--port", "0", "--dashboard-address", ":0", "--scheduler-file",
+                                   file], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    try:
+        while not file.exists():
+            time.sleep(0.2)
+        address = json.loads(file.read_text())["address"]
+        cores = sorted(os.sched_getaffinity(0))
+        for core in cores[:workers]:
+            processes.append(subprocess.Popen(
+                [dask, "worker", address, "--nthreads", "1", "--no-nanny", "--no-dashboard"],
+                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                preexec_fn=lambda core=core: os.sched_setaffinity(0, {core})))
+        yield address
+    finally:
+        for process in reversed(processes):
+            process.terminate()
+            process.wait()
 
 
 def main() -> None:
@@ -75,8 +110,13 @@ def main() -> None:
         recording = Recording.load(Path(folder) / "r")
         config = CalibrationConfig(mode="joint", max_points=args.max_points, association={"tile_m": args.tile_m})
         figures["returns"] = len(recording.points)
-        for address in (None, "local:1", "local:2"):
-            with open_task_map(address) as task_map:
+        for name in ("in process", "local:1", "local:2", "one single-core worker", "two single-core workers"):
+            with ExitStack() as stack:
+                address = {"in process": None}.get(name, name)
+                if name.endswith("worker") or name.endswith("workers"):
+                    address = stack.enter_context(single_core_cluster(1 + name.startswith("two"), Path(folder)))
+                    wait_for_workers(address, 1 + name.startswith("two"))
+                task_map = stack.enter_context(open_task_map(address))
                 timed = Timed(task_map, per_job=address is None)
                 pipeline = CalibrationPipeline(recording, config, True, timed)
                 problem = pipeline.problem
@@ -91,7 +131,7 @@ def main() -> None:
                                                                                                    points))
                     seconds.append(time.perf_counter() - started)
                     mapped.append(sum(timed.calls))
-                figures[address or "in process"] = {
+                figures[name] = {
                     "tiles": len(problem.tiling.tiles(points)), "returns used": len(points), "pairs": len(pairs),
                     "first s": round(seconds[0], 2), "then s (median)": round(float(np.median(seconds[1:])), 2),
                     "per-tile work s (median)": round(float(np.median(mapped[1:])), 2)}
@@ -99,13 +139,23 @@ def main() -> None:
                     jobs = np.array(timed.jobs[-2 * len(problem.tiling.tiles(points)):])
                     figures["in process"] |= {"tile jobs s (sum)": round(float(jobs.sum()), 2),
                                               "largest tile job s": round(float(jobs.max()), 2)}
-        one, two = figures["local:1"]["then s (median)"], figures["local:2"]["then s (median)"]
-        figures["speed-up, two workers over one"] = round(one / two, 2)
-        work = [figures[a]["per-tile work s (median)"] for a in ("local:1", "local:2")]
-        figures["speed-up of the per-tile work, two workers over one"] = round(work[0] / work[1], 2)
+        for kind, one, two in (("LocalCluster", "local:1", "local:2"),
+                               ("single-core workers", "one single-core worker", "two single-core workers")):
+            figures[f"speed-up, two workers over one ({kind})"] = round(
+                figures[one]["then s (median)"] / figures[two]["then s (median)"], 2)
+            figures[f"speed-up of the per-tile work, two workers over one ({kind})"] = round(
+                figures[one]["per-tile work s (median)"] / figures[two]["per-tile work s (median)"], 2)
         figures["peak GiB (driver)"] = round(peak_gib(), 2)
     RESULTS.mkdir(exist_ok=True)
     report(figures, RESULTS / "tiles.json")
+
+
+def wait_for_workers(address: str, workers: int) -> None:
+    """Until the scheduler at address has its workers."""
+    from dask.distributed import Client
+
+    with Client(address, timeout="30s") as client:
+        client.wait_for_workers(workers, timeout=60)
 
 
 if __name__ == "__main__":

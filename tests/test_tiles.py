@@ -1,6 +1,8 @@
 """Features and pairs tile by tile of space (graphcal.calibration.tiles) against the whole cloud at once, and a
 calibration whose tiles run on a Dask LocalCluster of two workers against the same calibration in one process."""
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -8,7 +10,7 @@ import graphcal
 from graphcal.calibration.association import PairCloud, PairGates, associate, local_features, neighbour_fibres
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.tiles import Tiling
-from graphcal.common.cluster import local_workers
+from graphcal.common.cluster import balanced_loads, local_workers
 from graphcal.common.errors import ConfigError
 
 
@@ -88,3 +90,18 @@ def test_two_dask_workers_give_the_calibration_of_one_process(tmp_path):
     there = graphcal.calibrate(recording, config, quiet=True, dask="local:2")
     np.testing.assert_array_equal(there.calibration.estimate.offsets, here.calibration.estimate.offsets)
     assert there.energy_cm2 == here.energy_cm2
+
+
+@pytest.mark.parametrize("workers", [2, 3])
+def test_balanced_loads_stay_within_grahams_bound_of_the_best_split(workers):
+    """Every job gets a worker, and the largest load is at most (4/3 - 1/(3 workers)) of the best split's,
+    found by trying every assignment (Graham 1969, longest processing time first)."""
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        costs = rng.integers(1, 100, rng.integers(1, 8)).astype(float)
+        where = balanced_loads(costs, workers)
+        assert where.shape == costs.shape and set(where.tolist()) <= set(range(workers))
+        largest = np.bincount(where, costs, workers).max()
+        best = min(np.bincount(assignment, costs, workers).max()
+                   for assignment in map(np.array, itertools.product(range(workers), repeat=len(costs))))
+        assert largest <= (4 / 3 - 1 / (3 * workers)) * best + 1e-9

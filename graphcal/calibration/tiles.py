@@ -91,7 +91,7 @@ class Tiling:
         tiles = self.tiles(points_m)
         jobs = [(points_m[t.halo], t.core_in_halo, settings.radius_m, settings.neighbours, settings.voxel_m)
                 for t in tiles]
-        parts = self.task_map(features_of_core, jobs)
+        parts = self.task_map(features_of_core, jobs, [len(t.halo) for t in tiles])
         arrays = {f.name: np.zeros((len(points_m), 3) if f.name == "normal" else len(points_m)) for f in fields(Features)}
         for tile, part in zip(tiles, parts):
             for name, values in arrays.items():
@@ -115,7 +115,7 @@ class Tiling:
                          PairGates(gates.gate_m, gates.min_planarity, gates.min_normal_cos,
                                    gates.max_plane_distance_m, most),
                          [seed, *(k & 0xFFFFFFFF for k in tile.key)], local))
-        parts = self.task_map(pairs_of_core, jobs)
+        parts = self.task_map(pairs_of_core, jobs, [len(t.halo) for t in tiles])
         found = [(tile, part) for tile, part in zip(tiles, parts) if len(part)]  # a tile may pair nothing
         if not found:
             return parts[0] if parts else pairs_of_core((cloud, neighbours, gates, [seed], candidates[:0]))
