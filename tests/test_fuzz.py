@@ -5,7 +5,8 @@ deleted, duplicated and swapped lines; in points.parquet, columns rewritten NaN,
 unsorted, duplicated or of the wrong type.
 
 Every case must end in a clean refusal (exit 2, one line naming the file) or a run that goes on (exit 0); never a
-traceback (exit 1). A recording `graphcal info` accepts must then be read by a calibration's reader without a
+traceback (exit 1), and no NumPy RuntimeWarning (an overflow or invalid value computed from input that should
+have been refused first). A recording `graphcal info` accepts must then be read by a calibration's reader without a
 traceback, and a calibration.yaml `Calibration.load` accepts must place 2000 of the recording's returns at
 finite points. Every importer gets its own small input with one file mutated: a clean refusal, or a recording
 `graphcal info` accepts. The counts per category are printed (pytest -s) and checked against MIN_CASES.
@@ -29,6 +30,8 @@ from typer.testing import CliRunner
 import graphcal
 from graphcal.cli.main import app
 from graphcal.common.errors import GraphcalError
+
+pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
 
 MIN_CASES = 1000  # recordings and calibration.yaml files; with IMPORT_CASES per importer, over 1000 a run
 RECORDING_CASES = 650  # through `graphcal info` and a calibration's reader; the rest are calibration.yaml files

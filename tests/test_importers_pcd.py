@@ -12,6 +12,7 @@ from typer.testing import CliRunner
 from graphcal.cli.main import app
 from graphcal.common.errors import RecordingError
 from graphcal.importers.beam_fit import ring_model
+from graphcal.importers.frame_poses import read_frame_poses
 from graphcal.importers.pcd import read_pcd
 from graphcal.importers.pcd_folder import import_pcd_folder
 from graphcal.importers.point_fields import scan_points
@@ -157,7 +158,7 @@ def test_import_pcd_errors_name_the_file(tmp_path):
     folder.mkdir()
     points = _scan_array(scan, "t", relative=True)
     write_pcd(folder / "a.pcd", points[["x", "y", "z", "t"]], "binary")
-    (tmp_path / "poses.txt").write_text(" ".join(["0"] * 12) + "\n")
+    (tmp_path / "poses.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n")
     with pytest.raises(RecordingError, match="a.pcd.*no ring field"):
         import_pcd_folder(folder, tmp_path / "poses.txt", tmp_path / "rec", quiet=True)
     write_pcd(folder / "a.pcd", points, "binary")  # relative times, and no stamp in the name
@@ -168,6 +169,16 @@ def test_import_pcd_errors_name_the_file(tmp_path):
     damaged.write_bytes(damaged.read_bytes()[:-100])
     with pytest.raises(RecordingError, match="damaged.pcd.*DATA"):
         read_pcd(damaged)
+
+
+@pytest.mark.parametrize("pose, problem", [("0 " * 12, "not a rotation"), ("2 0 0 0 0 1 0 0 0 0 1 0", "entry of 2"),
+                                           ("1 0 0 0 0 1 0 0 0 0 -1 0", "det R = -1"),
+                                           ("1 0 0 1e300 0 1 0 0 0 0 1 0", "coordinate of 1e[+]300 m")])
+def test_a_pose_that_is_not_a_rotation_and_translation_is_refused_by_line(tmp_path, pose, problem):
+    poses = tmp_path / "poses.txt"
+    poses.write_text("# frames\n1 0 0 0 0 1 0 0 0 0 1 0\n" + pose + "\n")
+    with pytest.raises(RecordingError, match=f"poses.txt.*row 3.*{problem}"):
+        read_frame_poses(poses)
 
 
 @pytest.mark.skipif(not PJLAB.is_dir(), reason="OpenCalib sample not present")

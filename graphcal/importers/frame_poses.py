@@ -36,7 +36,7 @@ def read_frame_poses(path: str | Path) -> FramePoses:
     path = Path(path)
     if not path.is_file():
         raise RecordingError(path, "file not found")
-    names, rows = [], []
+    names, rows, lines = [], [], []
     for number, line in enumerate(path.read_text().splitlines(), start=1):
         tokens = line.split()
         if not tokens or tokens[0].startswith("#"):
@@ -51,9 +51,33 @@ def read_frame_poses(path: str | Path) -> FramePoses:
                                  expected="12 numbers (a 3x4 row-major [R | t]), optionally after a frame name")
         names.append(name)
         rows.append(values)
+        lines.append(number)
     if not rows:
         raise RecordingError(path, "no pose", expected="one 3x4 row-major matrix per line")
-    return FramePoses(names, np.asarray(rows).reshape(-1, 3, 4))
+    matrices = np.asarray(rows).reshape(-1, 3, 4)
+    for number, matrix in zip(lines, matrices):
+        problem = _not_a_pose(matrix)
+        if problem:
+            raise RecordingError(path, problem, row=number, expected=(
+                f"R a rotation (R^T R = I within {ROTATION_TOLERANCE}, det R = +1) and |t| below {MAX_TRANSLATION_M:g} m"))
+    return FramePoses(names, matrices)
+
+
+ROTATION_TOLERANCE = 1e-3  # largest |R^T R - I| of a pose's R (files print R to 6-9 digits)
+MAX_TRANSLATION_M = 1e7  # [m] a pose frame is a local map frame, not the solar system
+
+
+def _not_a_pose(matrix: np.ndarray) -> str | None:
+    """What keeps a 3x4 [R | t] from being a pose, or None."""
+    rotation, translation_m = matrix[:, :3], matrix[:, 3]
+    if np.abs(rotation).max() > 1 + ROTATION_TOLERANCE:
+        return f"R has an entry of {np.abs(rotation).max():.3g}"
+    departure = np.abs(rotation.T @ rotation - np.eye(3)).max()
+    if departure > ROTATION_TOLERANCE or np.linalg.det(rotation) < 0:
+        return f"R is not a rotation (|R^T R - I| = {departure:.3g}, det R = {np.linalg.det(rotation):.3g})"
+    if np.abs(translation_m).max() >= MAX_TRANSLATION_M:
+        return f"t has a coordinate of {np.abs(translation_m).max():.3g} m"
+    return None
 
 
 def frame_time(name: str | None) -> float | None:
