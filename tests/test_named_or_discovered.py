@@ -10,9 +10,10 @@ from graphcal.diagnosis.score import CandidateTest
 SIGMA0_M = 0.01
 
 
-def _test(name: str, statistic: float, dof: int, explained_m: float) -> CandidateTest:
+def _test(name: str, statistic: float, dof: int, explained_m: float, held_out_cm2: float = 0.99) -> CandidateTest:
+    """A test whose held-out J [cm2] goes from 1 to held_out_cm2, its drop's standard error 0.001 cm2."""
     return CandidateTest(name, dof, statistic, 1e-20, statistic, np.zeros(dof), np.eye(dof), 0.0, 0.0, 0.0, 0.1, [],
-                         (1.0, 0.99), n_clusters=100, explained_rms_m=explained_m, sigma0_m=SIGMA0_M,
+                         (1.0, held_out_cm2), n_clusters=100, explained_rms_m=explained_m, sigma0_m=SIGMA0_M,
                          held_out_se_cm2=0.001)
 
 
@@ -73,10 +74,11 @@ def test_a_discrepancy_a_named_candidate_explains_gives_way_to_it():
     """beyond(discrepancy, named): the discrepancy's test with the named candidate in its base. Where some named
     candidate leaves it nothing, the one leaving least takes the finding (a latency's azimuth shift in the turns,
     discovered as the azimuth against the yaw rate, is the time offset, not the spin rate that also absorbs part of
-    it); where each leaves structure, the discrepancy stays; a named winner is never replaced."""
-    curve = _test("azimuth~yaw_rate/8/1:2:3:4:5:6:7", 900.0, 8, 0.002)
-    latency = _test("time_offset", 500.0, 1, 0.0015)
-    spin = _test("spin_rate", 700.0, 1, 0.0016)
+    it); where each leaves structure and predicts the held-out data worse, the discrepancy stays; a named winner
+    is never replaced."""
+    curve = _test("azimuth~yaw_rate/8/1:2:3:4:5:6:7", 900.0, 8, 0.002, held_out_cm2=0.95)
+    latency = _test("time_offset", 500.0, 1, 0.0015, held_out_cm2=0.97)
+    spin = _test("spin_rate", 700.0, 1, 0.0016, held_out_cm2=0.96)
     left = {"time_offset": _test("left", 3.0, 8, 0.00002), "spin_rate": _test("left", 9.0, 8, 0.00005)}
     assert not any(t.significant(10, floor_sigma0=0.01) for t in left.values())
     assert named_if_it_explains(curve, [curve, spin, latency], lambda name, base: left[base], 10) is latency
@@ -87,3 +89,16 @@ def test_a_discrepancy_a_named_candidate_explains_gives_way_to_it():
     asked = []
     assert named_if_it_explains(latency, [curve, latency], lambda name, base: asked.append(base) or structure, 10) is latency
     assert not asked
+
+
+def test_a_named_candidate_that_predicts_the_held_out_data_as_well_as_the_curve_takes_the_finding():
+    """Structure left beyond the named candidate, but the named law alone predicts the held-out data within the
+    curve's standard error (0.001 cm2) of it: the named physics is the finding, the rest is for the next round."""
+    curve = _test("range~incidence/8/1:2:3:4:5:6:7", 1197.0, 8, 0.0019, held_out_cm2=0.9650)
+    law = _test("incidence_range_bias", 1116.0, 1, 0.0019, held_out_cm2=0.9655)
+    weaker = _test("range_scale", 40.0, 1, 0.0004, held_out_cm2=0.998)
+    structure = _test("left", 82.0, 8, 0.00056, held_out_cm2=0.999)
+    assert structure.significant(10, floor_sigma0=0.01)
+    assert named_if_it_explains(curve, [curve, law, weaker], lambda name, base: structure, 10) is law
+    worse = _test("incidence_range_bias", 1116.0, 1, 0.0019, held_out_cm2=0.9665)  # beyond the standard error
+    assert named_if_it_explains(curve, [curve, worse, weaker], lambda name, base: structure, 10) is curve
