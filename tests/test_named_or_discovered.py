@@ -4,7 +4,7 @@ candidate explains gives way to it (diagnose.named_if_it_explains); from test fi
 
 import numpy as np
 
-from graphcal.diagnosis.diagnose import generic_if_better, named_if_it_explains
+from graphcal.diagnosis.diagnose import generic_if_better, named_if_it_explains, refit_floor_cm2
 from graphcal.diagnosis.score import CandidateTest
 
 SIGMA0_M = 0.01
@@ -102,3 +102,14 @@ def test_a_named_candidate_that_predicts_the_held_out_data_as_well_as_the_curve_
     assert named_if_it_explains(curve, [curve, law, weaker], lambda name, base: structure, 10) is law
     worse = _test("incidence_range_bias", 1116.0, 1, 0.0019, held_out_cm2=0.9665)  # beyond the standard error
     assert named_if_it_explains(curve, [curve, worse, weaker], lambda name, base: structure, 10) is curve
+
+
+def test_a_discrepancys_refit_must_lower_j_by_the_square_of_the_floor_it_passed():
+    """sigma0 1 cm: a discovery (explains 1.5 mm, over the discovery floor of a tenth of sigma0) must lower J on
+    the same pairs by (0.1 cm)^2; a rival that passed only the named candidates' floor (a hundredth) by
+    (0.01 cm)^2."""
+    discovery = _test("range~range/8/1:2:3:4:5:6:7", 600.0, 8, 0.0015)
+    rival = _test(RANGE_TIME, 608.0, 8, 0.00084)
+    assert discovery.significant(10) and not rival.significant(10)
+    assert np.isclose(refit_floor_cm2(discovery, 10), 0.1 ** 2)
+    assert np.isclose(refit_floor_cm2(rival, 10), 0.01 ** 2)
