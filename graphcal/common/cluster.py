@@ -3,11 +3,13 @@ stays on the driver.
 
 A TaskMap applies a top-level function to a list of jobs (plain arrays in, plain arrays out) and returns the
 results in the jobs' order, whichever worker ran each. Given the jobs' costs (any unit, e.g. their returns), a
-cluster spreads them so that its workers' loads are even (the largest first, each to the least loaded worker). open_task_map(address) gives one:
+cluster spreads them so that its workers' loads are even (the largest first, each to the least loaded worker).
+open_task_map(address) gives one:
 
 - None: in this process, one job after the other;
 - "local" or "local:N": a LocalCluster of N worker processes (default: the machine's cores), one thread each,
-  started here and closed when the block ends;
+  started here and closed when the block ends (not confined to a core each: their libraries' thread pools,
+  open3d's among them, use every core);
 - "tcp://HOST:PORT" (or any scheduler address dask.distributed accepts): an existing cluster. The workers
   need graphcal installed; the jobs carry their arrays, so the recording need not be on their disks.
 """

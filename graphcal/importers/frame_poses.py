@@ -20,6 +20,8 @@ import numpy as np
 
 from graphcal.common.errors import RecordingError
 
+ROTATION_TOLERANCE = 1e-3  # largest |R^T R - I| of a pose's R (files print R to 6-9 digits)
+MAX_TRANSLATION_M = 1e7  # [m] a pose frame is a local map frame, not the solar system
 _DATE = re.compile(r"^(\d{4})\D(\d{2})\D(\d{2})\D(\d{2})\D(\d{2})\D(\d{2})(?:\D(\d+))?$")
 
 
@@ -59,12 +61,9 @@ def read_frame_poses(path: str | Path) -> FramePoses:
         problem = _not_a_pose(matrix)
         if problem:
             raise RecordingError(path, problem, row=number, expected=(
-                f"R a rotation (R^T R = I within {ROTATION_TOLERANCE}, det R = +1) and |t| below {MAX_TRANSLATION_M:g} m"))
+                f"R a rotation (R^T R = I within {ROTATION_TOLERANCE}, det R = +1) and |t| below "
+                f"{MAX_TRANSLATION_M:g} m"))
     return FramePoses(names, matrices)
-
-
-ROTATION_TOLERANCE = 1e-3  # largest |R^T R - I| of a pose's R (files print R to 6-9 digits)
-MAX_TRANSLATION_M = 1e7  # [m] a pose frame is a local map frame, not the solar system
 
 
 def _not_a_pose(matrix: np.ndarray) -> str | None:
