@@ -422,10 +422,11 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
             # not significant once re-solved, or a discrepancy that, modelled, does not lower J by its floor:
             # withdrawn, back to the fit without it
             compared = None if control is None else (control.energy_cm2, fit.energy_on(control.pairs))
-            unlowered = compared is not None and compared[0] - compared[1] < refit_floor_cm2(winner, len(previous[1]))
+            floor_cm2 = None if compared is None else refit_floor_cm2(winner, len(previous[1]))
+            unlowered = compared is not None and compared[0] - compared[1] < floor_cm2
             if hypothesis is None and (p_value >= ALPHA / (len(names) + 1) or unlowered):
                 withdrawn.append(_withdrawn(winner, fit, at_refit.sigma, statistic, p_value,
-                                            compared if unlowered else None, len(previous[1])))
+                                            compared if unlowered else None, floor_cm2))
                 fit, names, tests, modelled, lin = previous
                 not_separable = [n for n in not_separable if n["named"] != winner.name]
             else:
@@ -620,14 +621,15 @@ def refit_floor_cm2(test: CandidateTest, n_candidates: int) -> float:
 
 
 def _withdrawn(test: CandidateTest, fit: Fit, sigma: float, statistic: float, p_value: float,
-               compared: tuple[float, float] | None = None, n_candidates: int = 1) -> dict:
+               compared: tuple[float, float] | None = None, floor_cm2: float | None = None) -> dict:
     """An effect significant by its score test but not at its refit (fit): its size there, both tests; or a
-    discrepancy whose refit does not lower J by its floor (refit_floor_cm2; compared, given only then: J of the
-    fit without it re-solved as long, and J with it, both on the former's pairs [cm^2]). The linear test predicts
-    the fall of J; a curve that fits misfit the model makes (the independent simulator's clean street, suspected: pairs across the edges of
-    near cars; 1.1 deg of elevation at 2 m, held-out J predicted 1.10 -> 1.07 cm²) does not place the returns
-    better once re-solved with it: it does not sharpen the cloud, and a discovery must. The same pairs for both:
-    on each fit's own, a curve that lets more pairs through the gates raises J without placing any return worse."""
+    discrepancy whose refit does not lower J by its floor (compared, given only then: J of the fit without it
+    re-solved as long, and J with it, both on the former's pairs; floor_cm2, the fall refit_floor_cm2 asks
+    [cm^2]). The linear test predicts the fall of J; a curve that fits misfit the model makes (the independent
+    simulator's clean street, suspected: pairs across the edges of near cars; 1.1 deg of elevation at 2 m,
+    held-out J predicted 1.10 -> 1.07 cm²) does not place the returns better once re-solved with it: it does not
+    sharpen the cloud, and a discovery must. The same pairs for both: on each fit's own, a curve that lets more
+    pairs through the gates raises J without placing any return worse."""
     magnitude = candidate(test.name).magnitude_of(fit.model.values[test.name])
     resolved = f"{display(test.name, magnitude)} ± {display(test.name, sigma)}, chi2 {statistic:.3g}, p {p_value:.2g}"
     if compared is None:
@@ -635,7 +637,7 @@ def _withdrawn(test: CandidateTest, fit: Fit, sigma: float, statistic: float, p_
     else:
         reason = (f"it does not lower J by its floor once re-solved with it ({resolved}; on the same pairs J "
                   f"{compared[0]:.4g} cm² without it, {compared[1]:.4g} cm² with it, where the floor asks "
-                  f"{refit_floor_cm2(test, n_candidates):.2g} cm² lower)")
+                  f"{floor_cm2:.2g} cm² lower)")
     if is_discrepancy(test.name):
         model = Discrepancy.parse(test.name)
         what = f"a curve of the {model.channel} against the {model.regressor}"
