@@ -61,16 +61,23 @@ class Timed:
         return out
 
 
+# (name, --dask address, single-core workers started here for it: their scheduler is the address)
+CONFIGURATIONS = (("in process", None, 0), ("local:1", "local:1", 0), ("local:2", "local:2", 0),
+                  ("one single-core worker", None, 1), ("two single-core workers", None, 2))
+
+
 @contextmanager
 def single_core_cluster(workers: int, folder: Path) -> Iterator[str]:
     """A scheduler and `workers` dask worker processes of one thread, the i-th confined to core i (from its
-    start, so that its libraries' thread pools see one core); the scheduler's address."""
+    start, so that its libraries' thread pools see one core); the scheduler's address, once they are up."""
     dask = Path(sys.executable).with_name("dask")
     file = folder / f"scheduler-{workers}.json"
     processes = [subprocess.Popen([dask, "scheduler", "--port", "0", "--dashboard-address", ":0", "--scheduler-file",
                                    file], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     try:
         while not file.exists():
+            if processes[0].poll() is not None:
+                raise SystemExit(f"dask scheduler exited with code {processes[0].returncode}")
             time.sleep(0.2)
         address = json.loads(file.read_text())["address"]
         cores = sorted(os.sched_getaffinity(0))
@@ -79,6 +86,7 @@ def single_core_cluster(workers: int, folder: Path) -> Iterator[str]:
                 [dask, "worker", address, "--nthreads", "1", "--no-nanny", "--no-dashboard"],
                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                 preexec_fn=lambda core=core: os.sched_setaffinity(0, {core})))
+        wait_for_workers(address, workers)
         yield address
     finally:
         for process in reversed(processes):
@@ -110,12 +118,10 @@ def main() -> None:
         recording = Recording.load(Path(folder) / "r")
         config = CalibrationConfig(mode="joint", max_points=args.max_points, association={"tile_m": args.tile_m})
         figures["returns"] = len(recording.points)
-        for name in ("in process", "local:1", "local:2", "one single-core worker", "two single-core workers"):
+        for name, address, single_core_workers in CONFIGURATIONS:
             with ExitStack() as stack:
-                address = {"in process": None}.get(name, name)
-                if name.endswith("worker") or name.endswith("workers"):
-                    address = stack.enter_context(single_core_cluster(1 + name.startswith("two"), Path(folder)))
-                    wait_for_workers(address, 1 + name.startswith("two"))
+                if single_core_workers:
+                    address = stack.enter_context(single_core_cluster(single_core_workers, Path(folder)))
                 task_map = stack.enter_context(open_task_map(address))
                 timed = Timed(task_map, per_job=address is None)
                 pipeline = CalibrationPipeline(recording, config, True, timed)
