@@ -4,7 +4,9 @@ told about (scenarios/unlisted.py), and on the clean recording.
 For each case (each in its own process, so each has its own peak memory): the first finding, whether it is
 `discovered` on the unlisted effect's channel and regressor, the shape error of its curve against the true
 curve (both with their mean removed, and for an elevation curve against the azimuth their once-a-turn part,
-which the boresight takes; RMS error over the truth's RMS), held-out J before and after, the seconds, and the
+which the boresight takes; RMS error over the truth's RMS), that error in units of the curve's own 1-sigma
+band (its RMS over the band's RMS: about 1 when the band covers the truth), held-out J before and after, the
+seconds, and the
 strongest discrepancy of the effect's own channel and regressor (its statistic, significance and held-out J)
 whether it was reported or not. Prints the figures and writes benchmarks/results/open_world.json.
 """
@@ -22,7 +24,9 @@ from common import peak_gib, report, run_in_process
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-def _shape_error(finding: dict, unlisted) -> float:
+def _shape_error(finding: dict, unlisted) -> tuple[float, float]:
+    """The curve's RMS error against the truth (both without the parts the fit cannot see) over the truth's RMS,
+    and over the RMS of the curve's 1-sigma band."""
     import numpy as np
 
     x, y = np.asarray(finding["curve"]["x"], dtype=float), np.asarray(finding["curve"]["y"], dtype=float)
@@ -33,7 +37,9 @@ def _shape_error(finding: dict, unlisted) -> float:
     A = np.column_stack(columns)
     truth = truth - A @ np.linalg.lstsq(A, truth, rcond=None)[0]
     y = y - y.mean()
-    return float(np.sqrt(np.mean((y - truth) ** 2)) / np.sqrt(np.mean(truth ** 2)))
+    error = np.sqrt(np.mean((y - truth) ** 2))
+    band = np.sqrt(np.mean(np.square(np.asarray(finding["curve"]["sigma"], dtype=float))))
+    return float(error / np.sqrt(np.mean(truth ** 2))), float(error / band)
 
 
 def _case(effect: str | None, size: float, max_points: int, queue) -> None:
@@ -58,7 +64,8 @@ def _case(effect: str | None, size: float, max_points: int, queue) -> None:
         out["right_first"] = bool(first and first["effect"] == "discovered"
                                   and (first["channel"], first["regressor"]) == (truth.channel, truth.regressor))
         if out["right_first"]:
-            out["shape_error"] = round(_shape_error(first, truth), 3)
+            shape, in_band = _shape_error(first, truth)
+            out["shape_error"], out["shape_error_in_band_sigmas"] = round(shape, 3), round(in_band, 2)
             out["held_out_cm2"] = [round(first["energy_cm2"]["held_out_before"], 4),
                                    round(first["energy_cm2"]["held_out_after"], 4)]
         own = [c for c in diagnosis.candidates if c["effect"].startswith(f"{truth.channel}~{truth.regressor}/")]
