@@ -28,6 +28,10 @@ from tools.foreign_sim.writer import (FORMAT, POINT_SCHEMA, TRUTH_POINT_SCHEMA, 
 CRS = "EPSG:32631"
 TRUTH_RATE_HZ = 1000.0
 MARGIN_S = 0.1  # the trajectories cover the returns by this much on both sides
+# simulate's error bounds for the widest errors a factory model is expected to have: true offsets within 5 cm and
+# 0.5 deg per fibre (range m, azimuth deg, elevation deg, height m), the extrinsic within 10 cm and 1 deg
+WIDEST_FACTORY_ERRORS = {"intrinsic_bounds": (0.05, 0.5, 0.5, 0.05), "extrinsic_lever_m": 0.10,
+                         "extrinsic_angle_deg": 1.0}
 _STREAMS = ("scene", "drive", "mount", "intrinsics", "spin", "ins", "frame")
 
 
