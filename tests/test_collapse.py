@@ -100,8 +100,11 @@ def test_crossed_rings_a_cap_and_a_slide_are_refused_with_what_slid():
     offsets[2, 3] = 0.12  # 6 prior sigmas
     estimate = type("Estimate", (), {"offsets": offsets, "extrinsic": gtsam.Pose3()})
     check_within_priors(estimate, gtsam.Pose3(), layout, ["fibre_2.h_z_m"], "rec")  # named: the prior decides it
-    with pytest.raises(CalibrationError, match=r"fibre_2.h_z_m \(6 sigmas\)"):
-        check_within_priors(estimate, gtsam.Pose3(), layout, [], "rec")
+    with pytest.raises(CalibrationError, match=r"fibre_2.h_z_m \(6 sigmas\)") as refused:
+        check_within_priors(estimate, gtsam.Pose3(), layout, [], "rec", held=("fibre_*.d_azimuth_deg",))
+    # what slid, and the run's held patterns with it (what graphcal.diagnose holds to go on)
+    assert refused.value.parameters == ("fibre_2.h_z_m",)
+    assert refused.value.hold == ("fibre_*.d_azimuth_deg", "fibre_2.h_z_m")
 
 
 def test_an_energy_the_noise_does_not_explain_is_refused():

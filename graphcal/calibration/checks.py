@@ -7,7 +7,7 @@ import gtsam
 import numpy as np
 
 from graphcal.calibration.weak_directions import Layout, tangent_about_nominal
-from graphcal.common.errors import CalibrationError
+from graphcal.common.errors import CalibrationError, PriorsExceeded
 
 # calibrated elevations spread over less than this fraction of the nominal ones: the fibres collapsed
 COLLAPSE_RATIO = 0.5
@@ -92,9 +92,10 @@ def check_rings_in_order(elevation_deg: np.ndarray, d_elevation_rad: np.ndarray,
 
 
 def check_within_priors(estimate, nominal_extrinsic: gtsam.Pose3, layout: Layout,
-                        unobservable: list[str], where: str) -> None:
-    """Raise when an estimated parameter not named unobservable lies more than PRIOR_SIGMAS of its prior
-    sigmas from its nominal value: the nominal's stated uncertainty says it cannot be there."""
+                        unobservable: list[str], where: str, held: tuple[str, ...] = ()) -> None:
+    """Raise PriorsExceeded when an estimated parameter not named unobservable lies more than PRIOR_SIGMAS of its
+    prior sigmas from its nominal value: the nominal's stated uncertainty says it cannot be there (held: the
+    run's held patterns, which the error's hold extends with those parameters)."""
     if not layout.size:
         return
     whitened = np.linalg.solve(layout.tangent_from_whitened(),
@@ -102,11 +103,13 @@ def check_within_priors(estimate, nominal_extrinsic: gtsam.Pose3, layout: Layout
     far = [(name, abs(z)) for name, z in zip(layout.names, whitened)
            if abs(z) > PRIOR_SIGMAS and name not in unobservable]
     if far:
-        listed = ", ".join(f"{name} ({z:.0f} sigmas)" for name, z in sorted(far, key=lambda x: -x[1])[:5])
-        raise CalibrationError(
+        far = sorted(far, key=lambda x: -x[1])
+        listed = ", ".join(f"{name} ({z:.0f} sigmas)" for name, z in far[:5])
+        raise PriorsExceeded(
             f"{where}: {len(far)} parameter(s) slid far outside the nominal model's stated uncertainty: {listed}; "
             "if the nominal model is known to be that far off, give its uncertainty (priors.intrinsic_range_m, "
-            "priors.intrinsic_angle_deg, priors.extrinsic_*), else hold them (static.hold) or use a drive that shows them")
+            "priors.intrinsic_angle_deg, priors.extrinsic_*), else hold them (static.hold) or use a drive that shows "
+            "them", tuple(name for name, _ in far), (*held, *(name for name, _ in far)))
 
 
 def check_energy_explained(energy_cm2: float, expected_cm2: float | None, range_noise_m: float, where: str) -> None:
