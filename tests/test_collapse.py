@@ -75,7 +75,7 @@ def test_a_hold_naming_nothing_is_refused_when_the_settings_are_read(tmp_path):
 
 
 def test_crossed_rings_a_cap_and_a_slide_are_refused_with_what_slid():
-    from graphcal.calibration.checks import check_converged, check_rings_in_order, check_within_priors
+    from graphcal.calibration.checks import check_converged, check_rings_in_order, check_within_priors, outside_priors
     from graphcal.calibration.weak_directions import Layout
     import gtsam
 
@@ -100,11 +100,12 @@ def test_crossed_rings_a_cap_and_a_slide_are_refused_with_what_slid():
     offsets[2, 3] = 0.12  # 6 prior sigmas
     estimate = type("Estimate", (), {"offsets": offsets, "extrinsic": gtsam.Pose3()})
     check_within_priors(estimate, gtsam.Pose3(), layout, ["fibre_2.h_z_m"], "rec")  # named: the prior decides it
-    with pytest.raises(CalibrationError, match=r"fibre_2.h_z_m \(6 sigmas\)") as refused:
-        check_within_priors(estimate, gtsam.Pose3(), layout, [], "rec", held=("fibre_*.d_azimuth_deg",))
-    # what slid, and the run's held patterns with it (what graphcal.diagnose holds to go on)
-    assert refused.value.parameters == ("fibre_2.h_z_m",)
-    assert refused.value.hold == ("fibre_*.d_azimuth_deg", "fibre_2.h_z_m")
+    with pytest.raises(CalibrationError, match=r"fibre_2.h_z_m \(6 sigmas\)"):
+        check_within_priors(estimate, gtsam.Pose3(), layout, [], "rec")
+    offsets[1, 2] = np.radians(-1.4)  # 7 prior sigmas: the furthest first
+    far = outside_priors(estimate, gtsam.Pose3(), layout, [])
+    assert [name for name, _ in far] == ["fibre_1.d_elevation_deg", "fibre_2.h_z_m"]
+    assert np.allclose([z for _, z in far], [7.0, 6.0])
 
 
 def test_an_energy_the_noise_does_not_explain_is_refused():

@@ -171,8 +171,8 @@ class CalibrationPipeline:
             check_fibres_apart(data.sensor.elevation_deg, estimate.offsets[:, 2], where)
             check_rings_in_order(data.sensor.elevation_deg, estimate.offsets[:, 2], settings.priors.intrinsic_angle_deg,
                                  where)
-        check_within_priors(estimate, problem.nominal, problem.layout(), unobservable, where,
-                            settings.static.hold or ())
+        if settings.stopping.refuse_outside_priors:
+            check_within_priors(estimate, problem.nominal, problem.layout(), unobservable, where)
         # one viewpoint (static): the scene's shape between the rings stays in J (docs/reference/math.md); an
         # estimate accepted unconverged: its J says nothing of the model
         if not data.one_viewpoint and settings.stopping.refuse_unconverged:

@@ -7,7 +7,7 @@ import gtsam
 import numpy as np
 
 from graphcal.calibration.weak_directions import Layout, tangent_about_nominal
-from graphcal.common.errors import CalibrationError, PriorsExceeded
+from graphcal.common.errors import CalibrationError
 
 # calibrated elevations spread over less than this fraction of the nominal ones: the fibres collapsed
 COLLAPSE_RATIO = 0.5
@@ -91,25 +91,30 @@ def check_rings_in_order(elevation_deg: np.ndarray, d_elevation_rad: np.ndarray,
             "surfaces at many heights")
 
 
-def check_within_priors(estimate, nominal_extrinsic: gtsam.Pose3, layout: Layout,
-                        unobservable: list[str], where: str, held: tuple[str, ...] = ()) -> None:
-    """Raise PriorsExceeded when an estimated parameter not named unobservable lies more than PRIOR_SIGMAS of its
-    prior sigmas from its nominal value: the nominal's stated uncertainty says it cannot be there (held: the
-    run's held patterns, which the error's hold extends with those parameters)."""
+def outside_priors(estimate, nominal_extrinsic: gtsam.Pose3, layout: Layout,
+                   unobservable: list[str]) -> list[tuple[str, float]]:
+    """(name, |z|) of each estimated parameter not named unobservable that lies more than PRIOR_SIGMAS of its
+    prior sigmas (z) from its nominal value, the furthest first."""
     if not layout.size:
-        return
+        return []
     whitened = np.linalg.solve(layout.tangent_from_whitened(),
                                tangent_about_nominal(layout, estimate.offsets, estimate.extrinsic, nominal_extrinsic))
-    far = [(name, abs(z)) for name, z in zip(layout.names, whitened)
+    far = [(name, float(abs(z))) for name, z in zip(layout.names, whitened)
            if abs(z) > PRIOR_SIGMAS and name not in unobservable]
+    return sorted(far, key=lambda x: -x[1])
+
+
+def check_within_priors(estimate, nominal_extrinsic: gtsam.Pose3, layout: Layout,
+                        unobservable: list[str], where: str) -> None:
+    """Raise when an estimated parameter lies outside its priors (outside_priors): the nominal's stated
+    uncertainty says it cannot be there."""
+    far = outside_priors(estimate, nominal_extrinsic, layout, unobservable)
     if far:
-        far = sorted(far, key=lambda x: -x[1])
         listed = ", ".join(f"{name} ({z:.0f} sigmas)" for name, z in far[:5])
-        raise PriorsExceeded(
+        raise CalibrationError(
             f"{where}: {len(far)} parameter(s) slid far outside the nominal model's stated uncertainty: {listed}; "
             "if the nominal model is known to be that far off, give its uncertainty (priors.intrinsic_range_m, "
-            "priors.intrinsic_angle_deg, priors.extrinsic_*), else hold them (static.hold) or use a drive that shows "
-            "them", tuple(name for name, _ in far), (*held, *(name for name, _ in far)))
+            "priors.intrinsic_angle_deg, priors.extrinsic_*), else hold them (static.hold) or use a drive that shows them")
 
 
 def check_energy_explained(energy_cm2: float, expected_cm2: float | None, range_noise_m: float, where: str) -> None:

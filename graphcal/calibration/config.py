@@ -162,7 +162,9 @@ class StoppingSettings(BaseModel):
     current estimate (step_sigma_m, step_sigma_deg); lm_iterations Levenberg-Marquardt iterations per outer
     iteration (None: 2 when the pairs are re-made, 5 on fixed pairs); refuse_unconverged: a run that stops on
     the cap, or whose J ends far above what the measured noise predicts, ends in CalibrationError (exit 3)
-    (False: the estimate is returned unchecked on both counts, for a quick look)."""
+    (False: the estimate is returned unchecked on both counts, for a quick look); refuse_outside_priors: so does
+    one that leaves a parameter far outside the nominal model's stated uncertainty (False: graphcal.diagnose's
+    baseline, where such a slide is what a left-out effect does, and is reported)."""
 
     model_config = _SECTION
     max_outer_iterations: int = Field(60, ge=1)
@@ -174,6 +176,7 @@ class StoppingSettings(BaseModel):
     step_sigma_deg: float = Field(0.5, gt=0)
     lm_iterations: int | None = Field(None, ge=1)
     refuse_unconverged: bool = True
+    refuse_outside_priors: bool = True
 
 
 class StaticSettings(BaseModel):

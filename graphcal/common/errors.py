@@ -40,13 +40,3 @@ class ConfigError(GraphcalError, ValueError):
 
 class CalibrationError(GraphcalError):
     """A calibration that reached a wrong answer it can recognise (e.g. collapsed fibres)."""
-
-
-class PriorsExceeded(CalibrationError):
-    """A calibration whose parameters slid far outside the nominal model's stated uncertainty: their names
-    (parameters, as calibration.yaml names them) and what holding them too would hold (hold: the run's held
-    patterns and those names), for a caller that would rather hold them than stop."""
-
-    def __init__(self, message: str, parameters: tuple[str, ...], hold: tuple[str, ...]):
-        super().__init__(message)
-        self.parameters, self.hold = parameters, hold

@@ -25,7 +25,7 @@ from threadpoolctl import threadpool_limits
 from factors.discrepancy import CHANNELS, REGRESSORS, Discrepancy, is_discrepancy, regressor_values
 from factors.effects import CANDIDATES, candidate
 from graphcal.common.atomic import atomic_path
-from graphcal.common.errors import PriorsExceeded
+from graphcal.calibration.checks import outside_priors
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.result import CalibrationResult
 from graphcal.diagnosis.fit import BLOCK_S, Fit, baseline, refit
@@ -149,8 +149,9 @@ class Diagnosis:
     first-round test, the candidates the model already mimics entirely, the tests of candidates at
     their known size (graphcal.diagnosis.hypothesis), J before/after [cm^2], and the effects withdrawn:
     significant by their score test, not once re-solved with the model (score.wald_at_refit), or discrepancies
-    that do not lower J once re-solved; baseline_held: parameters the calibration without any effect slid far
-    outside their priors, held at nominal for the diagnosis (_baseline).
+    that do not lower J once re-solved; baseline_slid: the parameters the fit without any effect left far outside
+    the nominal model's stated uncertainty ({parameter, prior_sigmas}; a calibration would refuse them, the
+    diagnosis goes on: a left-out effect is often what such a slide absorbs).
     locations are those of the final fit, locations_baseline those of the fit without any effect."""
 
     findings: list[dict]
@@ -165,14 +166,22 @@ class Diagnosis:
     calibration: CalibrationResult | None = field(default=None, repr=False)
     fit: Fit | None = field(default=None, repr=False)
     withdrawn: list[dict] = field(default_factory=list)
-    baseline_held: tuple[str, ...] = ()
+    baseline_slid: list[dict] = field(default_factory=list)
 
     def to_json(self) -> dict:
         return {"format": FORMAT, "findings": self.findings, "not_separable": self.not_separable,
                 "locations": self.locations, "locations_baseline": self.locations_baseline, "candidates": self.candidates, "concealed": self.concealed,
-                "at_known_size": self.at_known_size, "withdrawn": self.withdrawn,
-                "baseline_held": list(self.baseline_held), "energy_cm2": self.energy_cm2,
-                "seconds": round(self.seconds, 2)}
+                "at_known_size": self.at_known_size, "withdrawn": self.withdrawn, "baseline_slid": self.baseline_slid,
+                "energy_cm2": self.energy_cm2, "seconds": round(self.seconds, 2)}
+
+    @property
+    def slid_statement(self) -> str | None:
+        """What the fit without any effect left far outside its priors, in words (None: nothing)."""
+        if not self.baseline_slid:
+            return None
+        listed = ", ".join(f"{row['parameter']} ({row['prior_sigmas']:.0f} prior sigmas)" for row in self.baseline_slid)
+        return (f"without a left-out effect the calibration slid {listed} far outside the nominal model's stated "
+                "uncertainty, as a left-out effect often makes it (graphcal calibrate would refuse that fit)")
 
     def save(self, directory: str | Path, command: str = "graphcal.diagnose") -> Path:
         """diagnosis.json, and when there is one, the re-solved calibration (calibration/calibration.yaml,
@@ -185,17 +194,8 @@ class Diagnosis:
             self.calibration.save(directory / "calibration", command=command)
         return directory / "diagnosis.json"
 
-    @property
-    def held_statement(self) -> str | None:
-        """What the baseline held because it slid (None: nothing)."""
-        if not self.baseline_held:
-            return None
-        return (f"the calibration without a left-out effect slid {', '.join(self.baseline_held)} far outside the "
-                "nominal model's stated uncertainty (what a left-out effect often does); held at their nominal values "
-                "for the diagnosis")
-
     def summary(self) -> str:
-        return "\n".join(([self.held_statement] if self.baseline_held else []) + [self._findings_or_none()])
+        return "\n".join(([self.slid_statement] if self.baseline_slid else []) + [self._findings_or_none()])
 
     def _findings_or_none(self) -> str:
         if self.findings:
@@ -420,7 +420,10 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
     config = config or CalibrationConfig(mode="joint", **default_subset(recording))
     if config.weighting.pair_noise is None:  # the tests read the whitened costs back in cm2 with sigma0 (score.Linearisation)
         config = config.with_settings(weighting={"pair_noise": "uniform"})
-    fit, result, held = _baseline(recording, config, quiet)
+    # a parameter the baseline slides outside its priors is what a left-out effect does: reported, not refused
+    fit, result = baseline(recording, config.with_settings(stopping={"refuse_outside_priors": False}), quiet=quiet)
+    slid = [{"parameter": name, "prior_sigmas": z} for name, z in outside_priors(
+        result.calibration.estimate, fit.problem.nominal, fit.problem.layout(), list(result.unobservable))]
     energy, located = {"before": fit.energy_cm2}, locate(fit)
     findings, not_separable, first_round, concealed, added, at_known_size = [], [], None, [], None, []
     withdrawn, previous = [], None
@@ -499,18 +502,7 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
     final = locate(fit) if findings else located
     findings += unexplained(final)
     return Diagnosis(findings, not_separable, final, located, first_round, concealed, energy,
-                     time.perf_counter() - started, at_known_size, calibration, fit, withdrawn, held)
-
-
-def _baseline(recording: Recording, config: CalibrationConfig, quiet: bool) -> tuple[Fit, CalibrationResult,
-                                                                                  tuple[str, ...]]:
-    """fit.baseline, and what it held beyond config: a calibration whose parameters slid far outside their priors
-    (PriorsExceeded) is made again with them held at their nominal values (a left-out effect is often what such a
-    slide absorbs: the diagnosis goes on and says so); a second slide is refused."""
-    try:
-        return (*baseline(recording, config, quiet=quiet), ())
-    except PriorsExceeded as error:
-        return (*baseline(recording, config.with_settings(static={"hold": error.hold}), quiet=quiet), error.parameters)
+                     time.perf_counter() - started, at_known_size, calibration, fit, withdrawn, slid)
 
 
 def _refit_with(fit: Fit, test: CandidateTest, iterations: int, added: bool = True) -> Fit:

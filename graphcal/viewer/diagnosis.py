@@ -83,8 +83,8 @@ def diagnosis_summary(recording: Recording, diagnosis: Diagnosis, folder: Path |
     energy = diagnosis.energy_cm2
     lines = [f"# graphcal diagnose: {recording.name}", "", f"{diagnosis.seconds:.1f} s", "", "## Findings", ""]
     lines += [f"- {f['statement']}" for f in diagnosis.findings] or [f"- {diagnosis.summary()}"]
-    if diagnosis.findings and diagnosis.held_statement:
-        lines.append(f"- {diagnosis.held_statement}")
+    if diagnosis.findings and diagnosis.slid_statement:
+        lines.append(f"- {diagnosis.slid_statement}")
     lines += [f"- not separable: {', '.join(row['effects'])} (correlation {row['correlation']:.2f}, named "
               f"{row['named']}); {row['would_separate']}" for row in diagnosis.not_separable]
     if "after" in energy:
