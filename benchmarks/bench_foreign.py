@@ -29,6 +29,7 @@ from common import peak_gib, run_in_process
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools.foreign_sim, from the checkout
 
 from graphcal.common.atomic import atomic_path
+from tools.foreign_sim import WIDEST_FACTORY_ERRORS
 
 RESULTS = Path(__file__).resolve().parent / "results"
 FAMILIES = ("box_street", "suburb", "open_road", "relief_street")
@@ -40,7 +41,7 @@ def _case(family: str, mount: str, size: float, duration_s: float, seed: int, fr
     import graphcal
     from graphcal.calibration.evaluate import scorecard
     from graphcal.common.errors import CalibrationError
-    from tools.foreign_sim import WIDEST_FACTORY_ERRORS, simulate
+    from tools.foreign_sim import simulate
     from tools.truth_as_nominal import truth_as_nominal
 
     with tempfile.TemporaryDirectory() as folder:
@@ -109,7 +110,7 @@ def main() -> None:
         tmp.write_text(json.dumps({"machine": platform.platform(), "processor": platform.processor(),
                                    "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
                                    "size": args.size, "duration_s": args.duration, "settings": settings,
-                                   "true_error_bounds": "5 cm, 0.5 deg; 10 cm, 1 deg" if args.far else "the simulator's defaults",
+                                   "true_error_bounds": WIDEST_FACTORY_ERRORS if args.far else "the simulator's defaults",
                                    "cases": rows}, indent=2))
     print(f"wrote {out}")
 
