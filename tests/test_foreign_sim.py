@@ -261,6 +261,18 @@ def test_noise_seed_and_size(tmp_path):
     assert 0.003 < np.std(ins[:, 1:4] - matched[:, 1:4]) < 0.007  # 5 mm white noise
 
 
+def test_a_scan_is_cut_where_the_reading_first_wraps():
+    """A firing read just behind the wrap after another read past it (the encoder's per-revolution jitter)
+    stays in the new scan, so that returns stamped with their scan's start stay in time order; its azimuth is
+    its reading, near 360 deg."""
+    from tools.foreign_sim.simulation import scans
+
+    two_pi = 2 * np.pi
+    reading = np.array([two_pi - 1e-3, two_pi + 1e-5, two_pi - 2e-5, two_pi + 2e-3, 2 * two_pi + 1e-3])
+    np.testing.assert_array_equal(scans(reading), [0, 1, 1, 1, 2])
+    np.testing.assert_array_equal(scans(reading[2:], last_scan=1.0), [1, 1, 2])  # the cut carried across chunks
+
+
 def test_drive_dynamics_of_a_full_drive(tmp_path):
     """The default 15 s box_street drive: speed changes 6 -> 9 -> 4 -> 8 m/s, a left turn at up to
     ~29 deg/s, pitch from braking, roll from the turn (truth trajectory at 1 kHz)."""

@@ -103,6 +103,13 @@ class _Raycaster:
         return hit, t, np.where(hit, prim, -1), np.abs(denom)
 
 
+def scans(reading_rad: np.ndarray, last_scan: float = -np.inf) -> np.ndarray:
+    """The scan (revolution count) of each return, in firing order, from the encoder's unwrapped readings [rad]:
+    a scan is cut where the reading first wraps, as a driver cuts it, so that a firing read just behind the cut
+    (the encoder's jitter) stays in the new scan; last_scan: the scan the previous returns ended in."""
+    return np.maximum.accumulate(np.r_[last_scan, np.floor(reading_rad / (2 * np.pi))])[1:]
+
+
 def simulate(family: str, out, *, duration_s: float = 15.0, size: float = 1.0, seed: int = 0,
              mount: str = "level", range_noise_m: float = 0.01, intrinsic_bounds=(0.03, 0.3, 0.3, 0.03),
              extrinsic_lever_m: float = 0.05, extrinsic_angle_deg: float = 0.5, ins_noise_m: float = 0.005,
@@ -191,6 +198,7 @@ def simulate(family: str, out, *, duration_s: float = 15.0, size: float = 1.0, s
     per_chunk = max(1, int(round(chunk_s / S.BLOCK_PERIOD_S)))
     lasers = np.arange(S.N_FIBRES)
     stats = {"firings": 0, "hits": 0, "returns": 0}
+    last_scan = -np.inf
     try:
         for chunk, k0 in enumerate(range(0, n_blocks, per_chunk)):
             rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0xB10C, chunk)))
@@ -228,14 +236,15 @@ def simulate(family: str, out, *, duration_s: float = 15.0, size: float = 1.0, s
                    + range_noise_m * rng.standard_normal(len(idx)))
             rev = np.floor(psi[idx] / (2 * np.pi)).astype(np.int64)
             recorded = departures.encoder_reading(psi[idx]) + jitter[np.clip(rev, 0, n_revolutions - 1)]
-            scan = np.floor(recorded / (2 * np.pi))
+            scan = scans(recorded, last_scan)
+            last_scan = scan[-1] if len(scan) else last_scan
             cuts, which = np.unique(scan, return_inverse=True)
             stamp = departures.stamp(t_abs[idx], t0 + spin.time_at(2 * np.pi * cuts)[which])
             keep = (detected & (rho >= S.MIN_RANGE_M) & (rho <= S.MAX_RANGE_M)
                     & (stamp >= ins_time[0]) & (stamp <= ins_time[-1]))
             rows = idx[keep]
             scan, recorded = scan[keep], recorded[keep]
-            azimuth = recorded - 2 * np.pi * scan
+            azimuth = np.mod(recorded, 2 * np.pi)
             intensity = 255.0 * np.minimum(1.6 * strength[keep], 1.0) * (1.0 + 0.05 * rng.standard_normal(len(rows)))
             intensity = np.clip(np.round(intensity + rng.normal(0.0, 1.0, len(rows))), 0.0, 255.0)
             points.append({"time": stamp[keep], "fibre": fibre[rows].astype(np.int16),
