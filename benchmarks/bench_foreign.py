@@ -106,11 +106,12 @@ def main() -> None:
     out = args.out or RESULTS / ("foreign_from_truth.json" if args.from_truth else "foreign_far.json" if args.far
                                  else "foreign.json")
     out.parent.mkdir(parents=True, exist_ok=True)
+    bounds = WIDEST_FACTORY_ERRORS if args.far else "the simulator's defaults"
     with atomic_path(out) as tmp:
         tmp.write_text(json.dumps({"machine": platform.platform(), "processor": platform.processor(),
                                    "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
                                    "size": args.size, "duration_s": args.duration, "settings": settings,
-                                   "true_error_bounds": WIDEST_FACTORY_ERRORS if args.far else "the simulator's defaults",
+                                   "true_error_bounds": bounds,
                                    "cases": rows}, indent=2))
     print(f"wrote {out}")
 
