@@ -12,7 +12,10 @@ import pytest
 
 import graphcal
 from conftest import level_box_street
+from graphcal.calibration.checkpoint import Checkpoint
+from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.evaluate import scorecard
+from graphcal.common.errors import ConfigError
 from tools.foreign_sim import WIDEST_FACTORY_ERRORS
 
 
@@ -23,12 +26,18 @@ def foreign_box_street(tmp_path_factory):
     return level_box_street(tmp_path_factory.mktemp("foreign") / "box", 10.0, **WIDEST_FACTORY_ERRORS)
 
 
-def test_a_level_head_in_a_box_street_converges_without_collapse(foreign_box_street):
+@pytest.fixture(scope="module")
+def calibrated(foreign_box_street):
+    """The recording and its calibration with calibrate's defaults."""
+    recording = graphcal.Recording.load(foreign_box_street)
+    return recording, graphcal.calibrate(recording, quiet=True)
+
+
+def test_a_level_head_in_a_box_street_converges_without_collapse(calibrated):
     """From the factory's nominal model (5 cm, 0.5 deg off) with calibrate's defaults: no collapse, a few
     parameters named, the others close to the truth and mostly within 3 of their sigmas, the extrinsic
     found (the drive turns at the junction)."""
-    recording = graphcal.Recording.load(foreign_box_street)
-    result = graphcal.calibrate(recording, quiet=True)
+    recording, result = calibrated
     assert result.config.mode == "joint"  # the drive never comes back: no trajectory corrections
     card = scorecard(result, recording)
     evaluation = graphcal.evaluate(result, recording)
@@ -44,3 +53,45 @@ def test_a_level_head_in_a_box_street_converges_without_collapse(foreign_box_str
     # the lever arm's z is seen only through the roll in the turn: 1.7 cm off on these 10 s, the rotation 0.022 deg
     assert evaluation.rotation_error_deg[1] < 0.05 and evaluation.lever_arm_error_m[1] < 0.025, evaluation.table()
     assert evaluation.cloud_after_gauge_free.mean < 0.8 * evaluation.cloud_before.mean, evaluation.table()
+
+
+def test_a_calibration_interrupted_twice_resumes_to_the_uninterrupted_result(calibrated, tmp_path, monkeypatch):
+    """Stopped in the coarse phase, then again in the fine one (as a SIGKILL would: the checkpoint as last
+    saved), each time resumed from the checkpoint: the same outer iterations, the same estimate."""
+    recording, whole = calibrated
+    path, save, saves = tmp_path / "checkpoint.npz", Checkpoint.save, []
+
+    def save_then_stop_in(phase):
+        def stopping(self, state):
+            save(self, state)
+            saves.append(state.inside)
+            if state.inside == (0, 2) and state.rows[-1]["phase"] == phase:
+                raise KeyboardInterrupt
+
+        return stopping
+
+    for phase in ("coarse", "fine"):  # at the second outer iteration of each phase
+        monkeypatch.setattr(Checkpoint, "save", save_then_stop_in(phase))
+        with pytest.raises(KeyboardInterrupt):
+            graphcal.calibrate(recording, quiet=True, checkpoint=path)
+        assert path.is_file()
+    stopped = len(saves)
+    monkeypatch.setattr(Checkpoint, "save", save_then_stop_in("none"))
+    with pytest.raises(ConfigError, match="checkpoint.npz: a checkpoint of another calibration: settings"):
+        graphcal.calibrate(recording, CalibrationConfig(max_points=500_000), quiet=True, checkpoint=path)
+    resumed = graphcal.calibrate(recording, quiet=True, checkpoint=path)
+    assert saves[stopped] == (0, 3), saves  # went on with the next outer iteration
+    assert not path.exists()
+    assert [(row["phase"], row["stop"]) for row in resumed.history] == [(row["phase"], row["stop"])
+                                                                        for row in whole.history]
+    assert resumed.unobservable == whole.unobservable
+    # 1e-7 m and rad: a ten-thousandth of the smallest sigmas (0.1 cm, 0.01 deg); measured 1e-11
+    np.testing.assert_allclose(resumed.calibration.estimate.offsets, whole.calibration.estimate.offsets, atol=1e-7)
+    assert resumed.calibration.estimate.extrinsic.equals(whole.calibration.estimate.extrinsic, 1e-7)
+
+
+def test_a_checkpoint_that_is_not_one_is_refused_by_name(foreign_box_street, tmp_path):
+    path = tmp_path / "checkpoint.npz"
+    path.write_text("not a checkpoint")
+    with pytest.raises(ConfigError, match="checkpoint.npz: not a graphcal checkpoint"):
+        graphcal.calibrate(graphcal.Recording.load(foreign_box_street), quiet=True, checkpoint=path)

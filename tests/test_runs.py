@@ -520,3 +520,34 @@ with atomic_path(root / "cloud.laz") as tmp:
     run.finish(recording="/data/rec")
     run.publish()
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([elsewhere.name, live.name, "cloud.laz", "rec", "run"])
+
+
+def test_an_interrupted_calibrate_says_so_and_resume_goes_on_from_its_checkpoint(calibrated, tmp_path, monkeypatch):
+    """Ctrl-C after the second outer iteration: exit 130, no run folder, the checkpoint beside it; --resume ends
+    the calibration from there (the outer iterations of the module's uninterrupted run) and removes it."""
+    from graphcal.calibration.checkpoint import Checkpoint
+
+    recording, folder = calibrated
+    settings, out = folder.parent / "settings.yaml", tmp_path / "run"
+    checkpoint = tmp_path / ".run.checkpoint.npz"
+    save, saves = Checkpoint.save, []
+
+    def interrupted(self, state):
+        save(self, state)
+        saves.append(state.inside)
+        if len(saves) == 3:
+            raise KeyboardInterrupt
+
+    command = ["calibrate", str(recording), "--mode", "trajectory", "--config", str(settings), "--out", str(out),
+               "--viewer-points", str(VIEWER_POINTS)]
+    monkeypatch.setattr(Checkpoint, "save", interrupted)
+    result = CliRunner().invoke(app, command)
+    assert result.exit_code == 130 and "Traceback" not in result.output, result.output
+    assert f"kept in {checkpoint}: the same command with --resume" in result.output
+    assert checkpoint.is_file() and not out.exists()
+    monkeypatch.setattr(Checkpoint, "save", lambda self, state: saves.append(state.inside) or save(self, state))
+    result = CliRunner().invoke(app, command + ["--resume", "-q"])
+    assert result.exit_code == 0, result.output
+    assert saves[3] == (0, 3), saves[3:]  # went on with the third outer iteration
+    assert not checkpoint.exists() and (out / "calibration.yaml").is_file()
+    assert [row["energy_cm2"] for row in _history(out)] == [row["energy_cm2"] for row in _history(folder)]

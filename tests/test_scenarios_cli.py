@@ -93,6 +93,10 @@ def test_cli_calibrate_writes_a_run_folder_and_rejects_a_bad_config(tmp_path):
     settings.write_text("- mode: joint\n")
     result = runner.invoke(app, ["calibrate", str(recording), "--config", str(settings)])
     assert result.exit_code == 2 and "settings.yaml: not a mapping" in result.output
+    for address in ("local:0", "somewhere"):  # refused before any run folder is made
+        result = runner.invoke(app, ["calibrate", str(recording), "--dask", address, "--out", str(tmp_path / "d")])
+        assert result.exit_code == 2 and f"--dask {address!r}: expected local" in result.output, result.output
+        assert not (tmp_path / "d").exists()
 
 
 @pytest.mark.parametrize("size", ["0", "nan", "-1"])

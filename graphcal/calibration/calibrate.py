@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import replace
+from pathlib import Path
 
 from threadpoolctl import threadpool_limits
 
+from graphcal.calibration.checkpoint import Checkpoint, PipelineState
 from graphcal.calibration.checks import (
     check_converged,
     check_energy_explained,
@@ -24,6 +27,7 @@ from graphcal.calibration.static_sensor import halves_over_draws, pair_draws, so
 from graphcal.calibration.verdict import RIGID_REASON, Motion, verdict
 from graphcal.calibration.weak_directions import WeakDirections
 from graphcal.common.cluster import IN_PROCESS, TaskMap, open_task_map
+from graphcal.common.errors import CalibrationError
 from graphcal.recording.directory import Recording
 
 TILE_M = 50.0  # the tiles of a calibration spread over a cluster when no size is set [m]
@@ -31,35 +35,81 @@ HELD_REASON = "held at its nominal value (setting hold, or a static sensor's che
 
 
 def calibrate(recording: Recording, config: CalibrationConfig | None = None, quiet: bool = False,
-              dask: str | None = None) -> CalibrationResult:
+              dask: str | None = None, checkpoint: str | Path | None = None) -> CalibrationResult:
     """Estimate what config.mode asks for (intrinsics, extrinsic, trajectory corrections, or successive
     stages) from the recording alone; every estimated parameter gets a 1-sigma, and what the data cannot
     see, or see only weakly, is held at its nominal value and named with its reason.
 
     dask: where the tiles' features and pairs are computed (graphcal.common.cluster: "local", "local:N" or a
     scheduler address such as "tcp://HOST:PORT"); the factor graph stays here. Tiles of
-    association.tile_m [m] (TILE_M when not set): the result equals the one computed here with the same tiles."""
+    association.tile_m [m] (TILE_M when not set): the result equals the one computed here with the same tiles.
+
+    checkpoint: a file (graphcal.calibration.checkpoint) the calibration's state is saved to after each step and
+    each outer iteration. A calibration started with the checkpoint an interrupted one of the same recording and
+    settings left resumes from its last outer iteration (its phase's gates and features start again there, so it
+    ends where an uninterrupted one does to within the stopping tolerance, not bit for bit); the file is removed
+    when the calibration ends, with a result or refused."""
     config = config or CalibrationConfig()
     if dask is not None and config.association.tile_m is None:
         config = config.with_settings(association={"tile_m": TILE_M})
+    saved = None if checkpoint is None else Checkpoint.of(checkpoint, recording, config)
+    state = None if saved is None else saved.load()
     # the block factors' matrix products are modest and run one at a time inside GTSAM's callbacks: BLAS
     # threads there only spin against open3d's and GTSAM's (measured 20x slower on a loaded 2-core machine)
     with threadpool_limits(limits=1, user_api="blas"), open_task_map(dask) as task_map:
-        return CalibrationPipeline(recording, config, quiet, task_map).run()
+        try:
+            result = CalibrationPipeline(recording, config, quiet, task_map, saved, state).run()
+        except CalibrationError:
+            if saved is not None:
+                saved.remove()
+            raise
+    if saved is not None:
+        saved.remove()
+    return result
+
+
+def resumable(step):
+    """A step of CalibrationPipeline.run that a resumed calibration skips when its checkpoint has it done (the
+    steps are counted as run enters them); the state is saved when it ends."""
+
+    @functools.wraps(step)
+    def run_unless_done(self: CalibrationPipeline, *args, **kwargs):
+        self.entered += 1
+        if self.entered <= self.state.done:
+            return
+        step(self, *args, **kwargs)
+        self.state.done, self.state.inside, self.state.features_at = self.entered, None, None
+        self.save()
+
+    return run_unless_done
 
 
 class CalibrationPipeline:
-    """The steps of one calibration (run lists them) and what they share: the problem, the estimate, the
-    history of outer iterations, the weak directions held, the seconds of each step."""
+    """The steps of one calibration (run lists them) and what they share: the problem, the state (the estimate,
+    the history of outer iterations, the weak directions held: checkpoint.PipelineState, saved to the checkpoint
+    when there is one), the seconds of each step."""
 
-    def __init__(self, recording: Recording, config: CalibrationConfig, quiet: bool, task_map: TaskMap = IN_PROCESS):
-        self.recording, self.quiet = recording, quiet
-        self.started, self.timings, self.history = time.perf_counter(), {}, History()
+    def __init__(self, recording: Recording, config: CalibrationConfig, quiet: bool, task_map: TaskMap = IN_PROCESS,
+                 checkpoint: Checkpoint | None = None, resumed: PipelineState | None = None):
+        self.recording, self.quiet, self.checkpoint = recording, quiet, checkpoint
+        self.started, self.timings = time.perf_counter(), {}
         self.problem = self.timed("prepare", Problem.of, recording, config, task_map)
-        self.estimate = initial_estimate(recording, self.problem.full)
+        self.state = resumed or PipelineState(initial_estimate(recording, self.problem.full))
+        self.timings |= {name: seconds for name, seconds in self.state.timings.items() if name != "prepare"}
+        self.history = History(self.state.rows)
         self.weak = WeakDirections.none(self.problem.layout())
-        self.used: dict[str, int] = {}  # outer iterations each stage has run: n_max counts both phases
+        if self.state.weak_basis is not None:
+            self.weak = replace(self.weak, basis=self.state.weak_basis, eigenvalues=self.state.weak_eigenvalues)
+        self.entered = 0  # resumable steps entered so far
         self.halves = None
+
+    @property
+    def estimate(self) -> Estimate:
+        return self.state.estimate
+
+    @estimate.setter
+    def estimate(self, estimate: Estimate) -> None:
+        self.state.estimate = estimate
 
     def run(self) -> CalibrationResult:
         self.fix_the_pairs_of_a_static_sensor()
@@ -67,69 +117,102 @@ class CalibrationPipeline:
         # what the data cannot see, or see only weakly, is found at the start (held through the coarse
         # phase), at the switch to the fine phase (held from there on) and at the end (if it adds some,
         # they are held and the fine phase runs again): held at nominal wherever it is found
-        self.weak = self.timed("weak directions at the start", self.weak_directions, "coarse")
+        self.find_weak_directions("coarse", "weak directions at the start")
         self.solve(last=("coarse",))
-        self.weak = self.timed("weak directions, fine phase", self.weak_directions, "fine")
+        self.find_weak_directions("fine", "weak directions, fine phase")
         self.solve(last=("fine",), first=len(self.problem.stages) - 1)
-        self.hold_weak_directions_found_at_the_end()
+        self.find_weak_directions("fine", "weak directions at the end", grow=True)
+        self.solve_again_if_more_are_weak()
+        self.estimate = self.problem.priors.hold_at_nominal(self.estimate, self.problem.nominal)
         final = self.timed("final fit and marginals", self.problem.final, self.estimate, None, True)
         return self.result(final)
 
     def timed(self, name: str, work, *args):
         mark = time.perf_counter()
         out = work(*args)
-        self.timings[name] = time.perf_counter() - mark
+        self.timings[name] = self.timings.get(name, 0.0) + time.perf_counter() - mark
         return out
+
+    def save(self) -> None:
+        """The state to the checkpoint (when there is one), with the seconds spent so far."""
+        if self.checkpoint is not None:
+            self.state.rows, self.state.timings = self.history.rows, self.timings
+            self.state.weak_basis, self.state.weak_eigenvalues = self.weak.basis, self.weak.eigenvalues
+            self.state.seconds += time.perf_counter() - self.started
+            self.started = time.perf_counter()
+            self.checkpoint.save(self.state)
 
     def fix_the_pairs_of_a_static_sensor(self) -> None:
         """A static sensor's pairs and normals are made once, at the start (association.fixed)."""
         if self.problem.settings.association.fixed:
-            self.problem = replace(self.problem, fixed_pairs=self.problem.associate(self.estimate))
+            start = initial_estimate(self.recording, self.problem.full)
+            self.problem = replace(self.problem, fixed_pairs=self.problem.associate(start))
 
     def hold_what_a_static_sensor_cannot_tie_to_itself(self) -> None:
         """The static checks (static.hold_soft, static.check_halves) judge the intrinsics left free (by
-        default a static sensor holds them all)."""
+        default a static sensor holds them all), at the start."""
         problem, static = self.problem, self.problem.settings.static
         if not ((static.hold_soft or static.check_halves) and problem.estimated[0]
                 and problem.priors.free_intrinsics(problem.data.sensor.reference_fibre).any()):
             return
-        draws = self.timed("pair draws", pair_draws, problem, self.estimate, problem.associate(self.estimate))
+        start = initial_estimate(self.recording, problem.full)
+        draws = self.timed("pair draws", pair_draws, problem, start, problem.associate(start))
         if static.hold_soft:
             self.problem = self.problem.holding(self.timed("soft parameters", soft_over_draws, self.problem,
-                                                           self.estimate, draws))
+                                                           start, draws))
         if static.check_halves:
-            self.halves = self.timed("azimuth halves", halves_over_draws, self.problem, self.estimate, draws)
+            self.halves = self.timed("azimuth halves", halves_over_draws, self.problem, start, draws)
             self.problem = self.problem.holding(list(self.halves.held))
 
-    def weak_directions(self, phase: Phase) -> WeakDirections:
+    @resumable
+    def find_weak_directions(self, phase: Phase, name: str, grow: bool = False) -> None:
         """At the estimate, on the pairs of a phase: at the start the coarse phase's (the strict gates would keep
-        few pairs of a start a few centimetres off), else the strict ones."""
-        return self.problem.in_phase(phase).weak_directions(self.estimate)
+        few pairs of a start a few centimetres off), else the strict ones. grow: added to those held (grown says
+        whether that held more), else in their place."""
+        found = self.timed(name, self.problem.in_phase(phase).weak_directions, self.estimate)
+        if grow:
+            union = self.weak.union(found)
+            self.state.grown = union.basis.shape[1] > self.weak.basis.shape[1]
+            found = union if self.state.grown else self.weak
+        self.weak = found
 
+    def solve_again_if_more_are_weak(self) -> None:
+        if self.state.grown:
+            self.solve(last=("fine",), first=len(self.problem.stages) - 1, label=", weak directions held")
+
+    @resumable
     def solve(self, last: tuple[Phase, ...], first: int = 0, label: str = "") -> None:
         """The stages from `first` one by one (successive modes stay successive), the last one's phases `last`
-        only, the weak directions set back to and held at nominal."""
+        only, the weak directions set back to and held at nominal. Resumed (state.inside): from the stage and
+        outer iteration the checkpoint stopped at."""
         self.estimate = self.back_to_nominal(self.estimate)
-        stages, cap = self.problem.stages, self.problem.settings.stopping.max_outer_iterations
-        for k, stage in enumerate(stages[first:], first):
-            phases = last if k == len(stages) - 1 else PHASES
-            left = cap - (self.used.get(stage, 0) if phases == ("fine",) else 0)
-            before = len(self.history.rows)
+        stages, cap, used = self.problem.stages, self.problem.settings.stopping.max_outer_iterations, self.state.used
+        start, done = self.state.inside or (first, 0)
+        for k, stage in enumerate(stages[start:], start):
+            planned = last if k == len(stages) - 1 else PHASES
+            ran = done if k == start else 0  # outer iterations of this stage the checkpoint has
+            left = cap - (used.get(stage, 0) if planned == ("fine",) else 0)
+            before, rows = len(self.history.rows) - ran, self.history.rows
+            if ran and (rows[-1]["stop"] or left <= ran):  # the checkpoint was saved on the stage's last iteration
+                rows[-1]["stop"] = rows[-1]["stop"] or "cap"
+                used[stage] = ran
+                continue
+
+            def saved_each_iteration(estimate: Estimate, features_at: Estimate | None, k=k, before=before) -> None:
+                self.estimate, self.state.inside = estimate, (k, len(self.history.rows) - before)
+                self.state.features_at = features_at
+                self.save()
+
             problem = self.problem.in_stage(stage).locking(self.weak)
-            self.estimate = self.timed(f"solve {stage}{label} ({', '.join(phases)})", problem.fit, self.estimate,
-                                       self.history, stage + label, phases, left, self.quiet)
-            self.used[stage] = len(self.history.rows) - before
+            self.estimate = self.timed(f"solve {stage}{label} ({', '.join(planned)})",
+                                       problem.fit, self.estimate, self.history, stage + label, planned, left,
+                                       self.quiet, saved_each_iteration if self.checkpoint else None, ran,
+                                       self.state.features_at if ran else None)
+            used[stage] = len(self.history.rows) - before
 
     def back_to_nominal(self, estimate: Estimate) -> Estimate:
         offsets, extrinsic = self.weak.reset_to_nominal(estimate.offsets, estimate.extrinsic, self.problem.nominal)
         return replace(estimate, offsets=offsets, extrinsic=extrinsic)
-
-    def hold_weak_directions_found_at_the_end(self) -> None:
-        late = self.weak.union(self.timed("weak directions at the end", self.weak_directions, "fine"))
-        if late.basis.shape[1] > self.weak.basis.shape[1]:
-            self.weak = late
-            self.solve(last=("fine",), first=len(self.problem.stages) - 1, label=", weak directions held")
-        self.estimate = self.problem.priors.hold_at_nominal(self.estimate, self.problem.nominal)
 
     def result(self, final: FinalFit) -> CalibrationResult:
         """The calibration, checked (calibration/checks.py), with what it names and why, and the one-line verdict on
@@ -152,7 +235,7 @@ class CalibrationPipeline:
                                   tuple(unobservable), tuple(held), reasons, drive_of(self.recording))
         return CalibrationResult(calibration, final.uncertainty, estimated, self.history.rows,
                                  data.rows[final.pairs.index_p], final.residual_m, final.pairs.weight, config,
-                                 time.perf_counter() - self.started, self.timings,
+                                 self.state.seconds + time.perf_counter() - self.started, self.timings,
                                  halves=None if self.halves is None else self.halves.to_yaml_dict(),
                                  shared_returns_uncertainty=final.shared_returns,
                                  cluster_robust_uncertainty=final.cluster_robust,

@@ -47,6 +47,7 @@ class FeatureCache:
 
     def __init__(self, settings: FeatureSettings, tiling: Tiling | None = None):
         self.settings, self.tiling, self.points_m, self.features = settings, tiling, None, None
+        self.estimate = None  # what the features were computed at (the caller's, e.g. a calibration's estimate)
         self.paired: tuple | None = None  # (the gates, the features, the points [m], the pairs)
 
     def pairs(self, association: Association, points_m: np.ndarray, fibre: np.ndarray, features: Features,
@@ -62,11 +63,13 @@ class FeatureCache:
         self.paired = (key, features, points_m, pairs)
         return pairs
 
-    def at(self, points_m: np.ndarray) -> tuple[Features, bool]:
-        """(features for the points [m], whether they were computed now)."""
+    def at(self, points_m: np.ndarray, estimate=None) -> tuple[Features, bool]:
+        """(features for the points [m], whether they were computed now); estimate: what the points are of, kept
+        with features computed now (self.estimate)."""
         if moved_m(points_m, self.points_m, self.settings.radius_m) <= self.settings.refresh_above_m:
             return self.features, False
         self.points_m, self.features = points_m, features_at(points_m, self.settings, self.tiling)
+        self.estimate = estimate
         return self.features, True
 
 

@@ -11,7 +11,7 @@ balance of data and rigidity does not depend on how many pairs are drawn.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 
 import gtsam
@@ -212,7 +212,7 @@ class Problem:
         if self.fixed_pairs is not None:
             return self.fixed_pairs
         points_m = self.points(estimate) if points_m is None else points_m
-        features = self.cache.at(points_m)[0] if features is None else features
+        features = self.cache.at(points_m, estimate)[0] if features is None else features
         return self.cache.pairs(self.association(), points_m, self.data.fibre, features, self.gates.gate_start_m,
                                 lambda: self.sight(estimate, points_m))
 
@@ -320,26 +320,41 @@ class Problem:
 
     # --- the outer loop ------------------------------------------------------------------------------
     def fit(self, estimate: Estimate, history: History, label: str, phases: tuple[Phase, ...] = PHASES,
-            max_iterations: int | None = None, quiet: bool = True) -> Estimate:
+            max_iterations: int | None = None, quiet: bool = True,
+            after_each: Callable[[Estimate, Estimate | None], None] | None = None, ran: int = 0,
+            features_at: Estimate | None = None) -> Estimate:
         """Outer iterations of one stage from this problem: the coarse phase (its subsample, the gate opening
         by gate_growth) until its step (step_size) falls below stopping.fine_below_m, then the fine phase until it
         falls below stopping.tolerance_m, J plateaus, or n_max (max_iterations, else stopping.max_outer_iterations,
         both phases together). phases: the phases to run (("coarse",): stop at the switch; ("fine",): start
         there). On fixed pairs, the fine phase only. Features are refreshed every features.refresh_every outer
-        iterations, when the cloud has moved."""
+        iterations, when the cloud has moved. after_each(estimate, features_at): called after each outer iteration,
+        once its history row is complete, with the estimate its features were computed at (None: not known). ran:
+        the outer iterations of this fit an interrupted calibration had run (the last rows of history, estimate
+        their end, features_at what after_each last gave): it goes on from them as it would have."""
         stopping, refresh_every = self.settings.stopping, self.settings.features.refresh_every
         n_max = stopping.max_outer_iterations if max_iterations is None else max_iterations
-        fine = self.fixed_pairs is not None or phases[0] == "fine"
-        if (fine and "fine" not in phases) or n_max < 1:
+        done = history.rows[len(history.rows) - ran:]
+        fine = (self.fixed_pairs is not None or phases[0] == "fine"
+                or any(row["phase"] == "fine" or row["max_step"] < stopping.fine_below_m for row in done))
+        if (fine and "fine" not in phases) or n_max <= ran:
             return estimate
         problem = self.in_phase("fine" if fine else "coarse")
         gate, association = problem.gates.gate_start_m, problem.association()
-        features, refreshed, points, since_refresh, fine_energies = None, False, None, refresh_every, []
+        if done and not fine:
+            gate = min(done[-1]["gate_m"] * problem.gates.gate_growth, problem.gates.gate_max_m)
+        features, refreshed, points, since_refresh = None, False, None, refresh_every
+        fine_energies = [row["energy_cm2"] for row in done if row["phase"] == "fine"]
         rows = None if problem.fixed_pairs is None else problem.fixed_pairs.rows()  # fixed pairs: only their returns
-        for _ in progress(range(n_max), f"calibrating ({label})", total=n_max, quiet=quiet):
+        in_phase = [row for row in done if row["phase"] == problem.phase]
+        if in_phase and features_at is not None and problem.fixed_pairs is None:  # as they were when interrupted
+            features = problem.cache.at(problem.points(features_at, rows), features_at)[0]
+            last = max((i for i, row in enumerate(in_phase) if row["refreshed"]), default=None)
+            since_refresh = refresh_every + len(in_phase) if last is None else len(in_phase) - last
+        for _ in progress(range(ran, n_max), f"calibrating ({label})", total=n_max - ran, quiet=quiet):
             points = problem.points(estimate, rows) if points is None else points
             if problem.fixed_pairs is None and (features is None or since_refresh >= refresh_every):
-                features, refreshed = problem.cache.at(points)
+                features, refreshed = problem.cache.at(points, estimate)
                 since_refresh = 0 if refreshed else since_refresh
             since_refresh += 1
             pairs = problem.fixed_pairs if problem.fixed_pairs is not None else problem.cache.pairs(
@@ -358,16 +373,19 @@ class Problem:
                 if step < stopping.tolerance_m or on_plateau(fine_energies, stopping.plateau_iterations,
                                                              stopping.plateau_improvement):
                     history.rows[-1]["stop"] = "converged"
-                    break
             elif step < stopping.fine_below_m:
                 if "fine" not in phases:
                     history.rows[-1]["stop"] = "coarse done"
-                    break
-                problem = self.in_phase("fine")
-                gate, association = problem.gates.gate_start_m, problem.association()
-                since_refresh, features, points = refresh_every, None, None
+                else:
+                    problem = self.in_phase("fine")
+                    gate, association = problem.gates.gate_start_m, problem.association()
+                    since_refresh, features, points = refresh_every, None, None
             else:
                 gate = min(gate * problem.gates.gate_growth, problem.gates.gate_max_m)
+            if after_each is not None:
+                after_each(estimate, None if features is None else problem.cache.estimate)
+            if history.rows[-1]["stop"]:
+                break
         else:
             if history.rows:
                 history.rows[-1]["stop"] = "cap"

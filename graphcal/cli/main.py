@@ -38,7 +38,8 @@ _IMPORTING: list[Path] = []  # the recording folder an import is writing (none o
 
 
 def _clear_errors(command):
-    """Turn graphcal's own errors into one line on stderr and exit code 2 (3 for a refused result)."""
+    """Turn graphcal's own errors into one line on stderr and exit code 2 (3 for a refused result); Ctrl-C into
+    "interrupted" and exit code 130."""
     @functools.wraps(command)
     def wrapper(*args, **kwargs):
         from pydantic import ValidationError
@@ -46,12 +47,15 @@ def _clear_errors(command):
         from graphcal.common.errors import CalibrationError, GraphcalError
         from graphcal.common.run_folder import abandon_unpublished
 
+        def abandon() -> None:  # what a refused or interrupted command had begun to write
+            abandon_unpublished()
+            for folder in _IMPORTING:
+                shutil.rmtree(folder, ignore_errors=True)
+
         try:
             return command(*args, **kwargs)
         except GraphcalError as error:
-            abandon_unpublished()
-            for folder in _IMPORTING:  # what a refused import had begun to write
-                shutil.rmtree(folder, ignore_errors=True)
+            abandon()
             typer.echo(f"error: {error}", err=True)
             raise typer.Exit(3 if isinstance(error, CalibrationError) else 2) from None
         except ValidationError as error:  # a setting out of range (simulate --size 0, a scenario's field)
@@ -59,6 +63,10 @@ def _clear_errors(command):
             where = ".".join(str(part) for part in first["loc"]) or error.title
             typer.echo(f"error: {error.title} {where}: {first['msg']} (got {first.get('input')!r})", err=True)
             raise typer.Exit(2) from None
+        except KeyboardInterrupt:  # Ctrl-C: what the command had begun to write goes, without a traceback
+            abandon()
+            typer.echo("interrupted", err=True)
+            raise typer.Exit(130) from None
         finally:
             _IMPORTING.clear()
     return wrapper
@@ -149,6 +157,9 @@ def calibrate(recording: Annotated[Path, typer.Argument(help="recording director
               dask: Annotated[str | None, typer.Option(help="compute the features and pairs tile by tile on Dask: "
                                                             "local, local:N (N worker processes here) or a "
                                                             "scheduler address tcp://HOST:PORT")] = None,
+              resume: Annotated[bool, typer.Option(help="go on from where an interrupted calibration of the same "
+                                                        "recording, settings and --out stopped (its checkpoint)")]
+              = False,
               spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, force: Force = False,
               quiet: Quiet = False) -> None:
     """Self-calibrate a recording into a run folder: results, run.rrd, report.html.
@@ -160,14 +171,20 @@ def calibrate(recording: Annotated[Path, typer.Argument(help="recording director
     config.yaml, history.csv, residuals.parquet, pairs_nominal.parquet, pairs_calibrated.parquet,
     evaluation.yaml (with truth), run.rrd, report.html and run.yaml (seconds per stage).
 
+    The calibration's state is saved after every outer iteration (a checkpoint beside the run folder, removed at
+    the end); after an interruption, the same command with --resume goes on from there.
+
     Example: graphcal calibrate out/sim6_turn --mode trajectory --spawn
     """
     from graphcal.cli.runs import calibration_run
+    from graphcal.common.cluster import check_address
 
     if out is not None:
         _not_taken(out, force)
+    if dask is not None:
+        check_address(dask)
     run = calibration_run(recording, calibration_config(mode, config), out, spawn, evaluate, viewer_points,
-                          quiet=quiet, dask=dask)
+                          quiet=quiet, dask=dask, resume=resume)
     if not quiet:
         _print_calibration(run)
 

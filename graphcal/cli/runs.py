@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.common.progress import status
 from graphcal.recording.directory import Recording
-from graphcal.common.run_folder import RunFolder
+from graphcal.common.run_folder import RUNS, RunFolder, folder_name
 from graphcal.viewer.stream import RRD, recording_stream
 from graphcal.common.yamlfile import read_yaml, write_yaml
 
@@ -37,10 +37,12 @@ class CalibrationRun:
 
 def calibration_run(recording_path: Path, config: CalibrationConfig, out: Path | None = None, spawn: bool = False,
                     evaluate: bool = True, viewer_points: int | None = None, evaluation_points: int = 500_000,
-                    command: str = "calibrate", quiet: bool = False, dask: str | None = None) -> CalibrationRun:
+                    command: str = "calibrate", quiet: bool = False, dask: str | None = None,
+                    resume: bool = False) -> CalibrationRun:
     """Calibrate (the tiles' work on the Dask cluster `dask` names, graphcal.common.cluster), save the results,
     the residuals before/after, the evaluation against truth/ (when the recording has one and evaluate), run.rrd
-    and report.html into the run folder."""
+    and report.html into the run folder. The calibration's checkpoint is the run folder's (checkpoint_path):
+    resume goes on from it, else it starts again."""
     from graphcal.calibration.before_after import residuals_before_after
     from graphcal.calibration.calibrate import calibrate
     from graphcal.calibration.evaluate import evaluate as against_truth
@@ -49,7 +51,18 @@ def calibration_run(recording_path: Path, config: CalibrationConfig, out: Path |
     from graphcal.viewer.log import VIEWER_POINTS
 
     run, recording = start_run(recording_path, out, command, quiet, check=enough_returns)
-    result = calibrate(recording, config, quiet=quiet)
+    checkpoint = checkpoint_path(out, recording.name, command)
+    if not resume:
+        checkpoint.unlink(missing_ok=True)
+    elif not checkpoint.is_file() and not quiet:
+        print(f"note: no checkpoint at {checkpoint}: calibrating from the start", file=sys.stderr)
+    try:
+        result = calibrate(recording, config, quiet=quiet, dask=dask, checkpoint=checkpoint)
+    except KeyboardInterrupt:
+        if checkpoint.is_file():
+            print(f"the calibration's state is kept in {checkpoint}: the same command with --resume goes on from "
+                  "there", file=sys.stderr)
+        raise
     run.timings_s.update({f"calibrate: {name}": seconds for name, seconds in result.timings_s.items()})
     with run.stage("save results"):
         result.save(run.path, command=" ".join(["graphcal"] + sys.argv[1:]))
@@ -257,6 +270,14 @@ def effects_not_applied(calibration_path: Path, quiet: bool) -> list[str]:
               "by the offsets, the extrinsic and the trajectory corrections only; these effects are not applied",
               file=sys.stderr)
     return names
+
+
+def checkpoint_path(out: Path | None, recording_name: str, command: str) -> Path:
+    """Where the calibration of a run keeps its checkpoint: beside --out (.<out>.checkpoint.npz), else in runs/
+    (.<recording>-<command>.checkpoint.npz, the run folder's name without its time stamp)."""
+    if out is not None:
+        return Path(out).parent / f".{Path(out).name}.checkpoint.npz"
+    return RUNS / f".{folder_name(recording_name)}-{command}.checkpoint.npz"
 
 
 def start_run(recording_path: Path, out: Path | None, command: str, quiet: bool,

@@ -87,9 +87,22 @@ def local_workers(address: str) -> int:
     if not count:
         return os.cpu_count() or 1
     if not count.isdigit() or int(count) < 1:
-        raise ConfigError(f"--dask {address!r}: expected local, local:N (N workers, N >= 1) or a scheduler address "
-                          "such as tcp://HOST:PORT")
+        raise _not_an_address(address)
     return int(count)
+
+
+def _not_an_address(address: str) -> ConfigError:
+    return ConfigError(f"--dask {address!r}: expected local, local:N (N workers, N >= 1) or a scheduler address such "
+                       "as tcp://HOST:PORT")
+
+
+def check_address(address: str) -> None:
+    """ConfigError naming the option unless the address is local, local:N or a scheduler's URL (SCHEME://HOST:PORT):
+    before a run folder is made."""
+    if address == "local" or address.startswith("local:"):
+        local_workers(address)
+    elif "://" not in address:
+        raise _not_an_address(address)
 
 
 @contextmanager
