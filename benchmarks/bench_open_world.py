@@ -3,10 +3,10 @@ told about (scenarios/unlisted.py), and on the clean recording.
 
 For each case (each in its own process, so each has its own peak memory): the first finding, whether it is
 `discovered` on the unlisted effect's channel and regressor, the shape error of its curve against the true
-curve (both with their mean removed, and for an elevation curve against the azimuth their once-a-turn part,
-which the boresight takes; RMS error over the truth's RMS), that error in units of the curve's own 1-sigma
-band (its RMS over the band's RMS: about 1 when the band covers the truth), held-out J before and after, the
-seconds, and the
+curve (_shape_error: the error less a constant, and for an elevation curve against the azimuth less its
+once-a-turn part, which the boresight takes, fitted and weighted by the curve's band; RMS error over the
+truth's RMS), the error in units of the curve's own 1-sigma band point by point (about 1 when the band
+covers the truth), held-out J before and after, the seconds, and the
 strongest discrepancy of the effect's own channel and regressor (its statistic, significance and held-out J)
 whether it was reported or not. Prints the figures and writes benchmarks/results/open_world.json.
 """
@@ -25,21 +25,27 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def _shape_error(finding: dict, unlisted) -> tuple[float, float]:
-    """The curve's RMS error against the truth (both without the parts the fit cannot see) over the truth's RMS,
-    and over the RMS of the curve's 1-sigma band."""
+    """The curve's error against the truth once the parts the fit cannot see are removed from it (a constant, and
+    for an elevation curve against the azimuth its once-a-turn part), fitted with each point weighted by its band
+    (1/sigma^2: the curve's points are seen unequally, a fibre that sees only the road hardly at all): the error's
+    RMS over the truth's, both so weighted, and the RMS of the error in units of each point's band (about 1 when
+    the band covers the truth)."""
     import numpy as np
 
     x, y = np.asarray(finding["curve"]["x"], dtype=float), np.asarray(finding["curve"]["y"], dtype=float)
-    truth = unlisted.curve(x)
+    sigma = np.asarray(finding["curve"]["sigma"], dtype=float)
+    truth, weight = unlisted.curve(x), 1.0 / sigma ** 2
     columns = [np.ones_like(x)]
     if finding["channel"] == "elevation" and finding["regressor"] == "azimuth":
         columns += [np.sin(np.radians(x)), np.cos(np.radians(x))]
-    A = np.column_stack(columns)
-    truth = truth - A @ np.linalg.lstsq(A, truth, rcond=None)[0]
-    y = y - y.mean()
-    error = np.sqrt(np.mean((y - truth) ** 2))
-    band = np.sqrt(np.mean(np.square(np.asarray(finding["curve"]["sigma"], dtype=float))))
-    return float(error / np.sqrt(np.mean(truth ** 2))), float(error / band)
+    A = np.column_stack(columns) / sigma[:, None]
+
+    def unseen_removed(v):
+        return v - np.column_stack(columns) @ np.linalg.lstsq(A, v / sigma, rcond=None)[0]
+
+    error, truth = unseen_removed(y - truth), unseen_removed(truth)
+    shape = np.sqrt(np.sum(weight * error ** 2) / np.sum(weight * truth ** 2))
+    return float(shape), float(np.sqrt(np.mean((error / sigma) ** 2)))
 
 
 def _case(effect: str | None, size: float, max_points: int, queue) -> None:

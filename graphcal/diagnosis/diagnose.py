@@ -94,6 +94,10 @@ DIAGNOSE_MAX_POINTS = 300_000
 DIAGNOSE_POINTS_PER_S = 19_000
 DIAGNOSE_MAX_POINTS_CAP = 1_500_000
 UNEXPLAINED_CM = 0.5
+# a discovered curve's point whose 1-sigma band is wider than this many times the curve's median band is barely seen
+# by the data (its information a 25th of the typical point's or less: a fibre that sees only the road, where a time
+# shift slides its returns along it); the curve marks it (curve.seen) and the statement gives the size over the rest
+BARELY_SEEN_BAND = 5.0
 UNEXPLAINED_Q = 1e-6
 DEFAULT_SEPARATING_DATA = "a turn, a speed change, or a second pass in the opposite direction"
 UNIT_DISPLAY = {"s": (1e3, "ms"), "m": (1e2, "cm"), "1": (1e6, "ppm"), "deg": (1.0, "deg"),
@@ -596,26 +600,37 @@ def _finding(test: CandidateTest, fit: Fit, energy_before: float, at_refit: Cand
 
 def _discovered(test: CandidateTest, fit: Fit, fit_before: Fit, at_refit: CandidateTest, gain: str,
                 energies: tuple[float, float]) -> dict:
-    """A discrepancy's finding: its channel, regressor, curve with 1-sigma band (covariance at the refit),
-    peak-to-peak magnitude, what absorbed it at the fit before (fit_before), the physics that could produce
+    """A discrepancy's finding: its channel, regressor, curve with 1-sigma band (covariance at the refit) and the
+    points the data see (BARELY_SEEN_BAND), peak-to-peak magnitude (over the whole curve, and over the points
+    seen), sigma (the band's mean over the points seen), what absorbed it at the fit before (fit_before), the
+    physics that could produce
     it, the residuals binned against its regressor before and after it was added, and J (energies: the fit
     without it re-solved as long, and with it, on the former's pairs)."""
     model = Discrepancy.parse(test.name)
     value, covariance = model.without_boresight(fit.model.values[test.name], at_refit.covariance)
     curve = model.curve(value, covariance)
-    magnitude = model.magnitude_of(value)
-    sigma = float(np.mean(curve["sigma"]))
+    seen = curve["sigma"] <= BARELY_SEEN_BAND * np.median(curve["sigma"])
+    curve["seen"] = seen
+    magnitude, seen_magnitude = model.magnitude_of(value), float(np.ptp(curve["y"][seen]))
+    sigma = float(np.mean(curve["sigma"][seen]))
     absorbed = test.absorbed_by[0]
     physics = hypotheses(model.channel, model.regressor)
     held_before, held_after = test.held_out_cm2
     removed = ("constant" if model.boresight_part is None
                else "constant and once-a-turn part (a tilt the boresight takes)")
+    size = f"{display(test.name, magnitude)} peak to peak, ± {display(test.name, sigma)}"
+    if not seen.all():
+        barely = ", ".join(f"{x:.4g}" for x in curve["x"][~seen])
+        size = (f"{display(test.name, seen_magnitude)} peak to peak where the data see it, ± "
+                f"{display(test.name, sigma)}; barely seen at {model.regressor} {barely}, where its band is over "
+                f"{BARELY_SEEN_BAND:g} times the median and the curve reaches {display(test.name, magnitude)}")
     statement = (f"no named effect explains it: the {model.channel} is off as a smooth function of the "
-                 f"{model.regressor} ({display(test.name, magnitude)} peak to peak, ± {display(test.name, sigma)}, "
-                 f"{removed} removed); it was absorbed by {absorbed[0]} (correlation {absorbed[1]:+.2f}, concealment "
-                 f"R² {test.concealment_r2:.2f}); adding it lowers {gain}. Most likely: {physics[0]}")
+                 f"{model.regressor} ({size}, {removed} removed); it was absorbed by {absorbed[0]} (correlation "
+                 f"{absorbed[1]:+.2f}, concealment R² {test.concealment_r2:.2f}); adding it lowers {gain}. Most "
+                 f"likely: {physics[0]}")
     return {"effect": "discovered", "channel": model.channel, "regressor": model.regressor, "model": test.name,
-            "curve": curve, "magnitude": magnitude, "sigma": sigma, "unit": model.unit, "hypotheses": physics,
+            "curve": curve, "magnitude": magnitude, "magnitude_where_seen": seen_magnitude, "sigma": sigma,
+            "unit": model.unit, "hypotheses": physics,
             "parameters": np.asarray(value).tolist(), "statement": statement,
             "absorbed_by": [a for a, _ in test.absorbed_by], "mdb": test.mdb, "concealment_r2": test.concealment_r2,
             "binned_residual_cm": {"before": _binned(fit_before, model.regressor),

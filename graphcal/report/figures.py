@@ -160,14 +160,28 @@ def timings_png(timings_s: dict[str, float]) -> bytes:
     return _png(figure)
 
 
+def _span(y: np.ndarray, sigma: np.ndarray) -> tuple[float, float]:
+    """The y range of a curve's band with a tenth of margin each side."""
+    low, high = float(np.min(y - sigma)), float(np.max(y + sigma))
+    margin = 0.1 * max(high - low, 1e-12)
+    return low - margin, high + margin
+
+
 def discovered_png(channel: str, regressor: str, unit: str, curve: dict, binned: dict) -> bytes:
     """A discovered effect: its curve with the 1-sigma band in its unit against the regressor (left), and the
     fit's residuals binned against the same regressor before and after the effect was added [cm] (right)."""
     figure, (left, right) = _figure(1, 2, height_in=3.6)
     x, y = np.asarray(curve["x"], dtype=float), np.asarray(curve["y"], dtype=float)
     sigma = np.asarray(curve["sigma"] if curve.get("sigma") is not None else np.zeros_like(y), dtype=float)
-    left.fill_between(x, y - sigma, y + sigma, color=SIGMA, alpha=0.25, label="1σ band")
-    left.plot(x, y, color=SIGMA, label="estimate")
+    seen = np.asarray(curve.get("seen", np.ones_like(y, dtype=bool)), dtype=bool)
+    shown = np.where(seen, y, np.nan)  # the points the data barely see: marked, not drawn as part of the curve
+    left.fill_between(x, shown - sigma, shown + sigma, color=SIGMA, alpha=0.25, label="1σ band")
+    left.plot(x, shown, color=SIGMA, label="estimate")
+    if not seen.all():  # on the scale of the points the data see
+        span = _span(y[seen], sigma[seen])
+        left.plot(x[~seen], np.clip(y[~seen], *span), "o", mfc="none", color="#888",
+                  label="barely seen (band over 5x the median; clipped to the axes)")
+        left.set_ylim(*span)
     left.set(xlabel=regressor, ylabel=f"{channel} error [{unit}]", title=f"{channel} against {regressor}")
     left.legend(loc="best", fontsize=8)
     for label, colour in (("before", BEFORE), ("after", AFTER)):
