@@ -139,3 +139,27 @@ def test_a_standstill_prints_one_plain_line_through_the_command_line(tmp_path):
     calibration = yaml.safe_load((tmp_path / "run" / "calibration.yaml").read_text())
     assert verdicts[0].startswith(calibration["verdict"])
     assert html.escape(calibration["verdict"]) in (tmp_path / "run" / "report.html").read_text()
+
+
+def test_a_street_that_ends_in_an_open_field_names_the_corrections_the_field_cannot_show():
+    """A straight street of facades 40 m long, then 60 m of open ground beyond the head's 40 m range: once the
+    facades are out of reach only the ground's normal is seen, so the trajectory corrections there are named along
+    the ground (x, y), never in height; in the street the facades show the across-track (y)."""
+    scene = [Ground(center_xy=(50.0, 0.0), size_m=(200.0, 60.0)),
+             Facade(start_xy=(30.0, 8.0), end_xy=(-10.0, 8.0), relief_spacing_m=5.0, ledge_heights_m=(3.5,)),
+             Facade(start_xy=(-10.0, -8.0), end_xy=(30.0, -8.0), relief_spacing_m=5.0, ledge_heights_m=(3.5,)),
+             Pole(xy=(5.0, 5.0)), Pole(xy=(15.0, -5.0))]
+    drive = Drive(segments=straight(120.0), speed_knots=[(0.0, 10.0), (10.0, 10.0)], start_xy=(-5.0, 0.0))
+    recording = graphcal.simulate(Scenario(name="street_then_field", duration_s=9.5, size=0.02, seed=1, scene=scene,
+                                           drive=drive, extrinsic=PITCHED_HEAD, max_range_m=40.0), quiet=True)
+    result = graphcal.calibrate(recording, graphcal.CalibrationConfig(mode="trajectory"), quiet=True)
+    named = set(result.unobservable)
+    x_m = -5.0 + 10.0 * (result.calibration.control_times_s - result.calibration.control_times_s[0])
+    field = np.flatnonzero(x_m - 1.0 > 30.0 + 40.0)  # every return of the controls' intervals beyond the range
+    street_ = np.flatnonzero(x_m + 1.0 < 30.0)
+    assert len(field) >= 2 and len(street_) >= 3
+    assert all({f"control_{c}.x_m", f"control_{c}.y_m"} <= named for c in field), sorted(named)
+    assert not any(f"control_{c}.y_m" in named for c in street_), sorted(named)
+    assert not any(name.endswith(".z_m") for name in named)
+    assert "too little structure near t = " in result.calibration.reasons[f"control_{field[0]}.y_m"]
+    assert "the trajectory corrections at" in result.verdict

@@ -24,6 +24,7 @@ from graphcal.calibration.problem import PHASES, FinalFit, History, Problem
 from graphcal.calibration.result import Calibration, CalibrationResult, drive_of
 from graphcal.calibration.returns import Estimate, initial_estimate
 from graphcal.calibration.static_sensor import halves_over_draws, pair_draws, soft_over_draws
+from graphcal.calibration.unseen_controls import unseen_controls
 from graphcal.calibration.verdict import RIGID_REASON, Motion, verdict
 from graphcal.calibration.weak_directions import WeakDirections
 from graphcal.common.cluster import IN_PROCESS, TaskMap, open_task_map
@@ -215,13 +216,17 @@ class CalibrationPipeline:
         return replace(estimate, offsets=offsets, extrinsic=extrinsic)
 
     def result(self, final: FinalFit) -> CalibrationResult:
-        """The calibration, checked (calibration/checks.py), with what it names and why, and the one-line verdict on
-        what the drive could not show (verdict.py)."""
+        """The calibration, checked (calibration/checks.py), with what it names and why (the weak directions, the
+        trajectory corrections the data do not see: unseen_controls.py), and the one-line verdict on what the drive
+        could not show (verdict.py)."""
         problem, estimate = self.problem, self.estimate
         data, config, estimated = problem.full, problem.settings, problem.estimated
         held = list(problem.held)
         reasons = {name: HELD_REASON for name in held}
         reasons |= {name: reason for name, reason in self.weak.named().items() if name not in held}
+        if estimated[2]:
+            information = self.timed("unseen controls", problem.control_information, estimate, final.pairs)
+            reasons |= unseen_controls(information, data.control_times_s)
         unobservable = held + [name for name in reasons if name not in held]
         self.check(final, unobservable)
         if estimated[2]:

@@ -435,6 +435,33 @@ class Problem:
         information[starts[len(keys)]:, starts[len(keys)]:] += np.eye(starts[-1] - starts[len(keys)]) * 1e-12
         return schur_complement(information, int(starts[len(keys)]))
 
+    def control_information(self, estimate: Estimate, pairs: Correspondences) -> np.ndarray:
+        """(C, d, d): the information the pairs alone carry on each control correction (d: 6, rotation then
+        translation, or 3) with every other key held, the Gauss-Newton diagonal block of the pair factors, in units
+        of the information of its rigidity prior (E_def, eq. 5.3): what the returns near its time see of it."""
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        for _, block in self.blocks(estimate, pairs):
+            graph.add(make_factor(block))
+        weight_sum = float(pairs.weight.sum())
+        self._add_priors(gtsam.NonlinearFactorGraph(), values, estimate, False, weight_sum)
+        controls = {X(c): c for c in range(len(estimate.corrections))}
+        zero = values.zeroVectors()
+        width = {key: zero.at(key).size for key in values.keys()}
+        d = 6 if self.config.trajectory.pose_corrections else 3
+        information = np.zeros((len(controls), d, d))
+        linear = graph.linearize(values)
+        for i in range(linear.size()):
+            factor = linear.at(i)
+            keys = list(factor.keys())
+            if not any(key in controls for key in keys):
+                continue
+            block, start = factor.information(), 0
+            for key in keys:
+                if key in controls:
+                    information[controls[key]] += block[start:start + d, start:start + d]
+                start += width[key]
+        return information * control_prior_sigma(self.config, weight_sum) ** 2
+
     # --- the result ----------------------------------------------------------------------------------
     def final(self, estimate: Estimate, pairs: Correspondences | None = None, shared_returns: bool = False) -> FinalFit:
         """The fit at the estimate on the given pairs (None: the strict association at the estimate): residuals,

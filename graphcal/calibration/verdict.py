@@ -35,6 +35,8 @@ EXTRINSIC_WORDS = {"roll_deg": "boresight roll", "pitch_deg": "boresight pitch",
 INTRINSIC_WORDS = {"d_range_m": "range offset", "d_azimuth_deg": "azimuth offset",
                    "d_elevation_deg": "elevation", "h_z_m": "height"}
 INTRINSIC_SCENE = "surfaces at several ranges and orientations (facades beside the road, not only flat ground)"
+# what shows a trajectory correction where the drive saw too little structure (unseen_controls.py)
+CONTROL_SCENE = "surfaces facing several ways along those stretches (facades, poles, parked cars)"
 # what shows them when the vehicle only turned on the spot
 INTRINSIC_DRIVE = "a drive past facades, each surface seen from many places,"
 
@@ -89,10 +91,25 @@ def verdict(unobservable: tuple[str, ...] | list[str], reasons: dict[str, str], 
                            for kind, count in kinds.items()])
         remedy = f"fibres that see {INTRINSIC_SCENE}" if motion.travelled else INTRINSIC_DRIVE
         parts.append(f"{counted} ({remedy} would show them)")
-    other = [name for name in names if not name.startswith(("fibre_", "extrinsic."))]
+    controls = sorted({int(name.partition(".")[0].removeprefix("control_")) for name in names
+                       if name.startswith("control_")})
+    if controls:
+        parts.append(f"the trajectory corrections at {len(controls)} control time{'s' if len(controls) > 1 else ''} "
+                     f"(control {_spans(controls)}: {CONTROL_SCENE} would show them)")
+    other = [name for name in names if not name.startswith(("fibre_", "extrinsic.", "control_"))]
     if other:
         parts.append(_listed(other))
     return "this drive cannot observe " + "; ".join(parts) + ": held at nominal or bound by the prior"
+
+
+def _spans(indices: list[int]) -> str:
+    """Sorted integers as runs: [3, 4, 5, 9] -> '3-5, 9'."""
+    runs, start = [], indices[0]
+    for previous, index in zip(indices, indices[1:] + [None]):
+        if index != previous + 1:
+            runs.append(str(start) if start == previous else f"{start}-{previous}")
+            start = index
+    return ", ".join(runs)
 
 
 def _listed(words: list[str]) -> str:

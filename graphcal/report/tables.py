@@ -62,9 +62,11 @@ def parameter_rows(calibration: dict) -> list[tuple[str, list[str], list[list[st
         rows = []
         for c, row in enumerate(corrections):
             cells = [str(c), f"{row['time']:.3f}"]
-            cells += [with_sigma(v, row["sigma"][f"{axis}_m"], 100.0) for v, axis in zip(row["d_position_m"], "xyz")]
+            cells += [with_sigma(v, row["sigma"][f"{axis}_m"], 100.0) + (WEAK if f"control_{c}.{axis}_m" in weak else "")
+                      for v, axis in zip(row["d_position_m"], "xyz")]
             if rotations:
                 cells += [with_sigma(v, row["sigma"][f"rotation_{axis}_deg"])
+                          + (WEAK if f"control_{c}.rotation_{axis}_deg" in weak else "")
                           for v, axis in zip(row["d_rotation_deg"], "xyz")]
             rows.append(cells)
         tables.append(("Trajectory corrections per control time (world axes)", header, rows))
