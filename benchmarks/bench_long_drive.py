@@ -89,6 +89,10 @@ def _case(folder: str, max_points: int | None, queue) -> None:
                                                         round(evaluation.cloud_after_gauge_free.mean * 100, 2)]}
     if result.config.mode.endswith("trajectory"):
         out["trajectory"] = _trajectory_errors_cm(result, recording)
+        named = [name for name in result.unobservable if name.startswith("control_")]
+        out["trajectory"]["controls_named"] = len({name.partition(".")[0] for name in named})
+        out["trajectory"]["components_named"] = {axis: sum(name.endswith(f".{axis}") for name in named)
+                                                 for axis in ("x_m", "y_m", "z_m")}
     queue.put(out)
 
 
