@@ -351,7 +351,8 @@ class Problem:
             features = problem.cache.at(problem.points(features_at, rows), features_at)[0]
             last = max((i for i, row in enumerate(in_phase) if row["refreshed"]), default=None)
             since_refresh = refresh_every + len(in_phase) if last is None else len(in_phase) - last
-        for _ in progress(range(ran, n_max), f"calibrating ({label})", total=n_max - ran, quiet=quiet):
+        for _ in progress(range(ran, n_max), f"calibrating ({label}; outer iterations, at most {n_max})",
+                          total=n_max - ran, quiet=quiet):
             points = problem.points(estimate, rows) if points is None else points
             if problem.fixed_pairs is None and (features is None or since_refresh >= refresh_every):
                 features, refreshed = problem.cache.at(points, estimate)
