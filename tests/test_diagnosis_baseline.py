@@ -18,14 +18,15 @@ class Stop(Exception):
 def test_the_baseline_is_asked_for_unrefused(monkeypatch):
     asked = []
 
-    def baseline(recording, config, quiet=True):
-        asked.append(config)
+    def baseline(recording, config, quiet=True, checkpoint=None):
+        asked.append((config, checkpoint))
         raise Stop
 
     monkeypatch.setattr(module, "baseline", baseline)
     with pytest.raises(Stop):
-        graphcal.diagnose(None, CalibrationConfig(mode="joint"), quiet=True)
-    assert not asked[0].stopping.refuse_outside_priors
+        graphcal.diagnose(None, CalibrationConfig(mode="joint"), quiet=True, checkpoint="here.npz")
+    assert not asked[0][0].stopping.refuse_outside_priors
+    assert asked[0][1] == "here.npz"  # an interrupted diagnosis resumes its baseline calibration
     assert CalibrationConfig().stopping.refuse_outside_priors  # calibrate's default refuses
 
 
@@ -36,3 +37,28 @@ def test_the_diagnosis_names_what_its_baseline_slid():
                                           "sigmas) far outside")
     assert diagnosis.to_json()["baseline_slid"] == slid
     assert Diagnosis([], [], [], [], [], [], {"before": 1.0}, 0.0).slid_statement is None
+
+
+def test_diagnose_keeps_its_baselines_checkpoint_beside_the_run_and_resume_uses_it(monkeypatch, tmp_path):
+    """Ctrl-C during the baseline: exit 130, the checkpoint beside --out named; --resume hands it to the baseline,
+    a run without --resume starts afresh (the checkpoint removed first)."""
+    from typer.testing import CliRunner
+
+    from graphcal.cli.main import app
+    from graphcal.simulation.script import load_scenario_builder
+
+    recording = graphcal.simulate(load_scenario_builder("sim2_street")(size=0.01, seed=0), quiet=True)
+    recording.save(tmp_path / "rec")
+    checkpoint, there = tmp_path / ".run.checkpoint.npz", []
+
+    def interrupted(recording, config, quiet=True, checkpoint=None):
+        there.append(checkpoint.is_file())
+        checkpoint.write_bytes(b"state")  # as calibrate saves it
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(module, "baseline", interrupted)
+    command = ["diagnose", str(tmp_path / "rec"), "--out", str(tmp_path / "run")]
+    for extra, existed in (([], False), (["--resume"], True), ([], False)):
+        result = CliRunner().invoke(app, command + extra)
+        assert result.exit_code == 130 and f"kept in {checkpoint}: the same command with --resume" in result.output
+        assert there[-1] == existed and not (tmp_path / "run").exists()

@@ -103,8 +103,8 @@ class Checkpoint:
         differs = [f"{name} {meta.get(name)!r} (now {value!r})" for name, value in self.owner.items()
                    if meta.get(name) != value]
         if differs:
-            raise ConfigError(f"{self.path}: a checkpoint of another calibration: {', '.join(differs)}; remove it to "
-                              "start again")
+            raise ConfigError(f"{self.path}: a checkpoint of another calibration: {', '.join(differs)}; remove it "
+                              "(or run without --resume) to start again")
         inside = None if meta["inside"] is None else tuple(meta["inside"])
         features_at = _estimate(arrays, "features_at.") if "features_at.offsets" in arrays else None
         return PipelineState(_estimate(arrays), rows, meta["done"], inside, meta["used"], arrays.get("weak_basis"),

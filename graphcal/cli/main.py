@@ -230,6 +230,9 @@ def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory
                                                            "regressor, reported as discovered (default), or only the "
                                                            "named candidates")] = True,
              out: Annotated[Path | None, typer.Option(help="run folder (default: a new one in runs/)")] = None,
+             resume: Annotated[bool, typer.Option(help="go on from the baseline calibration an interrupted "
+                                                       "diagnosis of the same recording, settings and --out saved")]
+             = False,
              spawn: Spawn = False, viewer_points: ViewerPoints = 1_000_000, force: Force = False,
              quiet: Quiet = False) -> None:
     """Find where the model and the recording disagree, name the physics left out, model it, show the
@@ -248,7 +251,7 @@ def diagnose(recording: Annotated[Path, typer.Argument(help="recording directory
 
     if out is not None:
         _not_taken(out, force)
-    how = DiagnoseOptions(simulation, rescan, max_effects, refit_iterations, open_world)
+    how = DiagnoseOptions(simulation, rescan, max_effects, refit_iterations, open_world, resume)
     # a settings file says how many returns; else the diagnosis's default subset
     settings = calibration_config(mode, config, None if config is not None else
                                   default_subset(Recording.load(recording)))

@@ -7,6 +7,8 @@ for a calibration, report.html; each stage is timed into run.yaml.
 from __future__ import annotations
 
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -51,18 +53,8 @@ def calibration_run(recording_path: Path, config: CalibrationConfig, out: Path |
     from graphcal.viewer.log import VIEWER_POINTS
 
     run, recording = start_run(recording_path, out, command, quiet, check=enough_returns)
-    checkpoint = checkpoint_path(out, recording.name, command)
-    if not resume:
-        checkpoint.unlink(missing_ok=True)
-    elif not checkpoint.is_file() and not quiet:
-        print(f"note: no checkpoint at {checkpoint}: calibrating from the start", file=sys.stderr)
-    try:
+    with resumable(out, recording.name, command, resume, quiet) as checkpoint:
         result = calibrate(recording, config, quiet=quiet, dask=dask, checkpoint=checkpoint)
-    except KeyboardInterrupt:
-        if checkpoint.is_file():
-            print(f"the calibration's state is kept in {checkpoint}: the same command with --resume goes on from "
-                  "there", file=sys.stderr)
-        raise
     run.timings_s.update({f"calibrate: {name}": seconds for name, seconds in result.timings_s.items()})
     with run.stage("save results"):
         result.save(run.path, command=" ".join(["graphcal"] + sys.argv[1:]))
@@ -128,6 +120,7 @@ class DiagnoseOptions:
     max_effects: int = 3
     refit_iterations: int = 4
     open_world: bool = True
+    resume: bool = False
 
 
 def diagnosis_run(recording_path: Path, config: CalibrationConfig, how: DiagnoseOptions = DiagnoseOptions(),
@@ -166,9 +159,9 @@ def diagnosis_run(recording_path: Path, config: CalibrationConfig, how: Diagnose
     else:
         from graphcal.diagnosis.diagnose import diagnose
 
-        with run.stage("diagnose"):
-            diagnosis = diagnose(recording, config, max_effects=how.max_effects,
-                                 refit_iterations=how.refit_iterations, quiet=quiet, open_world=how.open_world)
+        with run.stage("diagnose"), resumable(out, recording.name, "diagnose", how.resume, quiet) as checkpoint:
+            diagnosis = diagnose(recording, config, max_effects=how.max_effects, refit_iterations=how.refit_iterations,
+                                 quiet=quiet, open_world=how.open_world, checkpoint=checkpoint)
     with run.stage("save results"):
         diagnosis.save(run.path, command=" ".join(["graphcal"] + sys.argv[1:]))
     with run.stage("report"), status("writing report.html", quiet):
@@ -270,6 +263,24 @@ def effects_not_applied(calibration_path: Path, quiet: bool) -> list[str]:
               "by the offsets, the extrinsic and the trajectory corrections only; these effects are not applied",
               file=sys.stderr)
     return names
+
+
+@contextmanager
+def resumable(out: Path | None, recording_name: str, command: str, resume: bool, quiet: bool) -> Iterator[Path]:
+    """The checkpoint of a run's calibration (checkpoint_path): removed first unless resume (a fresh start); on
+    Ctrl-C, a line saying where it is kept."""
+    checkpoint = checkpoint_path(out, recording_name, command)
+    if not resume:
+        checkpoint.unlink(missing_ok=True)
+    elif not checkpoint.is_file() and not quiet:
+        print(f"note: no checkpoint at {checkpoint}: calibrating from the start", file=sys.stderr)
+    try:
+        yield checkpoint
+    except KeyboardInterrupt:
+        if checkpoint.is_file():
+            print(f"the calibration's state is kept in {checkpoint}: the same command with --resume goes on from "
+                  "there", file=sys.stderr)
+        raise
 
 
 def checkpoint_path(out: Path | None, recording_name: str, command: str) -> Path:

@@ -413,19 +413,22 @@ def default_subset(recording: Recording) -> dict[str, float]:
 @threadpool_limits.wrap(limits=1, user_api="blas")
 def diagnose(recording: Recording, config: CalibrationConfig | None = None, candidates: list[str] | None = None,
              max_effects: int = 3, refit_iterations: int = 4, quiet: bool = False,
-             open_world: bool = True) -> Diagnosis:
+             open_world: bool = True, checkpoint: str | Path | None = None) -> Diagnosis:
     """Diagnose a recording against graphcal's model calibrated with config (default: joint intrinsics +
     extrinsic on default_subset's returns). candidates: effect names to test (default: every one of
     factors.effects.CANDIDATES); open_world: also a generic discrepancy of every channel against every
     regressor, reported as `discovered` when it explains the residuals better than every named effect (False:
     the named candidates only). At most
-    max_effects are added, each re-solved with refit_iterations outer iterations."""
+    max_effects are added, each re-solved with refit_iterations outer iterations. checkpoint: the baseline
+    calibration's (graphcal.calibrate's): an interrupted diagnosis resumes its baseline from it; the rounds
+    start again."""
     started = time.perf_counter()
     config = config or CalibrationConfig(mode="joint", **default_subset(recording))
     if config.weighting.pair_noise is None:  # the tests read the whitened costs back in cm2 with sigma0 (score.Linearisation)
         config = config.with_settings(weighting={"pair_noise": "uniform"})
     # a parameter the baseline slides outside its priors is what a left-out effect does: reported, not refused
-    fit, result = baseline(recording, config.with_settings(stopping={"refuse_outside_priors": False}), quiet=quiet)
+    fit, result = baseline(recording, config.with_settings(stopping={"refuse_outside_priors": False}), quiet=quiet,
+                           checkpoint=checkpoint)
     slid = [{"parameter": name, "prior_sigmas": z} for name, z in outside_priors(
         result.calibration.estimate, fit.problem.nominal, fit.problem.layout(), list(result.unobservable))]
     energy, located = {"before": fit.energy_cm2}, locate(fit)

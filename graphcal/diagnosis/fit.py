@@ -4,6 +4,7 @@ context) with the effects modelled so far, and its refit once an effect is added
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -70,9 +71,11 @@ class Fit:
         return EffectModel(self.model.names + tuple(names), values, self.model.context)
 
 
-def baseline(recording: Recording, config: CalibrationConfig, quiet: bool = True) -> tuple[Fit, CalibrationResult]:
-    """Calibrate with the current model (no effect), then associate strictly at the estimate."""
-    result = calibrate(recording, config, quiet=quiet)
+def baseline(recording: Recording, config: CalibrationConfig, quiet: bool = True,
+             checkpoint: str | Path | None = None) -> tuple[Fit, CalibrationResult]:
+    """Calibrate with the current model (no effect; its checkpoint, graphcal.calibrate's), then associate strictly at
+    the estimate."""
+    result = calibrate(recording, config, quiet=quiet, checkpoint=checkpoint)
     # the settings calibrate resolved for the recording, what it named held at nominal
     problem = Problem.of(recording, result.config).holding(
         [name for name in result.unobservable if name not in TRAJECTORY_GAUGE])
