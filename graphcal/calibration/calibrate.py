@@ -47,9 +47,9 @@ def calibrate(recording: Recording, config: CalibrationConfig | None = None, qui
 
     checkpoint: a file (graphcal.calibration.checkpoint) the calibration's state is saved to after each step and
     each outer iteration. A calibration started with the checkpoint an interrupted one of the same recording and
-    settings left resumes from its last outer iteration (its phase's gates and features start again there, so it
-    ends where an uninterrupted one does to within the stopping tolerance, not bit for bit); the file is removed
-    when the calibration ends, with a result or refused."""
+    settings left resumes from its last outer iteration, with the phase, gate, J curve and features it had: it
+    ends with the uninterrupted calibration's outer iterations and estimate. The file is removed when the
+    calibration ends, with a result or refused."""
     config = config or CalibrationConfig()
     if dask is not None and config.association.tile_m is None:
         config = config.with_settings(association={"tile_m": TILE_M})
