@@ -99,6 +99,33 @@ def test_cli_calibrate_writes_a_run_folder_and_rejects_a_bad_config(tmp_path):
         assert not (tmp_path / "d").exists()
 
 
+
+def test_cli_calibrate_hands_dask_to_the_calibration(tmp_path, monkeypatch):
+    """--dask reaches calibrate's task map (here recorded, the tiles then run in this process)."""
+    from contextlib import contextmanager
+
+    from graphcal.common.cluster import IN_PROCESS
+
+    asked = []
+
+    @contextmanager
+    def recorded(address, quiet=True):
+        asked.append(address)
+        yield IN_PROCESS
+
+    monkeypatch.setattr("graphcal.calibration.calibrate.open_task_map", recorded)
+    runner = CliRunner()
+    recording = tmp_path / "rec"
+    assert runner.invoke(app, ["simulate", "sim2_street", "--out", str(recording), "--size", "0.01", "-q"]).exit_code == 0
+    settings = tmp_path / "settings.yaml"
+    settings.write_text("stopping: {max_outer_iterations: 2, refuse_unconverged: false}\n"
+                        "priors: {intrinsic_range_m: 0.3, intrinsic_angle_deg: 10}\n")
+    result = runner.invoke(app, ["calibrate", str(recording), "--config", str(settings), "--dask", "tcp://10.0.0.5:8786",
+                                 "--out", str(tmp_path / "run"), "-q"])
+    assert result.exit_code == 0, result.output
+    assert asked == ["tcp://10.0.0.5:8786"]
+
+
 @pytest.mark.parametrize("size", ["0", "nan", "-1"])
 def test_simulate_refuses_a_size_out_of_range_in_one_line(size, tmp_path):
     result = CliRunner().invoke(app, ["simulate", "sim6_turn", "--size", size, "--out", str(tmp_path / "rec"), "-q"])
