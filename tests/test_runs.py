@@ -551,3 +551,37 @@ def test_an_interrupted_calibrate_says_so_and_resume_goes_on_from_its_checkpoint
     assert saves[3] == (0, 3), saves[3:]  # went on with the third outer iteration
     assert not checkpoint.exists() and (out / "calibration.yaml").is_file()
     assert [row["energy_cm2"] for row in _history(out)] == [row["energy_cm2"] for row in _history(folder)]
+
+
+def test_a_calibrate_killed_mid_run_resumes_from_its_checkpoint(calibrated, tmp_path):
+    """SIGKILL right after the third save (inside the coarse phase): the checkpoint is whole, the run's working
+    folder is left hidden; --resume removes that folder, ends the calibration with the uninterrupted run's outer
+    iterations, and removes the checkpoint."""
+    import signal
+    import subprocess
+    import sys
+
+    recording, folder = calibrated
+    command = ["calibrate", str(recording), "--mode", "trajectory", "--config", str(folder.parent / "settings.yaml"),
+               "--out", str(tmp_path / "run"), "--viewer-points", str(VIEWER_POINTS), "-q"]
+    killed = f"""
+import os, signal
+from graphcal.calibration.checkpoint import Checkpoint
+from graphcal.cli.main import app
+save, saves = Checkpoint.save, []
+def then_killed(self, state):
+    save(self, state)
+    saves.append(state)
+    if len(saves) == 3:
+        os.kill(os.getpid(), signal.SIGKILL)
+Checkpoint.save = then_killed
+app({command!r})
+"""
+    child = subprocess.run([sys.executable, "-c", killed])
+    assert child.returncode == -signal.SIGKILL
+    assert (tmp_path / ".run.checkpoint.npz").is_file() and not (tmp_path / "run").exists()
+    result = CliRunner().invoke(app, command + ["--resume"])
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # the checkpoint and the killed run's folder gone
+    assert [row["energy_cm2"] for row in _history(tmp_path / "run")] == [row["energy_cm2"]
+                                                                         for row in _history(folder)]
