@@ -612,7 +612,7 @@ def _discovered(test: CandidateTest, fit: Fit, fit_before: Fit, at_refit: Candid
     model = Discrepancy.parse(test.name)
     value, covariance = model.without_boresight(fit.model.values[test.name], at_refit.covariance)
     curve = model.curve(value, covariance)
-    seen = curve["sigma"] <= BARELY_SEEN_BAND * np.median(curve["sigma"])
+    seen = ~(curve["sigma"] > BARELY_SEEN_BAND * np.median(curve["sigma"]))  # a band not known (NaN) counts as seen
     curve["seen"] = seen
     magnitude, seen_magnitude = model.magnitude_of(value), float(np.ptp(curve["y"][seen]))
     sigma = float(np.mean(curve["sigma"][seen]))
