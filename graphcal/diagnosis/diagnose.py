@@ -94,11 +94,11 @@ DIAGNOSE_MAX_POINTS = 300_000
 DIAGNOSE_POINTS_PER_S = 19_000
 DIAGNOSE_MAX_POINTS_CAP = 1_500_000
 UNEXPLAINED_CM = 0.5
+UNEXPLAINED_Q = 1e-6
 # a discovered curve's point whose 1-sigma band is wider than this many times the curve's median band is barely seen
 # by the data (its information a 25th of the typical point's or less: a fibre that sees only the road, where a time
 # shift slides its returns along it); the curve marks it (curve.seen) and the statement gives the size over the rest
 BARELY_SEEN_BAND = 5.0
-UNEXPLAINED_Q = 1e-6
 DEFAULT_SEPARATING_DATA = "a turn, a speed change, or a second pass in the opposite direction"
 UNIT_DISPLAY = {"s": (1e3, "ms"), "m": (1e2, "cm"), "1": (1e6, "ppm"), "deg": (1.0, "deg"),
                 "deg/s": (1.0, "deg/s"), "revolution": (1.0, "revolution")}
@@ -606,9 +606,8 @@ def _discovered(test: CandidateTest, fit: Fit, fit_before: Fit, at_refit: Candid
     """A discrepancy's finding: its channel, regressor, curve with 1-sigma band (covariance at the refit) and the
     points the data see (BARELY_SEEN_BAND), peak-to-peak magnitude (over the whole curve, and over the points
     seen), sigma (the band's mean over the points seen), what absorbed it at the fit before (fit_before), the
-    physics that could produce
-    it, the residuals binned against its regressor before and after it was added, and J (energies: the fit
-    without it re-solved as long, and with it, on the former's pairs)."""
+    physics that could produce it, the residuals binned against its regressor before and after it was added, and
+    J (energies: the fit without it re-solved as long, and with it, on the former's pairs)."""
     model = Discrepancy.parse(test.name)
     value, covariance = model.without_boresight(fit.model.values[test.name], at_refit.covariance)
     curve = model.curve(value, covariance)
@@ -626,7 +625,7 @@ def _discovered(test: CandidateTest, fit: Fit, fit_before: Fit, at_refit: Candid
         barely = ", ".join(f"{x:.4g}" for x in curve["x"][~seen])
         size = (f"{display(test.name, seen_magnitude)} peak to peak where the data see it, ± "
                 f"{display(test.name, sigma)}; barely seen at {model.regressor} {barely}, where its band is over "
-                f"{BARELY_SEEN_BAND:g} times the median and the curve reaches {display(test.name, magnitude)}")
+                f"{BARELY_SEEN_BAND:g} times the median ({display(test.name, magnitude)} peak to peak with them)")
     statement = (f"no named effect explains it: the {model.channel} is off as a smooth function of the "
                  f"{model.regressor} ({size}, {removed} removed); it was absorbed by {absorbed[0]} (correlation "
                  f"{absorbed[1]:+.2f}, concealment R² {test.concealment_r2:.2f}); adding it lowers {gain}. Most "
