@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import time
+from contextlib import nullcontext
 from dataclasses import replace
 from pathlib import Path
 
@@ -29,6 +30,7 @@ from graphcal.calibration.verdict import RIGID_REASON, Motion, verdict
 from graphcal.calibration.weak_directions import WeakDirections
 from graphcal.common.cluster import IN_PROCESS, TaskMap, open_task_map
 from graphcal.common.errors import CalibrationError
+from graphcal.common.progress import status
 from graphcal.recording.directory import Recording
 
 TILE_M = 50.0  # the tiles of a calibration spread over a cluster when no size is set [m]
@@ -128,9 +130,12 @@ class CalibrationPipeline:
         final = self.timed("final fit and marginals", self.problem.final, self.estimate, None, True)
         return self.result(final)
 
-    def timed(self, name: str, work, *args):
+    def timed(self, name: str, work, *args, spinner: bool = True):
+        """work(*args), its seconds added to the step `name`'s; on a terminal a spinner names the step (spinner=False:
+        the work draws its own progress bar)."""
         mark = time.perf_counter()
-        out = work(*args)
+        with status(f"calibrating: {name}", self.quiet) if spinner else nullcontext():
+            out = work(*args)
         self.timings[name] = self.timings.get(name, 0.0) + time.perf_counter() - mark
         return out
 
@@ -208,7 +213,7 @@ class CalibrationPipeline:
             self.estimate = self.timed(f"solve {stage}{label} ({', '.join(planned)})",
                                        problem.fit, self.estimate, self.history, stage + label, planned, left,
                                        self.quiet, saved_each_iteration if self.checkpoint else None, ran,
-                                       self.state.features_at if ran else None)
+                                       self.state.features_at if ran else None, spinner=False)
             used[stage] = len(self.history.rows) - before
 
     def back_to_nominal(self, estimate: Estimate) -> Estimate:
