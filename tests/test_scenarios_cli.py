@@ -72,14 +72,20 @@ def test_demo_runs_end_to_end_and_sharpens_the_cloud(tmp_path):
         assert (tmp_path / "demo" / name).is_file(), name
 
 
-def test_cli_calibrate_writes_a_run_folder_and_rejects_a_bad_config(tmp_path):
-    runner = CliRunner()
+def _quick_calibration(runner: CliRunner, tmp_path) -> tuple:
+    """A small sim2_street recording and settings for a quick look at it: (recording folder, settings file)."""
     recording = tmp_path / "rec"
     assert runner.invoke(app, ["simulate", "sim2_street", "--out", str(recording), "--size", "0.01", "-q"]).exit_code == 0
     settings = tmp_path / "settings.yaml"
     # Table 4.1's start is no factory calibration: its stated uncertainty is wide; a quick look may stop early
     settings.write_text("stopping: {max_outer_iterations: 2, refuse_unconverged: false}\n"
                         "priors: {intrinsic_range_m: 0.3, intrinsic_angle_deg: 10}\n")
+    return recording, settings
+
+
+def test_cli_calibrate_writes_a_run_folder_and_rejects_a_bad_config(tmp_path):
+    runner = CliRunner()
+    recording, settings = _quick_calibration(runner, tmp_path)
     result = runner.invoke(app, ["calibrate", str(recording), "--config", str(settings), "--out", str(tmp_path / "run")])
     assert result.exit_code == 0, result.output
     assert "J " in result.output and (tmp_path / "run" / "calibration.yaml").is_file()
@@ -99,7 +105,6 @@ def test_cli_calibrate_writes_a_run_folder_and_rejects_a_bad_config(tmp_path):
         assert not (tmp_path / "d").exists()
 
 
-
 def test_cli_calibrate_hands_dask_to_the_calibration(tmp_path, monkeypatch):
     """--dask reaches calibrate's task map (here recorded, the tiles then run in this process)."""
     from contextlib import contextmanager
@@ -115,11 +120,7 @@ def test_cli_calibrate_hands_dask_to_the_calibration(tmp_path, monkeypatch):
 
     monkeypatch.setattr("graphcal.calibration.calibrate.open_task_map", recorded)
     runner = CliRunner()
-    recording = tmp_path / "rec"
-    assert runner.invoke(app, ["simulate", "sim2_street", "--out", str(recording), "--size", "0.01", "-q"]).exit_code == 0
-    settings = tmp_path / "settings.yaml"
-    settings.write_text("stopping: {max_outer_iterations: 2, refuse_unconverged: false}\n"
-                        "priors: {intrinsic_range_m: 0.3, intrinsic_angle_deg: 10}\n")
+    recording, settings = _quick_calibration(runner, tmp_path)
     result = runner.invoke(app, ["calibrate", str(recording), "--config", str(settings), "--dask", "tcp://10.0.0.5:8786",
                                  "--out", str(tmp_path / "run"), "-q"])
     assert result.exit_code == 0, result.output

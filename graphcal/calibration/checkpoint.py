@@ -28,6 +28,7 @@ from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.returns import Estimate
 from graphcal.common.atomic import atomic_path
 from graphcal.common.errors import ConfigError
+from graphcal.common.jsonable import plain
 from graphcal.recording.directory import Recording
 
 FORMAT = "graphcal-checkpoint/1"
@@ -83,7 +84,7 @@ class Checkpoint:
         if state.features_at is not None:
             arrays |= _arrays(state.features_at, "features_at.")
         with atomic_path(self.path) as tmp, open(tmp, "wb") as file:
-            np.savez(file, meta=np.array(json.dumps(meta)), history=np.array(json.dumps(state.rows, default=_plain)),
+            np.savez(file, meta=np.array(json.dumps(meta)), history=np.array(json.dumps(state.rows, default=plain)),
                      **{name: value for name, value in arrays.items() if value is not None})
 
     def load(self) -> PipelineState | None:
@@ -129,8 +130,3 @@ def _estimate(arrays: dict[str, np.ndarray], prefix: str = "") -> Estimate:
                if name.startswith(prefix + "effect.")}
     return Estimate(arrays[prefix + "offsets"], gtsam.Pose3(arrays[prefix + "extrinsic"]),
                     tuple(gtsam.Pose3(m) for m in arrays[prefix + "corrections"]), effects)
-
-
-def _plain(value):
-    """A NumPy scalar in a history row as its Python value."""
-    return value.item() if isinstance(value, np.generic) else str(value)

@@ -96,10 +96,15 @@ def _not_an_address(address: str) -> ConfigError:
                        "as tcp://HOST:PORT")
 
 
+def _local(address: str) -> bool:
+    """Whether the address asks for a LocalCluster here: local or local:N."""
+    return address == "local" or address.startswith("local:")
+
+
 def check_address(address: str) -> None:
     """ConfigError naming the option unless the address is local, local:N or a scheduler's URL (SCHEME://HOST:PORT):
     before a run folder is made."""
-    if address == "local" or address.startswith("local:"):
+    if _local(address):
         local_workers(address)
     elif "://" not in address:
         raise _not_an_address(address)
@@ -115,7 +120,7 @@ def open_task_map(address: str | None, quiet: bool = True) -> Iterator[TaskMap]:
         from dask.distributed import Client, LocalCluster
     except ImportError as error:  # pragma: no cover - dask is a dependency
         raise ConfigError(f"--dask needs dask.distributed: {error}") from None
-    if address == "local" or address.startswith("local:"):
+    if _local(address):
         with (LocalCluster(n_workers=local_workers(address), threads_per_worker=1, processes=True,
                            dashboard_address=None, silence_logs=50) as cluster, Client(cluster) as client):
             yield OnCluster(client)

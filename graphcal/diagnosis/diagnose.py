@@ -25,6 +25,7 @@ from threadpoolctl import threadpool_limits
 from factors.discrepancy import CHANNELS, REGRESSORS, Discrepancy, is_discrepancy, regressor_values
 from factors.effects import CANDIDATES, candidate
 from graphcal.common.atomic import atomic_path
+from graphcal.common.jsonable import plain
 from graphcal.calibration.checks import outside_priors
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.result import CalibrationResult
@@ -193,7 +194,7 @@ class Diagnosis:
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         with atomic_path(directory / "diagnosis.json") as tmp:
-            tmp.write_text(json.dumps(_finite(self.to_json()), indent=1, default=_plain, allow_nan=False))
+            tmp.write_text(json.dumps(_finite(self.to_json()), indent=1, default=plain, allow_nan=False))
         if self.calibration is not None:
             self.calibration.save(directory / "calibration", command=command)
         return directory / "diagnosis.json"
@@ -236,14 +237,6 @@ def _finite(value):
     if isinstance(value, float | np.floating) and not np.isfinite(value):
         return None
     return value
-
-
-def _plain(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"{type(value)} is not JSON serialisable")
 
 
 def _row(test: CandidateTest, recording: Recording, n: int) -> dict:
@@ -613,7 +606,8 @@ def _discovered(test: CandidateTest, fit: Fit, fit_before: Fit, at_refit: Candid
     curve = model.curve(value, covariance)
     seen = ~(curve["sigma"] > BARELY_SEEN_BAND * np.median(curve["sigma"]))  # a band not known (NaN) counts as seen
     curve["seen"] = seen
-    magnitude, seen_magnitude = model.magnitude_of(value), float(np.ptp(curve["y"][seen]))
+    # the whole curve's peak to peak is model.magnitude_of(value), from the curve already drawn
+    magnitude, seen_magnitude = float(np.ptp(curve["y"])), float(np.ptp(curve["y"][seen]))
     sigma = float(np.mean(curve["sigma"][seen]))
     absorbed = test.absorbed_by[0]
     physics = hypotheses(model.channel, model.regressor)
