@@ -585,3 +585,24 @@ app({command!r})
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # the checkpoint and the killed run's folder gone
     assert [row["energy_cm2"] for row in _history(tmp_path / "run")] == [row["energy_cm2"]
                                                                          for row in _history(folder)]
+
+
+def test_a_second_calibrate_of_the_same_checkpoint_is_refused_and_leaves_it(calibrated, tmp_path):
+    """Two runs with the same checkpoint (the same recording without --out, or the same --out): while one holds
+    it, the other is refused naming the file and the process holding it, before any calibration, and neither
+    removes the checkpoint nor leaves a folder; once it is released the lock file is gone."""
+    import os
+
+    from graphcal.common.lock import held_alone
+
+    recording, folder = calibrated
+    out, checkpoint = tmp_path / "run", tmp_path / ".run.checkpoint.npz"
+    checkpoint.write_bytes(b"the first run's state")
+    command = ["calibrate", str(recording), "--mode", "trajectory", "--config", str(folder.parent / "settings.yaml"),
+               "--out", str(out), "-q"]
+    with held_alone(checkpoint, "graphcal calibrate"):
+        result = CliRunner().invoke(app, command)
+    assert result.exit_code == 2 and "Traceback" not in result.output, result.output
+    assert f"{checkpoint}: held by another graphcal calibrate (process {os.getpid()})" in " ".join(result.output.split())
+    assert checkpoint.read_bytes() == b"the first run's state" and not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [checkpoint.name]

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from graphcal.calibration.config import CalibrationConfig
+from graphcal.common.lock import held_alone
 from graphcal.common.progress import status
 from graphcal.recording.directory import Recording
 from graphcal.common.run_folder import RUNS, RunFolder, folder_name
@@ -267,20 +268,23 @@ def effects_not_applied(calibration_path: Path, quiet: bool) -> list[str]:
 
 @contextmanager
 def resumable(out: Path | None, recording_name: str, command: str, resume: bool, quiet: bool) -> Iterator[Path]:
-    """The checkpoint of a run's calibration (checkpoint_path): removed first unless resume (a fresh start); on
-    Ctrl-C, a line saying where it is kept."""
+    """The checkpoint of a run's calibration (checkpoint_path), held by this run alone (a second run of the same
+    recording and command without another --out is refused, not let to replace it): removed first unless resume
+    (a fresh start); on Ctrl-C, a line saying where it is kept."""
     checkpoint = checkpoint_path(out, recording_name, command)
-    if not resume:
-        checkpoint.unlink(missing_ok=True)
-    elif not checkpoint.is_file() and not quiet:
-        print(f"note: no checkpoint at {checkpoint}: calibrating from the start", file=sys.stderr)
-    try:
-        yield checkpoint
-    except KeyboardInterrupt:
-        if checkpoint.is_file():
-            print(f"the calibration's state is kept in {checkpoint}: the same command with --resume goes on from "
-                  "there", file=sys.stderr)
-        raise
+    checkpoint.parent.mkdir(parents=True, exist_ok=True)
+    with held_alone(checkpoint, f"graphcal {command}"):
+        if not resume:
+            checkpoint.unlink(missing_ok=True)
+        elif not checkpoint.is_file() and not quiet:
+            print(f"note: no checkpoint at {checkpoint}: calibrating from the start", file=sys.stderr)
+        try:
+            yield checkpoint
+        except KeyboardInterrupt:
+            if checkpoint.is_file():
+                print(f"the calibration's state is kept in {checkpoint}: the same command with --resume goes on "
+                      "from there", file=sys.stderr)
+            raise
 
 
 def checkpoint_path(out: Path | None, recording_name: str, command: str) -> Path:
