@@ -18,17 +18,24 @@ so that, with v and omega the INS velocity and angular rate at the return's time
     R_nav' = Exp(omega d_t) Exp(z d_psi) R_nav,   X_nav' = X_nav + v d_t + d_X,   t_E' = t_E + d_b
 
 and the world point of factors.world_point is evaluated with those. The pose part is exact for a
-pose moving at constant velocity and angular rate over d_t (milliseconds here).
+pose moving at constant velocity and angular rate over d_t. A shift of up to a revolution (0.1 s,
+returns stamped with their revolution's start) leaves millimetres in a turn, so the motion can be
+taken about a shift t_0 (Motion.about_s) instead, with the exact pose step (S_X, S_R) from t to
+t + t_0 and v, omega at t + t_0:
+
+    R_nav' = Exp(omega (d_t - t_0)) S_R Exp(z d_psi) R_nav,   X_nav' = X_nav + S_X + v (d_t - t_0) + d_X,
+
+exact at d_t = t_0 whatever the motion, first order about it.
 
 Jacobians d p_w / d channel, at the perturbed values (M = R_w R_nav' R_E, R_w the trajectory
 rotation correction, q the vehicle-to-point vector R_w R_nav' p_b):
     range, azimuth, elevation: the intrinsic Jacobian's d_rho, d_theta, d_phi columns (they enter eq. 4.2
                     the same way)
     horizontal:     M (sin a, cos a, 0),  a = theta + d_theta + alpha_i
-    time:           v + (R_w omega) x q           heading: (R_w Exp(omega d_t) z) x q
+    time:           v + (R_w omega) x q           heading: (R_w Exp(omega (d_t - t_0)) S_R z) x q
     body:           R_w R_nav'                    position: I
 The normal at p turns with the pose channels: dn/d(time) = (R_w omega) x n, dn/d(heading) = (R_w
-Exp(omega d_t) z) x n.
+Exp(omega (d_t - t_0)) S_R z) x n.
 """
 
 from __future__ import annotations
@@ -84,10 +91,30 @@ class Basis:
 
 @dataclass(frozen=True)
 class Motion:
-    """INS velocity (N,3) [m/s] and angular rate (N,3) [rad/s], world axes, at each return's time."""
+    """INS velocity (N,3) [m/s] and angular rate (N,3) [rad/s], world axes, at each return's time t + about_s
+    (N,) [s], and the INS pose's exact step from t to t + about_s: step_position_m (N,3) [m, world axes] and
+    step_rotation (N,3,3), R_nav(t + about_s) = step_rotation R_nav(t). Without about_s (None): about the
+    return's own time, no step."""
 
     velocity: np.ndarray
     omega: np.ndarray
+    about_s: np.ndarray | None = None
+    step_position_m: np.ndarray | None = None
+    step_rotation: np.ndarray | None = None
+
+    def shift(self, time_s: np.ndarray) -> np.ndarray:
+        """The time channel's shift (N,) [s] from the time the motion is taken about."""
+        return time_s if self.about_s is None else time_s - self.about_s
+
+    def turn(self, time_s: np.ndarray) -> np.ndarray:
+        """The attitude's turn (N,3,3) from R_nav(t) to R_nav(t + time_s), heading left aside."""
+        turn = so3.exp(self.omega * self.shift(time_s)[:, None])
+        return turn if self.step_rotation is None else turn @ self.step_rotation
+
+    def step(self, time_s: np.ndarray) -> np.ndarray:
+        """The position's step (N,3) [m] from X_nav(t) to X_nav(t + time_s)."""
+        step = self.velocity * self.shift(time_s)[:, None]
+        return step if self.step_position_m is None else step + self.step_position_m
 
 
 @dataclass(frozen=True)
@@ -118,10 +145,10 @@ def perturbed(returns: Returns, motion: Motion, channels: Channels) -> Returns:
     """The returns with their channels applied: raw range and azimuth, elevations, horizontal offsets, INS pose."""
     factory = replace(returns.factory, elevation_rad=returns.factory.elevation_rad + channels.elevation,
                       horizontal_offset_m=returns.factory.horizontal_offset_m + channels.horizontal)
-    turn = so3.exp(motion.omega * channels.time[:, None]) @ so3.exp(Z_AXIS * channels.heading[:, None])
+    turn = motion.turn(channels.time) @ so3.exp(Z_AXIS * channels.heading[:, None])
     return replace(returns, range_m=returns.range_m + channels.range, azimuth_rad=returns.azimuth_rad + channels.azimuth,
                    factory=factory, R_nav=turn @ returns.R_nav,
-                   X_nav=returns.X_nav + motion.velocity * channels.time[:, None] + channels.position)
+                   X_nav=returns.X_nav + motion.step(channels.time) + channels.position)
 
 
 @dataclass(frozen=True)
@@ -165,7 +192,7 @@ def channel_jacobians(placed: Placed, motion: Motion, channels: Channels,
     alpha = returns.alpha[:, None]
     q = p_w - returns.X_nav - (1 - alpha) * corrections.translation_lo - alpha * corrections.translation_hi
     omega = turn.apply(motion.omega)
-    z = turn.apply(np.einsum("nij,j->ni", so3.exp(motion.omega * channels.time[:, None]), Z_AXIS))
+    z = turn.apply(np.einsum("nij,j->ni", motion.turn(channels.time), Z_AXIS))
     body = M @ R_E.T
     point = {"range": J.intrinsic[:, :, 0], "azimuth": J.intrinsic[:, :, 1], "elevation": J.intrinsic[:, :, 2],
              "horizontal": np.einsum("nij,nj->ni", M, sideways), "time": motion.velocity + np.cross(omega, q),

@@ -223,7 +223,8 @@ class Problem:
     def each_block(self, estimate: Estimate, pairs: Correspondences) -> Iterator[tuple[np.ndarray, Block]]:
         """The block factors' data one at a time (rows in pairs, Block): a pass over the pairs that holds one
         block's per-row data, not every block's."""
-        return make_blocks(self.data, estimate, pairs, self.config, self.estimated, self.effects)
+        effects = None if self.effects is None else self.effects.with_values(estimate.effects)
+        return make_blocks(self.data, estimate, pairs, self.config, self.estimated, effects)
 
     def graph(self, estimate: Estimate, pairs: Correspondences, damped: bool = True,
               blocks: list | None = None) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:

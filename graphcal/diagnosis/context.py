@@ -8,7 +8,7 @@ from dataclasses import dataclass, replace
 import gtsam
 import numpy as np
 
-from factors.channels import Channels, Context, Motion, perturbed
+from factors.channels import Basis, Channels, Context, Motion, perturbed
 from factors.effects import candidate
 from factors.point_to_plane import EffectTerms
 from factors.world_point import world_points
@@ -39,6 +39,7 @@ class ReturnContext:
     elevation-against-range curve of 1.2 deg peak to peak at 3-7 m)."""
 
     data: ReturnData
+    poses: PoseTrack
     range_m: np.ndarray
     sweep_s: np.ndarray
     elapsed_s: np.ndarray
@@ -59,8 +60,8 @@ class ReturnContext:
         beam /= np.maximum(np.linalg.norm(beam, axis=1, keepdims=True), 1e-9)
         cos_incidence = np.clip(np.abs(np.einsum("ni,ni->n", beam, features.normal)), 0.0, 1.0)
         range_m = data.range_m if sight is None else data.range_m + sight.shift_m
-        return cls(data, range_m, data.azimuth_rad / (2 * np.pi * data.sensor.rotation_hz), data.time_s - poses.span[0],
-                   cos_incidence, velocity, omega, intensity)
+        return cls(data, poses, range_m, data.azimuth_rad / (2 * np.pi * data.sensor.rotation_hz),
+                   data.time_s - poses.span[0], cos_incidence, velocity, omega, intensity)
 
     def context(self, rows: np.ndarray) -> Context:
         d = self.data
@@ -69,8 +70,20 @@ class ReturnContext:
                        None if self.intensity is None else self.intensity[rows],
                        np.linalg.norm(self.velocity[rows], axis=1), self.omega[rows, 2])
 
-    def motion(self, rows: np.ndarray) -> Motion:
-        return Motion(self.velocity[rows], self.omega[rows])
+    def motion(self, rows: np.ndarray, shift_s: np.ndarray | None = None) -> Motion:
+        """The INS motion at the returns of rows, taken about their times shifted by shift_s (M,) [s] (the time
+        channel's current value; None or zero: their own times): the poses interpolated at the shifted times
+        (within the poses' span), so that a shift of up to a revolution moves a return along the drive's own
+        path, not along the motion at its stamp held over the shift (factors.channels)."""
+        if shift_s is None or not np.any(shift_s):
+            return Motion(self.velocity[rows], self.omega[rows])
+        time_s = self.data.time_s[rows]
+        shifted_s = np.clip(time_s + shift_s, *self.poses.span)
+        position_m, rotation = self.poses.interpolate(time_s)
+        shifted_position_m, shifted_rotation = self.poses.interpolate(shifted_s)
+        velocity, omega = ins_motion(self.poses, shifted_s)
+        return Motion(velocity, omega, shifted_s - time_s, shifted_position_m - position_m,
+                      (shifted_rotation * rotation.inv()).as_matrix())
 
 
 @dataclass(frozen=True)
@@ -92,9 +105,24 @@ class EffectModel:
         return candidate(name).dim(self.context.data.sensor.n_fibres)
 
     def terms(self, p_rows: np.ndarray, m_rows: np.ndarray) -> EffectTerms:
-        cp, cm = self.context.context(p_rows), self.context.context(m_rows)
-        return EffectTerms(self.keys, tuple(candidate(n).basis(cp) for n in self.names), self.context.motion(p_rows),
-                           tuple(candidate(n).basis(cm) for n in self.names), self.context.motion(m_rows))
+        """The effects' bases and motion over a block's returns p_rows and m_rows, the motion taken about the
+        time channel's value at the model's values."""
+        p_bases, m_bases = self.bases(p_rows), self.bases(m_rows)
+        return EffectTerms(self.keys, p_bases, self.motion(p_rows, p_bases), m_bases, self.motion(m_rows, m_bases))
+
+    def bases(self, rows: np.ndarray) -> tuple[Basis, ...]:
+        """Each effect's basis over the returns of rows."""
+        context = self.context.context(rows)
+        return tuple(candidate(name).basis(context) for name in self.names)
+
+    def channels(self, rows: np.ndarray, bases: tuple[Basis, ...]) -> Channels:
+        """The channels of the returns of rows (their bases) at the model's values (zero where it has none)."""
+        thetas = [self.values.get(name, np.zeros(self.dim(name))) for name in self.names]
+        return Channels.of(bases, thetas, len(rows))
+
+    def motion(self, rows: np.ndarray, bases: tuple[Basis, ...]) -> Motion:
+        """The INS motion at the returns of rows, taken about the time channel's value at the model's values."""
+        return self.context.motion(rows, self.channels(rows, bases).time)
 
     def add_to(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
         for key, name in zip(self.keys, self.names):
@@ -124,9 +152,9 @@ def world_with_effects(data: ReturnData, estimate: Estimate, pose: bool, model: 
     if model is None or not model.names:
         return world_at(data, estimate, pose, rows)
     rows = np.arange(len(data.time_s)) if rows is None else rows
-    bases = [candidate(name).basis(model.context.context(rows)) for name in model.names]
-    channels = Channels.of(tuple(bases), [model.values[name] for name in model.names], len(rows))
-    returns = perturbed(data.returns(rows), model.context.motion(rows), channels)
+    bases = model.bases(rows)
+    channels = model.channels(rows, bases)
+    returns = perturbed(data.returns(rows), model.context.motion(rows, channels.time), channels)
     R_E, t_E = estimate.extrinsic.rotation().matrix(), estimate.extrinsic.translation()
     p, _ = world_points(returns, estimate.offsets[data.fibre[rows]], R_E, t_E + channels.body,
                         corrections_at(estimate, data.control[rows], pose), jacobians=False)
