@@ -3,6 +3,7 @@
 import gtsam
 import numpy as np
 import pytest
+import scipy.linalg
 
 from factors import so3
 from factors.point_to_plane import Block, BlockKeys, compress, jacobian_by_key, make_factor, residuals
@@ -113,13 +114,23 @@ def test_compressed_factor_keeps_cost_gradient_and_hessian(pose, layout):
     assert b_small @ b_small == pytest.approx(b @ b, rel=1e-10)
 
 
-def test_compress_is_exact_for_rank_deficient_blocks():
-    rng = np.random.default_rng(0)
-    A = np.hstack([rng.normal(size=(50, 2)), np.zeros((50, 1))])
-    r = rng.normal(size=50)
+@pytest.mark.parametrize("rank", [0, 2, 40, 60])
+def test_compress_is_exact_for_rank_deficient_blocks(rank):
+    """Blocks whose rows see only some directions of their keys (a column of zeros, columns mixed from fewer
+    directions, columns of very different sizes): R^T R = A^T A, R^T z = A^T r, |z| = |r|, as a QR gives."""
+    rng = np.random.default_rng(rank)
+    A = rng.normal(size=(300, rank)) @ rng.normal(size=(rank, 60)) * np.logspace(-4, 4, 60)
+    A[:, 7] = 0.0
+    r = rng.normal(size=300)
     z, R = compress(r, A)
+    assert R.shape == (61, 60) and z.shape == (61,) and not R[-1].any()
     assert z @ z == pytest.approx(r @ r)
-    np.testing.assert_allclose(R.T @ R, A.T @ A, atol=1e-12)
+    np.testing.assert_allclose(R.T @ R, A.T @ A, atol=1e-12 * max(np.abs(A.T @ A).max(), 1))
+    np.testing.assert_allclose(R.T @ z, A.T @ r, atol=1e-10 * max(np.abs(A.T @ r).max(), 1))
+    columns = A / np.where(np.linalg.norm(A, axis=0) > 0, np.linalg.norm(A, axis=0), 1.0)
+    basis = scipy.linalg.orth(columns)  # A's column space, by an SVD
+    assert basis.shape[1] == min(rank, 59)
+    assert np.linalg.norm(z[:-1]) == pytest.approx(np.linalg.norm(basis.T @ r), abs=1e-9)
 
 
 def test_robust_loss_weights_each_row():
