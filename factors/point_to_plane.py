@@ -332,8 +332,8 @@ def compress(r: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     (BLAS-3) instead of a Householder QR, about 10x cheaper for the tall blocks here. Its Cholesky factor with
     complete pivoting (LAPACK pstrf), P^T B^T B P = U^T U, stops at the rank of A (the remaining pivots below
     RANK_TOLERANCE times K, a bound of B^T B's largest eigenvalue): R = U P^T D, exact for rank-deficient A
-    (a block's rows seldom see every direction of its keys; directions with no information get zero rows),
-    and 10x cheaper than an eigen-decomposition."""
+    (a block's rows seldom see every direction of its keys; directions with no information get zero rows);
+    the factorisation is about 10x faster than an eigen-decomposition of the same matrix."""
     k = A.shape[1]
     scale = np.linalg.norm(A, axis=0)
     scale[scale == 0] = 1.0
