@@ -3,7 +3,7 @@
 import gtsam
 import numpy as np
 
-from graphcal.calibration.observability import DenseMarginals, soft_parameters
+from graphcal.calibration.observability import DenseMarginals, dense_inverse, soft_parameters
 
 
 def test_dense_marginals_match_gtsam():
@@ -22,6 +22,26 @@ def test_dense_marginals_match_gtsam():
         np.testing.assert_allclose(dense.marginalCovariance(key), reference.marginalCovariance(key), rtol=1e-9, atol=1e-12)
 
 
+def test_a_sandwich_s_blocks_are_those_of_the_whole_product():
+    rng = np.random.default_rng(2)
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for key in (1, 2, 3):
+        values.insert(key, rng.normal(0, 1, 3))
+        graph.add(gtsam.PriorFactorPoint3(key, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, rng.uniform(0.1, 2))))
+    graph.add(gtsam.BetweenFactorPoint3(1, 3, np.ones(3), gtsam.noiseModel.Isotropic.Sigma(3, 0.5)))
+    bread = DenseMarginals(graph, values)
+    root = rng.normal(size=(9, 9))
+    meat = root @ root.T
+    H_inv = np.linalg.inv(bread.information)
+    whole = H_inv @ meat @ H_inv
+    sandwich = bread.sandwich(meat)
+    for a in (1, 2, 3):
+        for b in (1, 2, 3):
+            np.testing.assert_allclose(sandwich.jointCovariance(a, b), whole[3 * (a - 1):3 * a, 3 * (b - 1):3 * b],
+                                       rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(bread.marginalCovariance(2), H_inv[3:6, 3:6], rtol=1e-10)  # the bread unchanged
+
+
 def test_dense_marginals_keep_an_ill_scaled_direction():
     """Information from 1e14 (a 0.1 um constraint) down to 1e-6 (a 1 km prior), as a sharp
     intrinsic next to a lever arm held by its prior: the weak variance must survive."""
@@ -34,6 +54,25 @@ def test_dense_marginals_keep_an_ill_scaled_direction():
     reference, dense = gtsam.Marginals(graph, values), DenseMarginals(graph, values)
     for key in (1, 2):
         np.testing.assert_allclose(dense.marginalCovariance(key), reference.marginalCovariance(key), rtol=1e-6, atol=1e-20)
+
+
+def test_dense_inverse_by_cholesky_or_by_eigenvalues_where_the_pivots_vanish():
+    """A well-conditioned information with scales over 8 decades is inverted exactly (its Cholesky path); one
+    where two parameters are seen only together (their columns alike: no pivot left for the second) is inverted
+    along its eigen-directions with the unseen one's eigenvalue floored: a variance there beyond any other."""
+    rng = np.random.default_rng(1)
+    X = rng.normal(size=(60, 40)) * np.logspace(-4, 4, 40)
+    information = X.T @ X
+    scale = np.outer(*(1 / np.sqrt(np.diag(information)),) * 2)  # compared on a unit diagonal, entry by entry
+    np.testing.assert_allclose(dense_inverse(information) / scale, np.linalg.inv(information * scale), atol=1e-9)
+    X[:, 8] = 3.0 * X[:, 7]
+    together = X.T @ X
+    scale = np.outer(*(1 / np.sqrt(np.diag(together)),) * 2)
+    eigenvalues, vectors = np.linalg.eigh(together * scale)
+    floored = (vectors / np.maximum(eigenvalues, eigenvalues.max() * np.finfo(float).eps)) @ vectors.T
+    inverse = dense_inverse(together) / scale
+    np.testing.assert_allclose(inverse, floored, rtol=1e-9, atol=1e-9)
+    assert inverse[7, 7] > 1e10 * np.median(np.diag(inverse))
 
 
 def _whitened_smallest(information, firm, kept):
