@@ -109,6 +109,8 @@ def dense_inverse(information: np.ndarray) -> np.ndarray:
             raise np.linalg.LinAlgError("pivots near rounding")
         inverse = scipy.linalg.cho_solve((factor, True), np.eye(len(scaled)), check_finite=False)
         inverse = (inverse + inverse.T) / 2
+        if not np.all(np.diag(inverse) > 0):  # rounding beyond what the pivots showed
+            raise np.linalg.LinAlgError("a variance at or below zero")
     except np.linalg.LinAlgError:
         eigenvalues, vectors = np.linalg.eigh(scaled)
         floor = eigenvalues.max() * np.finfo(float).eps
