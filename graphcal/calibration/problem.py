@@ -414,10 +414,7 @@ class Problem:
         """The Gauss-Newton information (in the keys' tangent coordinates) that the pairs alone carry on the
         given intrinsic and extrinsic keys, the trajectory corrections, when estimated, marginalised out with
         their own priors (E_def, held components): no prior on the calibration's keys is in it."""
-        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        for _, block in self.blocks(estimate, pairs):
-            graph.add(make_factor(block))
-        self._add_priors(gtsam.NonlinearFactorGraph(), values, estimate, False, float(pairs.weight.sum()))
+        graph, values = self._pairs_graph(estimate, pairs)
         controls = []
         if self.estimated[2]:
             controls = [X(c) for c in range(len(estimate.corrections))]
@@ -441,11 +438,7 @@ class Problem:
         """(C, d, d): the information the pairs alone carry on each control correction (d: 6, rotation then
         translation, or 3) with every other key held, the Gauss-Newton diagonal block of the pair factors, in units
         of the information of its rigidity prior (E_def, eq. 5.3): what the returns near its time see of it."""
-        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        for _, block in self.blocks(estimate, pairs):
-            graph.add(make_factor(block))
-        weight_sum = float(pairs.weight.sum())
-        self._add_priors(gtsam.NonlinearFactorGraph(), values, estimate, False, weight_sum)
+        graph, values = self._pairs_graph(estimate, pairs)
         controls = {X(c): c for c in range(len(estimate.corrections))}
         zero = values.zeroVectors()
         width = {key: zero.at(key).size for key in values.keys()}
@@ -462,7 +455,16 @@ class Problem:
                 if key in controls:
                     information[controls[key]] += block[start:start + d, start:start + d]
                 start += width[key]
-        return information * control_prior_sigma(self.config, weight_sum) ** 2
+        return information * control_prior_sigma(self.config, float(pairs.weight.sum())) ** 2
+
+    def _pairs_graph(self, estimate: Estimate,
+                     pairs: Correspondences) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+        """The pairs' block factors alone (no prior), with the estimated keys' values at the estimate."""
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        for _, block in self.blocks(estimate, pairs):
+            graph.add(make_factor(block))
+        self._add_priors(gtsam.NonlinearFactorGraph(), values, estimate, False, float(pairs.weight.sum()))
+        return graph, values
 
     # --- the result ----------------------------------------------------------------------------------
     def final(self, estimate: Estimate, pairs: Correspondences | None = None, shared_returns: bool = False) -> FinalFit:
