@@ -1,7 +1,9 @@
 """unlisted: the concealed courtyard drive (scenarios/concealed.py: sim6_turn, pitched head, 1 cm range noise)
 with physics the mismatch finder has no candidate for, each modest against the noise and partly absorbed by
-the ordinary calibration parameters. Every surface gets its own diffuse reflectivity (a seeded draw), so
-that the intensity (255 x reflectivity x |cos incidence|) is a regressor of its own, not the incidence again.
+the ordinary calibration parameters. Every surface gets its own diffuse reflectivity (a seeded draw) and
+painted patches (MARKINGS: a chequerboard of 1 m cells, every other one 70 % darker, as road markings, windows
+and stains make real surfaces), so that the intensity (255 x reflectivity x |cos incidence|) is a regressor of
+its own, not the incidence again, and varies along a surface as well as between surfaces.
 
 UNLISTED[effect] gives the simulator's parameters and the channel and regressor of the discrepancy that
 describes it; `effect=None` is the clean recording. `named` adds one of the finder's named candidates
@@ -13,9 +15,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from graphcal.simulation.scenario import Scenario
+from graphcal.simulation.scene import Markings
 from graphcal.simulation.script import load_scenario_builder, run_scenario_script
 
 REFLECTIVITY = (0.08, 0.9)  # range of the surfaces' diffuse reflectivity
+MARKINGS = Markings(cell_m=1.0, contrast=0.7)
 
 
 @dataclass(frozen=True)
@@ -52,7 +56,7 @@ def scenario(size: float = 1.0, seed: int = 0, effect: str | None = "range_walk"
     scene = [obj.model_copy(update={"reflectivity": float(rng.uniform(*REFLECTIVITY))}) for obj in base.scene]
     spec = dict(base.effects) | (UNLISTED[effect].effects if effect else {})
     name = "unlisted-" + "+".join(n for n in (effect or "clean", named) if n)
-    return base.model_copy(update={"name": name, "scene": scene, "effects": spec})
+    return base.model_copy(update={"name": name, "scene": scene, "markings": MARKINGS, "effects": spec})
 
 
 if __name__ == "__main__":

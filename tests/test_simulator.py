@@ -20,6 +20,7 @@ from graphcal.simulation.scene import (
     Box,
     Facade,
     Ground,
+    Markings,
     ParkedCar,
     Pole,
     RaycastScene,
@@ -79,6 +80,28 @@ def test_truth_points_lie_on_the_scene():
     assert ground.sum() > 1000 and facade.sum() > 1000 and pole.sum() > 50
     radius = np.hypot(local[pole, 0] - 10.0, local[pole, 1] - 4.0)
     assert radius.min() > 0.15 * np.cos(np.pi / 24) - 1e-4 and radius.max() < 0.15 + 1e-4  # 24-sided mesh
+
+
+def test_markings_darken_every_other_cell_of_one_surface():
+    """On the ground (one reflectivity) the intensity over cos(incidence) is 255 x reflectivity on light cells
+    and (1 - contrast) of it on dark ones, which alternate along the drive's 1 m cells, each half of the area."""
+    scenario = small(scene=street(80, 16, relief_spacing_m=0.0), markings=Markings(cell_m=1.0, contrast=0.6))
+    recording = simulate(scenario, quiet=True)
+    local = recording.truth.world_points() - np.asarray(scenario.origin_m)
+    ground = np.abs(local[:, 2]) < 1e-4
+    points = recording.points.read()
+    poses = to_world(recording.truth.trajectory, recording.crs).poses
+    position, rotation = poses.interpolate(points["time"][ground])
+    lidar = position + rotation.apply(recording.truth.extrinsic.lever_arm_m) - np.asarray(scenario.origin_m)
+    ray = local[ground] - lidar  # from the lidar's body-frame position: within 1 cm of the beam's origin
+    cos_incidence = np.abs(ray[:, 2]) / np.linalg.norm(ray, axis=1)
+    steep = cos_incidence > 0.3
+    shade = points["intensity"][ground][steep] / (255 * 0.5 * cos_incidence[steep])
+    cell = (np.floor(local[ground][steep, :2] + 0.37).sum(axis=1) % 2).astype(bool)
+    np.testing.assert_allclose(shade[~cell], 1.0, atol=0.05)
+    np.testing.assert_allclose(shade[cell], 0.4, atol=0.05)
+    assert 0.3 < cell.mean() < 0.7
+    assert np.array_equal(Markings().factor(np.array([[0.2, 0.1, -1e-9], [0.2, 0.1, 1e-9]])), [1.0, 1.0])
 
 
 def test_same_seed_same_recording_other_seed_other_noise():

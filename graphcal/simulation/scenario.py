@@ -10,7 +10,7 @@ from pyproj.exceptions import CRSError
 from graphcal.simulation.effects import build_effects
 from graphcal.recording.sensor import CATALOG
 from graphcal.simulation.drive import Drive
-from graphcal.simulation.scene import SceneObject
+from graphcal.simulation.scene import Markings, SceneObject
 from graphcal.simulation.traffic import DistrictTrafficSpec, TrafficSpec
 
 _FROZEN = ConfigDict(frozen=True, extra="forbid")
@@ -110,6 +110,8 @@ class Scenario(BaseModel):
     size: float = Field(1.0, gt=0, le=1, description="fraction of firings kept (1 = the sensor's full rate)")
     seed: int = 0
     scene: list[SceneObject]
+    markings: Markings | None = Field(None, description="painted patches on the static surfaces "
+                                                        "(None: each surface of one reflectivity)")
     drive: Drive
     traffic: TrafficSpec | DistrictTrafficSpec | None = Field(
         None, description="moving vehicles and pedestrians, on a straight street or a grid district (None: none)")

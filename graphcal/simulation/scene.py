@@ -34,6 +34,27 @@ def _box(size: Vec3, center: Vec3, yaw_deg: float = 0.0) -> o3d.geometry.Triangl
     return mesh.translate(center)
 
 
+# the chequerboard's lattice shifted by this fraction of a cell: a surface at a round coordinate (the ground at
+# z = 0, a facade at y = 7.5 m) must not lie on a cell boundary, where rounding would pick the cell
+LATTICE_SHIFT = 0.37
+
+
+class Markings(BaseModel):
+    """Painted patches on every static surface (road markings, dark windows, stains): the diffuse reflectivity of
+    the cells of a chequerboard of side cell_m in the local frame (x, y, z), every other cell, is lowered by the
+    fraction `contrast`. Real surfaces are not of one reflectivity, and a return's intensity then varies along
+    one surface, not only from one surface to the next."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+    cell_m: float = Field(1.0, gt=0, description="side of the chequerboard's cells [m]")
+    contrast: float = Field(0.7, ge=0, lt=1, description="fraction of the reflectivity the dark cells lose")
+
+    def factor(self, points_local_m: np.ndarray) -> np.ndarray:
+        """(N,) the reflectivity's factor at points (N, 3) [m, local frame]: 1 - contrast on dark cells, else 1."""
+        cells = np.floor(np.asarray(points_local_m) / self.cell_m + LATTICE_SHIFT).astype(np.int64).sum(axis=1)
+        return np.where(cells % 2 == 1, 1.0 - self.contrast, 1.0)
+
+
 class Ground(_Object):
     """A flat horizontal rectangle at height z_m (two triangles)."""
 

@@ -242,7 +242,11 @@ def _cast_chunk(cycle_start, lidar_start, scenario, rig: _Rig, scene: _Scene, rn
     ideal_range, _, _ = from_xyz(p_lidar, _true_factory_terms(sensor, fibre, rig.effects, elevation_change[hit]),
                                  rig.offsets[fibre])
     cos_incidence = np.abs(np.sum(normal[hit] * direction[hit], axis=1))
-    intensity = np.clip(255.0 * scene.reflectivity[hit_object[hit]] * cos_incidence, 0, 255)
+    world = origin[hit] + distance[hit, None] * direction[hit]
+    reflectivity = scene.reflectivity[hit_object[hit]]
+    if scenario.markings is not None:  # painted on the static surfaces, not on the traffic
+        reflectivity = np.where(on_mover[hit], reflectivity, reflectivity * scenario.markings.factor(world))
+    intensity = np.clip(255.0 * reflectivity * cos_incidence, 0, 255)
     range_m, t_rec = ideal_range, t_fire
     for effect in rig.effects:
         range_m = effect.measured_range(range_m, cos_incidence, intensity, t_fire - scenario.start_time_s)
@@ -250,7 +254,6 @@ def _cast_chunk(cycle_start, lidar_start, scenario, rig: _Rig, scene: _Scene, rn
     range_m = range_m + rng.normal(0.0, rig.noise_m, len(range_m)) if rig.noise_m > 0 else range_m
     columns = {"time": t_rec, "fibre": fibre, "range": range_m, "azimuth": encoder, "intensity": intensity,
                "scan": revolution[hit].astype(np.int32)}
-    world = origin[hit] + distance[hit, None] * direction[hit]
     return columns, world, on_mover[hit]
 
 
