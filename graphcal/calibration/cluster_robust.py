@@ -13,6 +13,19 @@ with P the priors' information (the nominal values are off by their priors' sigm
 (docs/reference/math.md "Observability"). The scores are centred: at the estimate their sum balances the
 priors' pull, which is not noise. A block lasts BLOCK_S, about the time a facade stays in view; fewer than
 MIN_BLOCKS blocks leave the sandwich undetermined (None).
+
+A bias common to a whole class of surfaces (the ground's departures from the plane model, say) pushes every time
+block the same way: the clusters cannot see it. Where the classes disagree, it shows. With S_k = A_k^T r_k the
+score of surface class k at the estimate (ground, walls, the rest: `surface_classes`), and E_k its covariance
+were no class biased (S_k moves with its own noise and with the estimate's step, S_k = S_k0 - H_k H^-1 sum_j S_j0),
+each calibration parameter's variance gains the excess of the classes' pushes over what their noise explains,
+
+    sum_k (H^-1 S_k)_i^2 - sum_k (H^-1 E_k H^-1)_ii,     floored at 0,
+
+(a method-of-moments estimate of a between-class variance, as DerSimonian and Laird's across studies;
+docs/reference/math.md "Observability"). It widens the coordinates the classes disagree on, and none where they
+agree within their noise. Classes that share one bias do not show it, and a biased class that holds most of a
+coordinate's information takes the estimate with it: the others then disagree little.
 """
 
 from __future__ import annotations
@@ -25,18 +38,75 @@ from graphcal.calibration.shared_returns import Linearised
 
 BLOCK_S = 0.5
 MIN_BLOCKS = 20
+GROUND_WITHIN_DEG = 25.0  # a pair's world normal this close to the vertical: ground; to the horizontal: a wall
 
 
-def cluster_robust_covariance(linearised: Linearised, time_s: np.ndarray) -> DenseMarginals:
+def cluster_robust_covariance(linearised: Linearised, time_s: np.ndarray, surface: np.ndarray | None = None,
+                              keys: list[int] = ()) -> DenseMarginals:
     """The sandwich above for every key of the graph, with gtsam.Marginals' interface (marginalCovariance(key), in
     each key's tangent space). linearised: the undamped graph at the estimate (shared_returns.Linearised); time_s:
-    each pair's time [s] (of p)."""
+    each pair's time [s] (of p); surface: each pair's surface class (surface_classes), with keys the calibration's
+    keys whose variances the classes' disagreement widens (none without)."""
     A, r = linearised.A, linearised.r
-    _, block_of = np.unique(np.floor(np.asarray(time_s) / BLOCK_S), return_inverse=True)
-    n_blocks = int(block_of.max()) + 1 if len(time_s) else 0
-    scores = (sparse.csr_matrix((r, (block_of, np.arange(len(r)))), shape=(n_blocks, len(r))) @ A).toarray()
+    block_of = _time_blocks(time_s)
+    scores = _clustered_scores(A, r, block_of)
+    covariance = linearised.sandwich(scores.T @ scores)
+    if surface is None or not keys:
+        return covariance
+    return covariance.widened(between_classes_variance(linearised, block_of, surface, keys))
+
+
+def surface_classes(normal_world: np.ndarray) -> np.ndarray:
+    """(K,) each pair's surface class from its world normal (K, 3): 0 ground, 1 wall, 2 the rest."""
+    vertical = np.abs(np.asarray(normal_world)[:, 2])
+    return np.where(vertical >= np.cos(np.radians(GROUND_WITHIN_DEG)), 0,
+                    np.where(vertical <= np.sin(np.radians(GROUND_WITHIN_DEG)), 1, 2))
+
+
+def between_classes_variance(linearised: Linearised, block_of: np.ndarray, surface: np.ndarray,
+                             keys: list[int]) -> dict[int, np.ndarray]:
+    """{key: its tangent coordinates' added variance}: the excess of the surface classes' pushes over their noise
+    (module docstring), for the given keys. A class spanning fewer than MIN_BLOCKS time blocks joins the last."""
+    A, r = linearised.A, linearised.r
+    classes = [np.flatnonzero(surface == k) for k in np.unique(surface)]
+    small = [c for c in classes if len(np.unique(block_of[c])) < MIN_BLOCKS]
+    classes = [c for c in classes if len(np.unique(block_of[c])) >= MIN_BLOCKS]
+    if small and classes:
+        classes[-1] = np.sort(np.concatenate([classes[-1], *small]))
+    columns = [linearised.bread.columns_of(key) for key in keys]
+    if len(classes) < 2:
+        return {key: np.zeros(len(c)) for key, c in zip(keys, columns)}
+    rows = np.concatenate(columns)
+    C = linearised.bread.covariance
+    C_R = C[rows]
+    # each class's clustered meat V_k = Z_k^T Z_k kept as its scores Z_k (time blocks x columns): no n x n per class
+    scores = [_clustered_scores(A[c], r[c], block_of[c]) for c in classes]
+    pushed, noise = np.zeros(len(rows)), np.zeros(len(rows))
+    for c, Z_k in zip(classes, scores):
+        A_k = A[c]
+        D_R = ((A_k.T @ A_k) @ C_R.T).T @ C  # rows R of C H_k C
+        pushed += (C_R @ (A_k.T @ r[c])) ** 2
+        # diag of C V_k C - 2 (C H_k C) V_k C + (C H_k C) V (C H_k C), V = sum_j V_j + the priors' information
+        noise += np.sum((Z_k @ (C_R - 2 * D_R).T) * (Z_k @ C_R.T), axis=0)
+        noise += sum(np.sum((Z_j @ D_R.T) ** 2, axis=0) for Z_j in scores)
+        noise += np.sum((D_R @ linearised.priors_information) * D_R, axis=1)
+    excess = np.split(np.maximum(pushed - noise, 0.0), np.cumsum([len(c) for c in columns])[:-1])
+    return dict(zip(keys, excess))
+
+
+def _time_blocks(time_s: np.ndarray) -> np.ndarray:
+    """Each pair's time block (BLOCK_S), numbered from 0."""
+    return np.unique(np.floor(np.asarray(time_s) / BLOCK_S), return_inverse=True)[1].ravel()
+
+
+def _clustered_scores(A, r: np.ndarray, block_of: np.ndarray) -> np.ndarray:
+    """(G, columns) Z with Z^T Z = G/(G-1) sum_c (g_c - g)(g_c - g)^T over the G time blocks the pairs span (module
+    docstring): the clustered meat, kept as its factor."""
+    _, block_of = np.unique(block_of, return_inverse=True)
+    n_blocks = int(block_of.max()) + 1 if len(r) else 0
+    scores = (sparse.csr_matrix((r, (block_of.ravel(), np.arange(len(r)))), shape=(n_blocks, len(r))) @ A).toarray()
     scores -= scores.mean(axis=0)
-    return linearised.sandwich(n_blocks / (n_blocks - 1) * scores.T @ scores)
+    return np.sqrt(n_blocks / max(n_blocks - 1, 1)) * scores
 
 
 def determined(time_s: np.ndarray) -> bool:

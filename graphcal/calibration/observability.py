@@ -58,11 +58,22 @@ class DenseMarginals:
         keys = list(values.keys())
         dims = [len(v) for v in (values.zeroVectors().at(k) for k in keys)]
         information, _ = graph.linearize(values).hessian(gtsam.Ordering(keys))
+        self._of(information, dict(zip(keys, dims)))
+
+    @classmethod
+    def of(cls, information: np.ndarray, widths: dict[int, int]) -> DenseMarginals:
+        """The marginals of a dense information matrix whose columns are the keys' tangent spaces, in order."""
+        out = cls.__new__(cls)
+        out._of(information, widths)
+        return out
+
+    def _of(self, information: np.ndarray, widths: dict[int, int]) -> None:
         self._information = information
         self._covariance = dense_inverse(information)
         self._right = None  # a sandwich's meat x covariance: its covariance is _covariance @ _right
-        starts = np.r_[0, np.cumsum(dims)]
-        self._span = {k: slice(a, b) for k, a, b in zip(keys, starts[:-1], starts[1:])}
+        self._added = {}  # {key: variance added to its tangent coordinates' diagonal} (widened)
+        starts = np.r_[0, np.cumsum(list(widths.values()))]
+        self._span = {k: slice(a, b) for k, a, b in zip(widths, starts[:-1], starts[1:])}
 
     def marginalCovariance(self, key) -> np.ndarray:
         return self.jointCovariance(key, key)
@@ -76,16 +87,33 @@ class DenseMarginals:
         """Each key's first column in the information matrix."""
         return {key: span.start for key, span in self._span.items()}
 
+    def columns_of(self, key) -> np.ndarray:
+        """The key's columns in the information matrix (its tangent coordinates, in order)."""
+        return np.arange(self._span[key].start, self._span[key].stop)
+
     def jointCovariance(self, a, b) -> np.ndarray:
         """The covariance block of keys a (rows) and b (columns)."""
         if self._right is None:
-            return self._covariance[self._span[a], self._span[b]]
-        return self._covariance[self._span[a]] @ self._right[:, self._span[b]]
+            block = self._covariance[self._span[a], self._span[b]]
+        else:
+            block = self._covariance[self._span[a]] @ self._right[:, self._span[b]]
+        return block + np.diag(self._added[a]) if a == b and a in self._added else block
 
     @property
     def information(self) -> np.ndarray:
         """H, the dense information matrix (the priors' included), in the columns of columns()."""
         return self._information
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """H^-1 in the columns of columns() (not a sandwich's, nor widened)."""
+        return self._covariance
+
+    def widened(self, variance: dict[int, np.ndarray]) -> DenseMarginals:
+        """These marginals with variance[key] added to the diagonal of each given key's block."""
+        out = copy.copy(self)
+        out._added = {**self._added, **variance}
+        return out
 
     def sandwich(self, meat: np.ndarray) -> DenseMarginals:
         """The marginals of H^-1 meat H^-1 (a sandwich covariance on the same keys), each block made when asked

@@ -493,8 +493,11 @@ class Problem:
             sigma = np.concatenate([np.broadcast_to(block.sigma0_m, len(block.weight)) for _, block in blocks])
             expected = float((weight * sigma ** 2).sum() / weight.sum() * 1e4)
         if with_robust:
-            robust = problem.uncertainty(cluster_robust.cluster_robust_covariance(linearised, time_s), estimate,
-                                         control_sigma)
+            layout = problem.layout()
+            calibration_keys = [I(f) for f in layout.fibres] + ([E(0)] if layout.extrinsic else [])
+            robust = problem.uncertainty(cluster_robust.cluster_robust_covariance(
+                linearised, time_s, cluster_robust.surface_classes(pairs.normal), calibration_keys), estimate,
+                control_sigma)
         return FinalFit(pairs, residual, problem.uncertainty(Marginals(graph, values), estimate, control_sigma), shared,
                         robust, expected)
 
