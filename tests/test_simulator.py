@@ -20,6 +20,7 @@ from graphcal.simulation.scene import (
     Box,
     Facade,
     Ground,
+    LATTICE_SHIFT,
     Markings,
     ParkedCar,
     Pole,
@@ -97,7 +98,7 @@ def test_markings_darken_every_other_cell_of_one_surface():
     cos_incidence = np.abs(ray[:, 2]) / np.linalg.norm(ray, axis=1)
     steep = cos_incidence > 0.3
     shade = points["intensity"][ground][steep] / (255 * 0.5 * cos_incidence[steep])
-    cell = (np.floor(local[ground][steep, :2] + 0.37).sum(axis=1) % 2).astype(bool)
+    cell = (np.floor(local[ground][steep, :2] + LATTICE_SHIFT).sum(axis=1) % 2).astype(bool)
     np.testing.assert_allclose(shade[~cell], 1.0, atol=0.05)
     np.testing.assert_allclose(shade[cell], 0.4, atol=0.05)
     assert 0.3 < cell.mean() < 0.7

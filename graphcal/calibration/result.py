@@ -152,7 +152,8 @@ class Calibration:
 SIGMA_MARGINALS = "gtsam.Marginals at the final pairs, sigma0 the noise of one pair"
 SIGMA_SHARED = ("range noise of each return, and the error smoothing left in the poses (where smoothed), counted once "
                 "over the pairs that share it (sandwich, docs/reference/math.md)")
-SIGMA_WIDENED = ", each widened to the pairs' own residual spread over 0.5 s blocks where larger (cluster-robust sandwich)"
+SIGMA_WIDENED = (", each widened to the pairs' own residual spread over 0.5 s blocks where larger (cluster-robust "
+                 "sandwich), and by the disagreement between ground, walls and other surfaces")
 
 
 @dataclass(frozen=True)
@@ -167,7 +168,8 @@ class CalibrationResult:
     halves.yaml; shared_returns_uncertainty: for pairs whitened by the range noise, the 1-sigmas with
     each return's noise counted once over all the pairs it serves in (shared_returns.py), which
     calibration.yaml writes as `sigma`; cluster_robust_uncertainty: the 1-sigmas from the pairs' own
-    residuals clustered by time (cluster_robust.py; None on a drive too short for it); uncertainty stays
+    residuals clustered by time, the intrinsics' and the extrinsic's widened where the surface classes disagree
+    (cluster_robust.py; None on a drive too short for it); uncertainty stays
     gtsam.Marginals' (pairs as independent), which names the unobservable parameters; verdict: one plain line on what
     the drive could not observe and which manoeuvre or scene would show it (verdict.py; None when it names nothing
     beyond the trajectory's common motion); trajectory_noise: the white noise smoothed out of the recorded poses
