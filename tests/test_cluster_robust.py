@@ -66,3 +66,12 @@ def test_surface_classes_from_world_normals():
     normals = np.array([[0, 0, 1.0], [0, 0, -1.0], [1.0, 0, 0], [0, 0.9, 0.1], [0.7, 0, 0.7]])
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     np.testing.assert_array_equal(surface_classes(normals), [0, 0, 1, 1, 2])
+
+
+def test_widened_marginals_add_to_the_diagonal_of_the_keys_given():
+    information = np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 0.0], [0.0, 0.0, 2.0]])
+    marginals = DenseMarginals.of(information, {KEY: 2, 8: 1})
+    twice = marginals.widened({KEY: np.array([0.1, 0.2])}).widened({KEY: np.array([0.1, 0.2])})
+    np.testing.assert_allclose(twice.marginalCovariance(KEY), np.linalg.inv(information)[:2, :2] + np.diag([0.2, 0.4]))
+    np.testing.assert_allclose(twice.marginalCovariance(8), [[0.5]])
+    np.testing.assert_allclose(twice.jointCovariance(KEY, 8), np.zeros((2, 1)), atol=1e-15)

@@ -38,7 +38,7 @@ from graphcal.calibration.shared_returns import Linearised
 
 BLOCK_S = 0.5
 MIN_BLOCKS = 20
-GROUND_WITHIN_DEG = 25.0  # a pair's world normal this close to the vertical: ground; to the horizontal: a wall
+CLASS_WITHIN_DEG = 25.0  # a pair's world normal this close to the vertical: ground; to the horizontal: a wall
 
 
 def cluster_robust_covariance(linearised: Linearised, time_s: np.ndarray, surface: np.ndarray | None = None,
@@ -59,8 +59,8 @@ def cluster_robust_covariance(linearised: Linearised, time_s: np.ndarray, surfac
 def surface_classes(normal_world: np.ndarray) -> np.ndarray:
     """(K,) each pair's surface class from its world normal (K, 3): 0 ground, 1 wall, 2 the rest."""
     vertical = np.abs(np.asarray(normal_world)[:, 2])
-    return np.where(vertical >= np.cos(np.radians(GROUND_WITHIN_DEG)), 0,
-                    np.where(vertical <= np.sin(np.radians(GROUND_WITHIN_DEG)), 1, 2))
+    return np.where(vertical >= np.cos(np.radians(CLASS_WITHIN_DEG)), 0,
+                    np.where(vertical <= np.sin(np.radians(CLASS_WITHIN_DEG)), 1, 2))
 
 
 def between_classes_variance(linearised: Linearised, block_of: np.ndarray, surface: np.ndarray,

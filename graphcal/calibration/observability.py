@@ -112,7 +112,7 @@ class DenseMarginals:
     def widened(self, variance: dict[int, np.ndarray]) -> DenseMarginals:
         """These marginals with variance[key] added to the diagonal of each given key's block."""
         out = copy.copy(self)
-        out._added = {**self._added, **variance}
+        out._added = {**self._added, **{key: self._added.get(key, 0.0) + v for key, v in variance.items()}}
         return out
 
     def sandwich(self, meat: np.ndarray) -> DenseMarginals:
