@@ -116,6 +116,13 @@ def _first_finding(effect: str, size: float, max_points: int):
     return recording, diagnosis.findings[0]
 
 
+def _shape_error(y: np.ndarray, truth: np.ndarray, weight: np.ndarray) -> float:
+    """The curve's error against the truth, both less their weighted means: its weighted RMS over the truth's."""
+    error, truth = y - truth, truth - np.sum(weight * truth) / np.sum(weight)
+    error = error - np.sum(weight * error) / np.sum(weight)
+    return float(np.sqrt(np.sum(weight * error ** 2) / np.sum(weight * truth ** 2)))
+
+
 def test_a_per_laser_firing_delay_is_discovered_and_the_points_the_data_barely_see_are_marked():
     """A delay of 60 us per laser (time against fibre): the fibres that see only the road barely see a time shift
     (it slides their returns along it). The curve marks them (seen false: their band over 5 times the median) and
@@ -130,21 +137,15 @@ def test_a_per_laser_firing_delay_is_discovered_and_the_points_the_data_barely_s
     assert seen.mean() > 0.8 and "barely seen at fibre" in first["statement"]
     truth = UNLISTED["firing_delay"].curve(fibre)
     assert first["magnitude_where_seen"] == pytest.approx(np.ptp(truth[seen]), rel=0.25)
-    weight = seen / sigma ** 2
-    error, truth = curve["y"] - truth, truth - np.sum(weight * truth) / np.sum(weight)
-    error -= np.sum(weight * error) / np.sum(weight)
-    assert np.sqrt(np.sum(weight * error ** 2) / np.sum(weight * truth ** 2)) < 0.4
+    assert _shape_error(curve["y"], truth, seen / sigma ** 2) < 0.4
 
 
 def test_a_range_walk_with_intensity_is_discovered_with_its_shape():
     """Weak returns read long (2.5 cm exp(-intensity / 40)) on surfaces with painted patches: discovered first on
     the range against the intensity, held-out J lower, the curve the truth's up to a constant (weighted by its band,
-    as benchmarks/bench_open_world.py measures it: 0.29 at size 0.1)."""
-    _, first = _first_finding("range_walk", 0.04, 100_000)
+    as benchmarks/bench_open_world.py measures it: 0.27 here, 0.29 at size 0.1)."""
+    _, first = _first_finding("range_walk", 0.03, 60_000)
     assert (first["effect"], first["channel"], first["regressor"]) == ("discovered", "range", "intensity")
     assert first["energy_cm2"]["held_out_after"] < first["energy_cm2"]["held_out_before"]
     curve = {name: np.asarray(values) for name, values in first["curve"].items()}
-    truth, weight = UNLISTED["range_walk"].curve(curve["x"]), 1.0 / curve["sigma"] ** 2
-    error, truth = curve["y"] - truth, truth - np.sum(weight * truth) / np.sum(weight)
-    error -= np.sum(weight * error) / np.sum(weight)
-    assert np.sqrt(np.sum(weight * error ** 2) / np.sum(weight * truth ** 2)) <= 0.35
+    assert _shape_error(curve["y"], UNLISTED["range_walk"].curve(curve["x"]), 1.0 / curve["sigma"] ** 2) <= 0.35
