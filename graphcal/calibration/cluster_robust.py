@@ -79,11 +79,11 @@ def between_classes_variance(linearised: Linearised, block_of: np.ndarray, surfa
     rows = np.concatenate(columns)
     C = linearised.bread.covariance
     C_R = C[rows]
+    jacobians = [A[c] for c in classes]
     # each class's clustered meat V_k = Z_k^T Z_k kept as its scores Z_k (time blocks x columns): no n x n per class
-    scores = [_clustered_scores(A[c], r[c], block_of[c]) for c in classes]
+    scores = [_clustered_scores(A_k, r[c], block_of[c]) for c, A_k in zip(classes, jacobians)]
     pushed, noise = np.zeros(len(rows)), np.zeros(len(rows))
-    for c, Z_k in zip(classes, scores):
-        A_k = A[c]
+    for c, A_k, Z_k in zip(classes, jacobians, scores):
         D_R = ((A_k.T @ A_k) @ C_R.T).T @ C  # rows R of C H_k C
         pushed += (C_R @ (A_k.T @ r[c])) ** 2
         # diag of C V_k C - 2 (C H_k C) V_k C + (C H_k C) V (C H_k C), V = sum_j V_j + the priors' information

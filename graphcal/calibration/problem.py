@@ -402,13 +402,17 @@ class Problem:
         sigma = np.r_[self.priors.intrinsic[list(fibres)].ravel(), self.priors.extrinsic if estimated[1] else np.zeros(0)]
         return Layout(fibres, estimated[1], sigma, self.nominal.rotation().matrix())
 
+    def calibration_keys(self) -> list[int]:
+        """The graph keys of layout()'s parameters: the free fibres' intrinsics, then the extrinsic if estimated."""
+        layout = self.layout()
+        return [I(f) for f in layout.fibres] + ([E(0)] if layout.extrinsic else [])
+
     def weak_directions(self, estimate: Estimate) -> WeakDirections:
         """The weak directions of the data's information at the estimate, on this phase's pairs there."""
         layout = self.layout()
         if not layout.size:
             return WeakDirections.none(layout)
-        keys = [I(f) for f in layout.fibres] + ([E(0)] if layout.extrinsic else [])
-        return WeakDirections.of(self.information(estimate, self.associate(estimate), keys), layout)
+        return WeakDirections.of(self.information(estimate, self.associate(estimate), self.calibration_keys()), layout)
 
     def information(self, estimate: Estimate, pairs: Correspondences, keys: list[int]) -> np.ndarray:
         """The Gauss-Newton information (in the keys' tangent coordinates) that the pairs alone carry on the
@@ -493,11 +497,9 @@ class Problem:
             sigma = np.concatenate([np.broadcast_to(block.sigma0_m, len(block.weight)) for _, block in blocks])
             expected = float((weight * sigma ** 2).sum() / weight.sum() * 1e4)
         if with_robust:
-            layout = problem.layout()
-            calibration_keys = [I(f) for f in layout.fibres] + ([E(0)] if layout.extrinsic else [])
             robust = problem.uncertainty(cluster_robust.cluster_robust_covariance(
-                linearised, time_s, cluster_robust.surface_classes(pairs.normal), calibration_keys), estimate,
-                control_sigma)
+                linearised, time_s, cluster_robust.surface_classes(pairs.normal), problem.calibration_keys()),
+                estimate, control_sigma)
         return FinalFit(pairs, residual, problem.uncertainty(Marginals(graph, values), estimate, control_sigma), shared,
                         robust, expected)
 
