@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from graphcal.calibration.blocks import block_rows
+from graphcal.calibration.blocks import block_rows, m_buckets
 
 
 def _draw(seed: int, n: int = 20_000):
@@ -42,3 +42,23 @@ def test_a_window_with_fewer_pairs_than_the_least_keeps_one_block():
     # window 1: fibres 0-4 of 556 pairs, 5-8 of 555: fibres 0-3 (2224), 4-7 (2221), and 8 (555) joins the last
     assert sorted(len(rows) for rows in blocks) == [50, 70, 80, 2224, 2776]
     assert np.array_equal(np.sort(np.concatenate(blocks)), np.arange(len(fibre)))
+
+
+def test_a_block_ties_a_few_windows_of_m():
+    rng = np.random.default_rng(12)
+    fibre, window = _draw(2)
+    window_m = rng.integers(0, 40, len(fibre))  # revisits: m from any of 40 windows
+    blocks = block_rows(fibre, window, window_m, min_rows=300, max_rows=20_000)
+    assert np.array_equal(np.sort(np.concatenate(blocks)), np.arange(len(fibre)))
+    for rows in blocks:
+        assert len(set(window[rows])) == 1
+        assert len(set(window_m[rows])) <= 8  # M_WINDOWS
+    # without the windows of m, each block of a window spans nearly all 40 of them
+    assert np.median([len(set(window_m[rows])) for rows in block_rows(fibre, window, min_rows=300, max_rows=20_000)]) > 30
+
+
+def test_buckets_of_m_windows_close_at_the_least_rows_or_the_most_windows():
+    window_p = np.r_[np.zeros(10, int), np.ones(12, int)]
+    window_m = np.r_[[0, 0, 0, 1, 2, 3, 4, 5, 6, 7], np.arange(12)]
+    # window 0: m windows 0-3 (6 pairs: at least 6 rows closes), 4-7; window 1: 0-4 (5 windows), 5-9, 10-11
+    assert m_buckets(window_p, window_m, min_rows=6, most=5).tolist() == [0] * 6 + [1] * 4 + [2] * 5 + [3] * 5 + [4] * 2

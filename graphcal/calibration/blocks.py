@@ -1,6 +1,7 @@
 """The block factors' data of a calibration (factors/point_to_plane.py): one block per fibre of p and
-window of block_controls control intervals of p (per window only when the intrinsics are not estimated),
-the fibres of a window merged up to MIN_BLOCK_ROWS pairs, at most MAX_BLOCK_ROWS pairs each, with each pair's sigma."""
+window of block_controls control intervals of p (per window only when the intrinsics are not estimated) and, with
+trajectory corrections, per few windows of m (M_WINDOWS), the fibres merged up to MIN_BLOCK_ROWS pairs, at most
+MAX_BLOCK_ROWS pairs each, with each pair's sigma."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from graphcal.calibration.returns import Estimate, ReturnData, corrections_at, r
 
 MAX_BLOCK_ROWS = 20_000
 MIN_BLOCK_ROWS = 2_000
+M_WINDOWS = 8  # windows of m's controls one block ties at most (besides p's own)
 
 
 def make_blocks(data: ReturnData, estimate: Estimate, pairs: Correspondences, config: CalibrationConfig,
@@ -33,8 +35,9 @@ def make_blocks(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
     sigma = pair_sigma_m(data, estimate, pairs, config)
     intrinsic_key = np.array([NO_KEY if f == ref else I(f) for f in range(data.sensor.n_fibres)], np.int64)
     control_key = np.array([X(c) for c in range(len(data.control_times_s))], np.int64)
-    window = cp // config.trajectory.block_controls if est_traj else 0 * cp
-    for rows in block_rows(fi if est_int else np.zeros_like(fi), window):
+    window_p, window_m = (cp // config.trajectory.block_controls, cm // config.trajectory.block_controls) if est_traj \
+        else (0 * cp, None)
+    for rows in block_rows(fi if est_int else np.zeros_like(fi), window_p, window_m):
         p, m = pairs.index_p[rows], pairs.index_m[rows]
         keys = BlockKeys.of(len(rows), extrinsic=E(0) if est_ext else None,
                             intrinsic_p=intrinsic_key[fi[rows]] if est_int else None,
@@ -91,16 +94,18 @@ def pose_sigma_m(data: ReturnData, estimate: Estimate, pairs: Correspondences) -
                               data.time_s[p] - data.time_s[m], noise.interval_s, noise.position_m, noise.attitude_rad)
 
 
-def block_rows(fibre_p: np.ndarray, window: np.ndarray, min_rows: int = MIN_BLOCK_ROWS,
-               max_rows: int = MAX_BLOCK_ROWS) -> list[np.ndarray]:
-    """Pair indices of each block: the pairs of one fibre of p and one window of p's control intervals, the
-    fibres of one window merged in elevation-index order until a block holds at least min_rows pairs (a long
-    drive spreads the capped pairs thin over its windows: without merging, its blocks, each one Python
-    callback, would grow in number with the drive and shrink in rows; merging windows instead would tie every
-    control of a block to every other in its compressed factor, and the graph's elimination with them), in
-    chunks of at most max_rows."""
+def block_rows(fibre_p: np.ndarray, window: np.ndarray, window_m: np.ndarray | None = None,
+               min_rows: int = MIN_BLOCK_ROWS, max_rows: int = MAX_BLOCK_ROWS) -> list[np.ndarray]:
+    """Pair indices of each block: the pairs of one fibre of p and one window of p's control intervals (and, given
+    window_m, each pair's window of m's, of a few of them: m_buckets), the fibres of one window merged in
+    elevation-index order until a block holds at least min_rows pairs (a long drive spreads the capped pairs thin
+    over its windows: without merging, its blocks, each one Python callback, would grow in number with the drive
+    and shrink in rows; merging windows instead would tie every control of a block to every other in its compressed
+    factor, and the graph's elimination with them), in chunks of at most max_rows."""
     if not len(fibre_p):
         return []
+    if window_m is not None:
+        window = m_buckets(window, window_m, min_rows)
     group = window.astype(np.int64) * (int(fibre_p.max()) + 1) + fibre_p
     order = np.argsort(group, kind="stable")
     bounds = np.flatnonzero(np.r_[True, np.diff(group[order]) != 0, True])
@@ -108,6 +113,23 @@ def block_rows(fibre_p: np.ndarray, window: np.ndarray, min_rows: int = MIN_BLOC
     for start, stop in _merged(bounds, window[order[bounds[:-1]]], min_rows):
         blocks += np.array_split(order[start:stop], -(-(stop - start) // max_rows))
     return blocks
+
+
+def m_buckets(window_p: np.ndarray, window_m: np.ndarray, min_rows: int, most: int = M_WINDOWS) -> np.ndarray:
+    """Each pair's bucket, numbered in the order of p's windows: the pairs of one window of p, in the order of m's
+    windows, cut where a bucket reaches min_rows pairs or most windows of m. Revisits pair a window of p with
+    returns of every pass that saw its surfaces (on a city loop most pairs join passes seconds to minutes apart):
+    one block over all of them would tie the controls of every pass in one dense factor, whose width, and the
+    elimination's cost, grow with the drive."""
+    groups, group_of, counts = np.unique(np.c_[window_p, window_m], axis=0, return_inverse=True, return_counts=True)
+    bucket_of_group = np.zeros(len(groups), np.int64)
+    bucket, rows, windows = -1, 0, 0
+    for g, (p, count) in enumerate(zip(groups[:, 0].tolist(), counts.tolist())):
+        if g == 0 or p != groups[g - 1, 0] or rows >= min_rows or windows >= most:
+            bucket, rows, windows = bucket + 1, 0, 0
+        bucket_of_group[g] = bucket
+        rows, windows = rows + count, windows + 1
+    return bucket_of_group[group_of.ravel()]
 
 
 def _merged(bounds: np.ndarray, window_of: np.ndarray, min_rows: int) -> list[tuple[int, int]]:
