@@ -77,6 +77,8 @@ def _case(folder: str, max_points: int | None, queue) -> None:
     out = {"returns": len(recording.points), "mode": result.config.mode, "seconds": round(seconds, 1),
            "returns_per_s": round(len(recording.points) / seconds),
            "peak_gib": round(peak_gib(), 2), "outer_iterations": len(result.history),
+           "outer_iterations_per_phase": {phase: sum(row["phase"] == phase for row in result.history)
+                                          for phase in ("coarse", "fine")},
            "seconds_per_stage": {k: round(v, 1) for k, v in result.timings_s.items()},
            "energy_cm2": [round(float(e), 5) for e in result.energy_cm2]}
     evaluation = evaluate(result, recording)

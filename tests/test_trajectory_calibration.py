@@ -52,3 +52,35 @@ def test_an_ins_heading_error_needs_pose_corrections():
     assert after[False].cloud_before.mean > 0.05
     assert after[False].cloud_after_gauge_free.mean > 0.03, after[False].table()
     assert after[True].cloud_after_gauge_free.mean < 0.006, after[True].table()
+
+
+def test_the_controls_marginalised_out_as_a_dense_schur_complement(piecewise_error):
+    """Problem.information eliminates the trajectory corrections from the sparse graph (GTSAM's partial
+    elimination): it must equal the Schur complement of the dense information over every key."""
+    import gtsam
+
+    from graphcal.calibration.keys import X
+    from graphcal.calibration.problem import Problem, control_prior_sigma
+    from graphcal.calibration.returns import initial_estimate
+
+    problem = Problem.of(piecewise_error, graphcal.CalibrationConfig(mode="joint_trajectory"))
+    problem = problem.in_stage(problem.stages[-1])
+    estimate = initial_estimate(piecewise_error, problem.full)
+    pairs, keys = problem.associate(estimate), problem.calibration_keys()
+    got = problem.information(estimate, pairs, keys)
+    graph, values = problem._pairs_graph(estimate, pairs)  # the same factors, every key dense
+    problem._add_trajectory(graph, gtsam.Values(), estimate, False,
+                            control_prior_sigma(problem.config, float(pairs.weight.sum())))
+    present = set(graph.keys())
+    reached = [key for key in keys if key in present]  # a fibre no pair reaches has no column in either
+    controls = [X(c) for c in range(len(estimate.corrections))]
+    H, _ = graph.linearize(values).hessian(gtsam.Ordering(reached + controls))
+    zero = values.zeroVectors()
+    n = H.shape[0] - sum(zero.at(key).size for key in controls)
+    expected = H[:n, :n] - H[:n, n:] @ np.linalg.solve(H[n:, n:], H[n:, :n])
+    assert len(controls) > 3 and np.abs(H[:n, n:]).max() > 0  # the controls do couple to the keys
+    width = {key: zero.at(key).size for key in keys}
+    starts = dict(zip(keys, np.cumsum([0] + [width[key] for key in keys])))
+    columns = np.concatenate([starts[key] + np.arange(width[key]) for key in reached])
+    np.testing.assert_allclose(got[np.ix_(columns, columns)], expected, rtol=1e-6, atol=1e-6 * np.abs(expected).max())
+    assert np.count_nonzero(got) == np.count_nonzero(got[np.ix_(columns, columns)])

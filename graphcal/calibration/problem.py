@@ -417,26 +417,28 @@ class Problem:
     def information(self, estimate: Estimate, pairs: Correspondences, keys: list[int]) -> np.ndarray:
         """The Gauss-Newton information (in the keys' tangent coordinates) that the pairs alone carry on the
         given intrinsic and extrinsic keys, the trajectory corrections, when estimated, marginalised out with
-        their own priors (E_def, held components): no prior on the calibration's keys is in it."""
+        their own priors (E_def, held components): no prior on the calibration's keys is in it. The corrections
+        are eliminated from the sparse linearised graph (GTSAM's partial multifrontal elimination, the keys kept
+        last): the Schur complement without a dense matrix over every control."""
         graph, values = self._pairs_graph(estimate, pairs)
-        controls = []
         if self.estimated[2]:
-            controls = [X(c) for c in range(len(estimate.corrections))]
             self._add_trajectory(graph, gtsam.Values(), estimate, False,
                                  control_prior_sigma(self.config, float(pairs.weight.sum())))
-        ordering = list(keys) + controls
-        widths = {key: values.zeroVectors().at(key).size for key in ordering}
-        present = set(graph.keys())
-        reached = [key for key in ordering if key in present]
-        reached_information, _ = graph.linearize(values).hessian(gtsam.Ordering(reached))
-        starts = np.r_[0, np.cumsum([widths[key] for key in ordering])]
-        spans = {key: np.arange(a, b) for key, a, b in zip(ordering, starts[:-1], starts[1:])}
+        linear = graph.linearize(values)
+        present = set(linear.keyVector())
+        reached = [key for key in keys if key in present]
+        if len(present) > len(reached):
+            order = gtsam.Ordering.ColamdConstrainedLastGaussianFactorGraph(linear, reached)
+            _, linear = linear.eliminatePartialMultifrontal(
+                gtsam.Ordering([order.at(i) for i in range(order.size() - len(reached))]))
+        widths = {key: values.zeroVectors().at(key).size for key in keys}
+        starts = np.r_[0, np.cumsum([widths[key] for key in keys])]
+        spans = {key: np.arange(a, b) for key, a, b in zip(keys, starts[:-1], starts[1:])}
         columns = np.concatenate([spans[key] for key in reached]) if reached else np.zeros(0, int)
         information = np.zeros((starts[-1], starts[-1]))
-        information[np.ix_(columns, columns)] = reached_information
-        # a control no pair reaches keeps only its own prior: invertible for the Schur complement
-        information[starts[len(keys)]:, starts[len(keys)]:] += np.eye(starts[-1] - starts[len(keys)]) * 1e-12
-        return schur_complement(information, int(starts[len(keys)]))
+        if reached:
+            information[np.ix_(columns, columns)] = linear.hessian(gtsam.Ordering(reached))[0]
+        return information
 
     def control_information(self, estimate: Estimate, pairs: Correspondences) -> np.ndarray:
         """(C, d, d): the information the pairs alone carry on each control correction (d: 6, rotation then
@@ -500,8 +502,9 @@ class Problem:
             robust = problem.uncertainty(cluster_robust.cluster_robust_covariance(
                 linearised, time_s, cluster_robust.surface_classes(pairs.normal), problem.calibration_keys()),
                 estimate, control_sigma)
-        return FinalFit(pairs, residual, problem.uncertainty(Marginals(graph, values), estimate, control_sigma), shared,
-                        robust, expected)
+        # the sandwiches' bread is the dense inverse of this graph's information: the model's marginals too
+        model = Marginals(graph, values) if linearised is None else linearised.bread
+        return FinalFit(pairs, residual, problem.uncertainty(model, estimate, control_sigma), shared, robust, expected)
 
     def uncertainty(self, marginals, estimate: Estimate, control_sigma: float) -> Uncertainty:
         """Posterior and prior sigmas in file units (m, deg) for every estimated parameter."""
@@ -574,11 +577,3 @@ def levenberg_marquardt(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
     params.setDiagonalDamping(True)
     params.setlambdaUpperBound(LAMBDA_UPPER_BOUND)
     return gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-
-
-def schur_complement(information: np.ndarray, keep: int) -> np.ndarray:
-    """The information on the first `keep` coordinates once the others are marginalised out."""
-    if keep == len(information):
-        return information
-    a, b, c = information[:keep, :keep], information[:keep, keep:], information[keep:, keep:]
-    return a - b @ np.linalg.solve(c, b.T)
