@@ -120,23 +120,3 @@ def test_soft_parameters_keep_everything_well_determined_and_whiten_by_unit():
     information = np.diag([1 / 0.005 ** 2, 1 / np.radians(0.02) ** 2])  # 5 mm and 0.02 deg
     assert soft_parameters(information, np.array([0.01, np.radians(0.05)])) == []
     assert soft_parameters(information, np.array([0.001, np.radians(0.05)])) == [0]  # 5 mm is soft against 1 mm
-
-
-def test_the_information_matrix_from_the_sparse_jacobian_is_gtsams_hessian():
-    """information_matrix (GTSAM's sparse Jacobian, scipy's product) against GTSAM's dense Hessian: keys in any
-    order, a key no factor holds gets zero rows and columns, the noise models' whitening included."""
-    import gtsam
-
-    from graphcal.calibration.observability import information_matrix
-
-    rng = np.random.default_rng(5)
-    widths = {10: 2, 3: 3, 7: 6, 99: 4}  # 99: in the values, in no factor
-    graph = gtsam.GaussianFactorGraph()
-    for a, b in [(10, 3), (3, 7), (7, 10)]:
-        graph.add(a, rng.normal(size=(6, widths[a])), b, rng.normal(size=(6, widths[b])), rng.normal(size=6),
-                  gtsam.noiseModel.Diagonal.Sigmas(rng.uniform(0.1, 2.0, 6)))
-    graph.add(7, np.eye(6), np.zeros(6), gtsam.noiseModel.Isotropic.Sigma(6, 0.01))
-    expected, _ = graph.hessian(gtsam.Ordering([10, 3, 7]))
-    got = information_matrix(graph, widths)
-    np.testing.assert_allclose(got[:11, :11], expected, rtol=1e-12, atol=1e-9 * np.abs(expected).max())
-    assert not got[11:].any() and not got[:, 11:].any()

@@ -13,7 +13,6 @@ from dataclasses import dataclass, replace
 import gtsam
 import numpy as np
 import scipy.linalg
-import scipy.sparse as sparse
 
 from graphcal.recording.intrinsics import offsets_to_file_units
 
@@ -56,9 +55,10 @@ class DenseMarginals:
     that (docs/dev/open-questions.md)."""
 
     def __init__(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values):
-        zero = values.zeroVectors()
-        widths = {key: zero.at(key).size for key in values.keys()}
-        self._of(information_matrix(graph.linearize(values), widths), widths)
+        keys = list(values.keys())
+        dims = [len(v) for v in (values.zeroVectors().at(k) for k in keys)]
+        information, _ = graph.linearize(values).hessian(gtsam.Ordering(keys))
+        self._of(information, dict(zip(keys, dims)))
 
     @classmethod
     def of(cls, information: np.ndarray, widths: dict[int, int]) -> DenseMarginals:
@@ -121,23 +121,6 @@ class DenseMarginals:
         out = copy.copy(self)
         out._right = meat @ self._covariance
         return out
-
-
-def information_matrix(linear: gtsam.GaussianFactorGraph, widths: dict[int, int]) -> np.ndarray:
-    """A^T A of the linearised graph's whitened Jacobian A, dense, in the columns of the keys' tangent spaces in the
-    order of widths ({key: dimension}; keys no factor holds get zero rows and columns). A from GTSAM's sparse
-    Jacobian, the product by scipy: GTSAM's own dense Hessian adds every factor's blocks one key pair at a time, and
-    took 12.6 s where this takes a fraction of it (ten minutes of city_loop, 3 736 columns)."""
-    rows, columns, entries = linear.sparseJacobian_()
-    present = sorted(linear.keyVector())  # the sparse Jacobian's columns: the graph's keys in order, then b
-    first = np.r_[0, np.cumsum(list(widths.values()))]
-    start = dict(zip(widths, first[:-1]))
-    to_ours = np.concatenate([start[key] + np.arange(widths[key]) for key in present] + [[-1]]).astype(np.int64)
-    column = to_ours[columns.astype(np.int64) - 1]  # 1-indexed
-    keep = column >= 0
-    A = sparse.csr_matrix((entries[keep], (rows[keep].astype(np.int64) - 1, column[keep])),
-                          shape=(int(rows.max()) if len(rows) else 0, int(first[-1])))
-    return (A.T @ A).toarray()
 
 
 def dense_inverse(information: np.ndarray) -> np.ndarray:
