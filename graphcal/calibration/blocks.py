@@ -35,8 +35,8 @@ def make_blocks(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
     sigma = pair_sigma_m(data, estimate, pairs, config)
     intrinsic_key = np.array([NO_KEY if f == ref else I(f) for f in range(data.sensor.n_fibres)], np.int64)
     control_key = np.array([X(c) for c in range(len(data.control_times_s))], np.int64)
-    window_p, window_m = (cp // config.trajectory.block_controls, cm // config.trajectory.block_controls) if est_traj \
-        else (0 * cp, None)
+    window_p = cp // config.trajectory.block_controls if est_traj else 0 * cp
+    window_m = cm // config.trajectory.block_controls if est_traj else None
     for rows in block_rows(fi if est_int else np.zeros_like(fi), window_p, window_m):
         p, m = pairs.index_p[rows], pairs.index_m[rows]
         keys = BlockKeys.of(len(rows), extrinsic=E(0) if est_ext else None,

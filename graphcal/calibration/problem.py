@@ -431,8 +431,8 @@ class Problem:
             order = gtsam.Ordering.ColamdConstrainedLastGaussianFactorGraph(linear, reached)
             _, linear = linear.eliminatePartialMultifrontal(
                 gtsam.Ordering([order.at(i) for i in range(order.size() - len(reached))]))
-        widths = {key: values.zeroVectors().at(key).size for key in keys}
-        starts = np.r_[0, np.cumsum([widths[key] for key in keys])]
+        zero = values.zeroVectors()
+        starts = np.r_[0, np.cumsum([zero.at(key).size for key in keys])]
         spans = {key: np.arange(a, b) for key, a, b in zip(keys, starts[:-1], starts[1:])}
         columns = np.concatenate([spans[key] for key in reached]) if reached else np.zeros(0, int)
         information = np.zeros((starts[-1], starts[-1]))
