@@ -10,7 +10,6 @@ settings and run with GRAPHCAL_SLOW_TESTS=1 (1-2 min each).
 """
 
 import json
-import os
 from dataclasses import replace
 
 import numpy as np
@@ -75,6 +74,10 @@ def test_clean_recording_gets_no_discovery_with_the_generic_models_on(clean):
     assert {"range", "intensity", "azimuth", "time", "incidence", "fibre"} <= regressors
     assert not any(c["significant"] for c in tried)
     assert f"{len(tried)} generic discrepancies" in diagnosis.summary() and "~" not in diagnosis.summary()
+    # revolution stamps, applied at their known size and refitted, make the clean cloud worse
+    (stamps,) = diagnosis.at_known_size
+    assert stamps["effect"] == "intra_sweep_motion" and not stamps["accepted"]
+    assert stamps["cost_cm2"][1] > stamps["cost_cm2"][0] and stamps["pairs"][1] < stamps["pairs"][0]
 
 
 def test_streamed_linearisation_equals_the_whole_graphs_hessian(clean):
@@ -106,6 +109,7 @@ def test_streamed_linearisation_equals_the_whole_graphs_hessian(clean):
     assert len(names) > 40 and len(lin.names) == len(lin.vector)
 
 
+@pytest.mark.slow  # 20-30 s; the generic models' test above tests the named candidates too
 def test_clean_recording_gets_no_false_alarm_from_the_named_candidates(clean):
     diagnosis = graphcal.diagnose(clean, config(), max_effects=1, quiet=True, open_world=False)
     assert diagnosis.findings == []
@@ -198,6 +202,7 @@ def test_a_large_effect_against_a_simulation_is_sized_by_re_pairing():
     assert diagnosis.findings[0]["magnitude"] == pytest.approx(CONCEALED["intra_sweep_motion"].magnitude, rel=0.2)
 
 
+@pytest.mark.slow  # 45-65 s; the stamps are refitted at their known size in the clean recording's test
 def test_revolution_stamps_named_alone_once_a_linear_stand_in_is_re_solved(tmp_path_factory):
     """Returns stamped with their revolution's start (bench_diagnose's settings): intra_sweep_motion is
     named at its size; time_offset, significant by its linear step once it is modelled (chi2 21 for
@@ -218,7 +223,7 @@ def test_bad_mode_is_a_clear_error(clean, tmp_path):
     assert result.exit_code == 2 and "mode" in result.output
 
 
-@pytest.mark.skipif(not os.environ.get("GRAPHCAL_SLOW_TESTS"), reason="2-5 min per effect: GRAPHCAL_SLOW_TESTS=1")
+@pytest.mark.slow  # 2-5 min per effect
 @pytest.mark.parametrize("effect", sorted(set(CONCEALED) - {"heading_bias"}))
 def test_each_concealed_effect_is_named_first_and_sized(effect, tmp_path_factory):
     """Named first on every seed; the size within 20 % (on the mean over the seeds where one run's sigma
@@ -235,7 +240,7 @@ def test_each_concealed_effect_is_named_first_and_sized(effect, tmp_path_factory
     assert np.mean(magnitudes) == pytest.approx(CONCEALED[effect].magnitude, rel=0.2)
 
 
-@pytest.mark.skipif(not os.environ.get("GRAPHCAL_SLOW_TESTS"), reason="about 5 min: GRAPHCAL_SLOW_TESTS=1")
+@pytest.mark.slow  # about 5 min
 def test_heading_bias_is_reported_concealed_by_the_boresight_yaw(tmp_path_factory):
     rec = graphcal.simulate(CONCEALED_SCENARIO(size=0.04, seed=1, effect="heading_bias"), quiet=True)
     diagnosis = graphcal.diagnose(rec, config(max_points=80_000, iterations=3), max_effects=1, quiet=True)

@@ -55,6 +55,7 @@ def test_a_level_head_in_a_box_street_converges_without_collapse(calibrated):
     assert evaluation.cloud_after_gauge_free.mean < 0.8 * evaluation.cloud_before.mean, evaluation.table()
 
 
+@pytest.mark.slow  # 90-130 s; resuming once: tests/test_runs.py
 def test_a_calibration_interrupted_twice_resumes_to_the_uninterrupted_result(calibrated, tmp_path, monkeypatch):
     """Stopped in the coarse phase, then again in the fine one (as a SIGKILL would: the checkpoint as last
     saved), each time resumed from the checkpoint: the same outer iterations, the same estimate."""

@@ -27,6 +27,7 @@ def clean():
     return graphcal.simulate(CONCEALED_SCENARIO(size=0.03, seed=1, effect=None), quiet=True)
 
 
+@pytest.mark.slow  # 35-50 s; clean recordings with fewer iterations: test_diagnose.py, test_diagnose_foreign.py
 def test_a_clean_recording_with_the_default_stopping_gets_no_finding(clean):
     diagnosis = graphcal.diagnose(clean, CalibrationConfig(mode="joint", max_points=60_000), max_effects=1,
                                   quiet=True)

@@ -90,6 +90,7 @@ def test_the_report_shows_the_discovered_curve(wobble, tmp_path):
     assert page.count("<tr>") == (len(wobble.candidates) + 1) + (4 + 1)  # the candidates and the header, with heads
 
 
+@pytest.mark.slow  # 75-110 s
 def test_a_named_and_an_unlisted_effect_together_are_both_found():
     """The nodding head beside a 5 ms lidar-INS latency (a named candidate): the latency is named and sized, the
     nod discovered on its channel and regressor, in either order."""
@@ -123,6 +124,7 @@ def _shape_error(y: np.ndarray, truth: np.ndarray, weight: np.ndarray) -> float:
     return float(np.sqrt(np.sum(weight * error ** 2) / np.sum(weight * truth ** 2)))
 
 
+@pytest.mark.slow  # 145-210 s
 def test_a_per_laser_firing_delay_is_discovered_and_the_points_the_data_barely_see_are_marked():
     """A delay of 60 us per laser (time against fibre): the fibres that see only the road barely see a time shift
     (it slides their returns along it). The curve marks them (seen false: their band over 5 times the median) and

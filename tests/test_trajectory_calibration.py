@@ -38,6 +38,7 @@ def test_translation_corrections_remove_the_piecewise_error(piecewise_error):
     np.testing.assert_allclose(error - error.mean(axis=0), 0.0, atol=0.01)
 
 
+@pytest.mark.slow  # 40-55 s
 def test_an_ins_heading_error_needs_pose_corrections():
     """A 0.5 deg INS heading error turns every scan about the vehicle: translation corrections can
     only make the cloud consistent by turning it as a whole (it stays centimetres off), pose
