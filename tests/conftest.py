@@ -73,5 +73,5 @@ def level_box_street(folder: Path, duration_s: float, **errors) -> Path:
 
 @pytest.fixture(scope="module")
 def foreign_box_street(tmp_path_factory) -> Path:
-    """level_box_street, 15 s."""
-    return level_box_street(tmp_path_factory.mktemp("foreign") / "box", 15.0)
+    """level_box_street, 10 s."""
+    return level_box_street(tmp_path_factory.mktemp("foreign") / "box", 10.0)
