@@ -72,8 +72,8 @@ class History:
 @dataclass(frozen=True)
 class FinalFit:
     """The strict pairs at the final estimate, their residuals [m], the sigmas of the model's marginals
-    (uncertainty: gtsam.Marginals, or the sandwiches' dense bread when those are made) and, for pairs whitened by the range noise, those counting each return's noise once
-    over the pairs that share it (shared_returns; None otherwise), those of the pairs' own residuals clustered
+    (uncertainty: gtsam.Marginals, or the sandwiches' dense bread when those are made) and, for pairs whitened
+    by the range noise, those counting each return's noise once over the pairs that share it (shared_returns; None otherwise), those of the pairs' own residuals clustered
     by time (cluster_robust, cluster_robust.py; None when the drive is too short), and the J [cm^2] the pairs'
     noise model predicts when they are whitened by the measured noise (None otherwise)."""
 
@@ -476,8 +476,9 @@ class Problem:
     def final(self, estimate: Estimate, pairs: Correspondences | None = None, shared_returns: bool = False) -> FinalFit:
         """The fit at the estimate on the given pairs (None: the strict association at the estimate): residuals,
         the marginals of the undamped graph without the lock (the weak directions' uncertainty is their
-        priors'; the sandwiches' dense inverse when shared_returns or the clustered sigmas make one), and with shared_returns the sigmas of shared_returns.py when the pairs are whitened by the
-        range noise and no robust loss reweights them."""
+        priors'; the sandwiches' dense inverse when shared_returns or the clustered sigmas make one), and with
+        shared_returns the sigmas of shared_returns.py when the pairs are whitened by the range noise and no
+        robust loss reweights them."""
         problem = replace(self.in_phase("fine"), lock=None)
         pairs = problem.associate(estimate) if pairs is None else pairs
         points = problem.points(estimate)
