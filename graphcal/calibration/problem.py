@@ -75,7 +75,8 @@ class FinalFit:
     (uncertainty: gtsam.Marginals, or the sandwiches' dense bread when those are made) and, for pairs whitened
     by the range noise, those counting each return's noise once over the pairs that share it (shared_returns;
     None otherwise), those of the pairs' own residuals clustered by time (cluster_robust, cluster_robust.py; None
-    when the drive is too short), and the J [cm^2] the pairs' noise model predicts when they are whitened by the measured noise (None otherwise)."""
+    when the drive is too short), and the J [cm^2] the pairs' noise model predicts when they are whitened by the
+    measured noise (None otherwise)."""
 
     pairs: Correspondences
     residual_m: np.ndarray
