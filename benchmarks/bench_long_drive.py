@@ -16,14 +16,13 @@ result). Prints them and writes benchmarks/results/long_drive.json (--result).
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import os
 import tempfile
 import time
 from pathlib import Path
 
-from common import machine, peak_gib, report, run_in_process
+from common import city_loop_arguments, city_loop_drive, machine, peak_gib, report, run_in_process
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -99,31 +98,15 @@ def _case(folder: str, max_points: int | None, queue) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--minutes", type=float, nargs="+", default=[1, 2, 5, 10])
-    parser.add_argument("--size", type=float, default=0.1, help="fraction of firings simulated")
-    parser.add_argument("--max-points", type=int, default=1_000_000, help="returns calibrate uses (its default)")
-    parser.add_argument("--result", default="long_drive.json", help="file name in benchmarks/results/")
-    parser.add_argument("--keep", help="folder where the simulated drives are kept and found again (default: a "
-                                       "temporary folder, simulated each run; simulated_s null when found)")
-    args = parser.parse_args()
-    from graphcal.simulation.script import load_scenario_builder
-    from graphcal.simulation.simulator import simulate_to
+    args = city_loop_arguments(__doc__, [1, 2, 5, 10], 0.1, "long_drive.json")
     from graphcal.simulation.starts import FAR_START_PRIORS
 
-    city_loop = load_scenario_builder("city_loop")
     figures = {"machine": machine(),
                "date": datetime.date.today().isoformat(), "size": args.size, "max_points": args.max_points,
                "priors": FAR_START_PRIORS, "drives": {}}
     for minutes in args.minutes:
         with tempfile.TemporaryDirectory() as folder:
-            drive = Path(args.keep or folder) / f"city_{minutes:g}min_size{args.size:g}"
-            simulated_s = None
-            if not (drive / "recording.yaml").exists():
-                started = time.perf_counter()
-                simulate_to(city_loop(duration_s=60.0 * minutes, size=args.size, seed=0, range_noise_m=0.005),
-                            drive, quiet=True)
-                simulated_s = round(time.perf_counter() - started, 1)
+            drive, simulated_s = city_loop_drive(args.keep or folder, minutes, args.size)
             figures["drives"][f"{minutes:g} min"] = {"simulated_s": simulated_s,
                                                      "load_average_1min": round(os.getloadavg()[0], 2),
                                                      **run_in_process(_case, str(drive), args.max_points)}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import multiprocessing as mp
 import os
@@ -38,6 +39,36 @@ def run_in_process(target, *args) -> dict:
                 raise SystemExit(f"{target.__name__}{args} failed (exit code {process.exitcode})") from None
     process.join()
     return result
+
+
+def city_loop_arguments(description: str, minutes: list[float], size: float, result: str) -> argparse.Namespace:
+    """The options of a benchmark on city_loop drives (city_loop_drive), with their defaults."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--minutes", type=float, nargs="+", default=minutes)
+    parser.add_argument("--size", type=float, default=size, help="fraction of firings simulated")
+    parser.add_argument("--max-points", type=int, default=1_000_000, help="returns calibrate uses (its default)")
+    parser.add_argument("--result", default=result, help="file name in benchmarks/results/")
+    parser.add_argument("--keep", help="folder where the simulated drives are kept and found again (default: a "
+                                       "temporary folder, simulated each run)")
+    return parser.parse_args()
+
+
+def city_loop_drive(folder: str | Path, minutes: float, size: float) -> tuple[Path, float | None]:
+    """city_loop driven for `minutes` at `size` (seed 0, 5 mm range noise), simulated straight to disk in
+    folder/city_<minutes>min_size<size> unless it is there already: (its folder, the seconds simulating took, None
+    when found)."""
+    import time
+
+    from graphcal.simulation.script import load_scenario_builder
+    from graphcal.simulation.simulator import simulate_to
+
+    drive = Path(folder) / f"city_{minutes:g}min_size{size:g}"
+    if (drive / "recording.yaml").exists():
+        return drive, None
+    started = time.perf_counter()
+    simulate_to(load_scenario_builder("city_loop")(duration_s=60.0 * minutes, size=size, seed=0, range_noise_m=0.005),
+                drive, quiet=True)
+    return drive, round(time.perf_counter() - started, 1)
 
 
 def report(figures: dict, path: Path) -> None:

@@ -6,7 +6,7 @@ import numpy as np
 import scipy.sparse as sparse
 
 from graphcal.calibration.cluster_robust import cluster_robust_covariance, surface_classes
-from graphcal.calibration.observability import DenseMarginals
+from graphcal.calibration.observability import FactorisedMarginals
 from graphcal.calibration.shared_returns import Linearised
 
 KEY, PRIOR_SIGMA = 7, 10.0
@@ -26,7 +26,7 @@ def _fit(seed: int, class_shift: np.ndarray, class_0_weight: float = 1.2) -> tup
     H = A.T @ A + prior
     estimate = np.linalg.solve(H, A.T @ y)
     r = A @ estimate - y
-    linearised = Linearised(DenseMarginals.of(H, {KEY: 3}), sparse.csr_matrix(A), r, np.ones(n), prior)
+    linearised = Linearised(FactorisedMarginals.of(H, {KEY: 3}), sparse.csr_matrix(A), r, np.ones(n), prior)
     time_s = np.repeat(np.arange(60) * 0.5, n // 60)
     plain = cluster_robust_covariance(linearised, time_s).marginalCovariance(KEY)
     widened = cluster_robust_covariance(linearised, time_s, surface, [KEY]).marginalCovariance(KEY)
@@ -70,7 +70,7 @@ def test_surface_classes_from_world_normals():
 
 def test_widened_marginals_add_to_the_diagonal_of_the_keys_given():
     information = np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 0.0], [0.0, 0.0, 2.0]])
-    marginals = DenseMarginals.of(information, {KEY: 2, 8: 1})
+    marginals = FactorisedMarginals.of(information, {KEY: 2, 8: 1})
     twice = marginals.widened({KEY: np.array([0.1, 0.2])}).widened({KEY: np.array([0.1, 0.2])})
     np.testing.assert_allclose(twice.marginalCovariance(KEY), np.linalg.inv(information)[:2, :2] + np.diag([0.2, 0.4]))
     np.testing.assert_allclose(twice.marginalCovariance(8), [[0.5]])

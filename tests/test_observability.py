@@ -1,12 +1,17 @@
-"""The dense marginals fallback agrees with gtsam.Marginals where both work."""
+"""The sparse marginals (the fallback of gtsam.Marginals and the sandwiches' bread) agree with gtsam.Marginals where
+both work, and with dense inverses."""
 
 import gtsam
 import numpy as np
+import pytest
 
-from graphcal.calibration.observability import DenseMarginals, dense_inverse, soft_parameters
+import scipy.sparse as sparse
+
+from graphcal.calibration import observability
+from graphcal.calibration.observability import Meat, ScaledSolver, FactorisedMarginals, soft_parameters
 
 
-def test_dense_marginals_match_gtsam():
+def test_sparse_marginals_match_gtsam():
     rng = np.random.default_rng(0)
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     values.insert(1, gtsam.Pose3(gtsam.Rot3.Rodrigues(rng.normal(0, 0.3, 3)), rng.normal(0, 1, 3)))
@@ -17,7 +22,7 @@ def test_dense_marginals_match_gtsam():
     values.insert(4, rng.normal(0, 1, 3))
     graph.add(gtsam.BetweenFactorPoint3(2, 4, np.ones(3), gtsam.noiseModel.Isotropic.Sigma(3, 1.0)))
     graph.add(gtsam.PriorFactorVector(3, np.zeros(4), gtsam.noiseModel.Gaussian.Covariance(np.diag([1, 2, 3, 4.0]) + 0.5)))
-    reference, dense = gtsam.Marginals(graph, values), DenseMarginals(graph, values)
+    reference, dense = gtsam.Marginals(graph, values), FactorisedMarginals(graph, values)
     for key in (1, 2, 3, 4):
         np.testing.assert_allclose(dense.marginalCovariance(key), reference.marginalCovariance(key), rtol=1e-9, atol=1e-12)
 
@@ -29,12 +34,13 @@ def test_a_sandwich_s_blocks_are_those_of_the_whole_product():
         values.insert(key, rng.normal(0, 1, 3))
         graph.add(gtsam.PriorFactorPoint3(key, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, rng.uniform(0.1, 2))))
     graph.add(gtsam.BetweenFactorPoint3(1, 3, np.ones(3), gtsam.noiseModel.Isotropic.Sigma(3, 0.5)))
-    bread = DenseMarginals(graph, values)
+    bread = FactorisedMarginals(graph, values)
     root = rng.normal(size=(9, 9))
-    meat = root @ root.T
-    H_inv = np.linalg.inv(bread.information)
+    sparse_part, low_rank = root @ root.T, rng.normal(size=(2, 9))
+    meat = sparse_part + low_rank.T @ np.diag([0.5, -0.2]) @ low_rank
+    H_inv = np.linalg.inv(bread.information.toarray())
     whole = H_inv @ meat @ H_inv
-    sandwich = bread.sandwich(meat)
+    sandwich = bread.sandwich(Meat(sparse.csr_matrix(sparse_part), ((low_rank[:1], 0.5), (low_rank[1:], -0.2))))
     for a in (1, 2, 3):
         for b in (1, 2, 3):
             np.testing.assert_allclose(sandwich.jointCovariance(a, b), whole[3 * (a - 1):3 * a, 3 * (b - 1):3 * b],
@@ -42,7 +48,7 @@ def test_a_sandwich_s_blocks_are_those_of_the_whole_product():
     np.testing.assert_allclose(bread.marginalCovariance(2), H_inv[3:6, 3:6], rtol=1e-10)  # the bread unchanged
 
 
-def test_dense_marginals_keep_an_ill_scaled_direction():
+def test_sparse_marginals_keep_an_ill_scaled_direction():
     """Information from 1e14 (a 0.1 um constraint) down to 1e-6 (a 1 km prior), as a sharp
     intrinsic next to a lever arm held by its prior: the weak variance must survive."""
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
@@ -51,27 +57,35 @@ def test_dense_marginals_keep_an_ill_scaled_direction():
     graph.add(gtsam.PriorFactorPoint3(1, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1e-7)))
     graph.add(gtsam.PriorFactorPoint3(2, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1e3)))
     graph.add(gtsam.BetweenFactorPoint3(1, 2, np.zeros(3), gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-7, 1e-7, 1e9]))))
-    reference, dense = gtsam.Marginals(graph, values), DenseMarginals(graph, values)
+    reference, dense = gtsam.Marginals(graph, values), FactorisedMarginals(graph, values)
     for key in (1, 2):
         np.testing.assert_allclose(dense.marginalCovariance(key), reference.marginalCovariance(key), rtol=1e-6, atol=1e-20)
 
 
-def test_dense_inverse_by_cholesky_or_by_eigenvalues_where_the_pivots_vanish():
-    """A well-conditioned information with scales over 8 decades is inverted exactly (its Cholesky path); one
+@pytest.mark.parametrize("dense_from", [0.0, 1.1])  # factorised dense, sparse
+def test_the_scaled_solver_by_its_factor_or_by_eigenvalues_where_the_pivots_vanish(monkeypatch, dense_from):
+    """A well-conditioned information with scales over 8 decades is solved exactly (its sparse factor); one
     where two parameters are seen only together (their columns alike: no pivot left for the second) is inverted
     along its eigen-directions with the unseen one's eigenvalue floored: a variance there beyond any other."""
+    monkeypatch.setattr(observability, "DENSE_FROM", dense_from)
     rng = np.random.default_rng(1)
     X = rng.normal(size=(60, 40)) * np.logspace(-4, 4, 40)
     information = X.T @ X
     scale = np.outer(*(1 / np.sqrt(np.diag(information)),) * 2)  # compared on a unit diagonal, entry by entry
-    np.testing.assert_allclose(dense_inverse(information) / scale, np.linalg.inv(information * scale), atol=1e-9)
+    solver = ScaledSolver(information)
+    assert solver.factorised
+    np.testing.assert_allclose(solver(np.eye(40)) / scale, np.linalg.inv(information * scale), atol=1e-9)
     X[:, 8] = 3.0 * X[:, 7]
     together = X.T @ X
     scale = np.outer(*(1 / np.sqrt(np.diag(together)),) * 2)
     eigenvalues, vectors = np.linalg.eigh(together * scale)
     floored = (vectors / np.maximum(eigenvalues, eigenvalues.max() * np.finfo(float).eps)) @ vectors.T
-    inverse = dense_inverse(together) / scale
-    np.testing.assert_allclose(inverse, floored, rtol=1e-9, atol=1e-9)
+    solver = ScaledSolver(sparse.csc_matrix(together))
+    assert not solver.factorised
+    inverse = solver(np.eye(40)) / scale
+    seen = np.r_[0:7, 9:40]  # entries with 7 or 8 carry rounding times the floored eigenvalue's inverse: O(1)
+    np.testing.assert_allclose(inverse[np.ix_(seen, seen)], floored[np.ix_(seen, seen)], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(np.diag(inverse)[7:9], np.diag(floored)[7:9], rtol=1e-6)
     assert inverse[7, 7] > 1e10 * np.median(np.diag(inverse))
 
 
@@ -120,3 +134,38 @@ def test_soft_parameters_keep_everything_well_determined_and_whiten_by_unit():
     information = np.diag([1 / 0.005 ** 2, 1 / np.radians(0.02) ** 2])  # 5 mm and 0.02 deg
     assert soft_parameters(information, np.array([0.01, np.radians(0.05)])) == []
     assert soft_parameters(information, np.array([0.001, np.radians(0.05)])) == [0]  # 5 mm is soft against 1 mm
+
+
+@pytest.mark.parametrize("dense_from", [0.0, 1.1])  # factorised dense, sparse
+def test_marginals_of_many_keys_made_a_chunk_at_a_time_match_the_dense_inverse(monkeypatch, dense_from):
+    """A chain of 40 keys (controls tied to their neighbours) all seen with a calibration key, marginal blocks asked
+    key after key in chunks of 7 columns: the bread's and a sandwich's equal the dense H^-1 and H^-1 M H^-1."""
+    monkeypatch.setattr(observability, "CHUNK_COLUMNS", 7)
+    monkeypatch.setattr(observability, "DENSE_FROM", dense_from)
+    rng = np.random.default_rng(4)
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    values.insert(0, rng.normal(0, 1, 4))
+    graph.add(gtsam.PriorFactorVector(0, np.zeros(4), gtsam.noiseModel.Isotropic.Sigma(4, 1.0)))
+    for key in range(1, 41):
+        values.insert(key, rng.normal(0, 1, 3))
+        graph.add(gtsam.PriorFactorPoint3(key, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 3.0)))
+        if key > 1:
+            graph.add(gtsam.BetweenFactorPoint3(key - 1, key, np.ones(3), gtsam.noiseModel.Isotropic.Sigma(3, 0.1)))
+    bread = FactorisedMarginals(graph, values)
+    H = bread.information.toarray()
+    H[:4, 4:] = rng.normal(0, 0.1, (4, 120))  # the calibration key seen with every control
+    H[4:, :4] = H[:4, 4:].T
+    H[:4, :4] += 20 * np.eye(4)
+    bread = FactorisedMarginals.of(sparse.csc_matrix(H), {0: 4, **{key: 3 for key in range(1, 41)}})
+    root = sparse.random(124, 124, density=0.05, random_state=5)
+    meat = (root @ root.T).toarray()
+    H_inv = np.linalg.inv(H)
+    whole = H_inv @ meat @ H_inv
+    sandwich = bread.sandwich(Meat(sparse.csr_matrix(meat)))
+    spans = {0: slice(0, 4), **{key: slice(3 * key + 1, 3 * key + 4) for key in range(1, 41)}}
+    for key, span in spans.items():
+        np.testing.assert_allclose(bread.marginalCovariance(key), H_inv[span, span], rtol=1e-9, atol=1e-14)
+        np.testing.assert_allclose(sandwich.marginalCovariance(key), whole[span, span], rtol=1e-9, atol=1e-14)
+    np.testing.assert_allclose(sandwich.jointCovariance(0, 17), whole[spans[0], spans[17]], rtol=1e-9, atol=1e-14)
+    np.testing.assert_allclose(bread.jointCovariance(0, 17), H_inv[spans[0], spans[17]], rtol=1e-9, atol=1e-14)
+    np.testing.assert_allclose(bread.rows(np.arange(4)), H_inv[:4], rtol=1e-9, atol=1e-14)

@@ -30,10 +30,12 @@ coordinate's information takes the estimate with it: the others then disagree li
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import scipy.sparse as sparse
 
-from graphcal.calibration.observability import DenseMarginals
+from graphcal.calibration.observability import Meat, FactorisedMarginals
 from graphcal.calibration.shared_returns import Linearised
 
 BLOCK_S = 0.5
@@ -42,15 +44,14 @@ CLASS_WITHIN_DEG = 25.0  # a pair's world normal this close to the vertical: gro
 
 
 def cluster_robust_covariance(linearised: Linearised, time_s: np.ndarray, surface: np.ndarray | None = None,
-                              keys: list[int] = ()) -> DenseMarginals:
+                              keys: list[int] = ()) -> FactorisedMarginals:
     """The sandwich above for every key of the graph, with gtsam.Marginals' interface (marginalCovariance(key), in
     each key's tangent space). linearised: the undamped graph at the estimate (shared_returns.Linearised); time_s:
     each pair's time [s] (of p); surface: each pair's surface class (surface_classes), with keys the calibration's
     keys whose variances the classes' disagreement widens (none without)."""
     A, r = linearised.A, linearised.r
     block_of = _time_blocks(time_s)
-    scores = _clustered_scores(A, r, block_of)
-    covariance = linearised.sandwich(scores.T @ scores)
+    covariance = linearised.sandwich(ClusteredScores.of(A, r, block_of).meat())
     if surface is None or not keys:
         return covariance
     return covariance.widened(between_classes_variance(linearised, block_of, surface, keys))
@@ -77,19 +78,19 @@ def between_classes_variance(linearised: Linearised, block_of: np.ndarray, surfa
     if len(classes) < 2:
         return {key: np.zeros(len(c)) for key, c in zip(keys, columns)}
     rows = np.concatenate(columns)
-    C = linearised.bread.covariance
-    C_R = C[rows]
+    bread = linearised.bread
+    C_R = bread.rows(rows)  # rows R of C = H^-1
     jacobians = [A[c] for c in classes]
     # each class's clustered meat V_k = Z_k^T Z_k kept as its scores Z_k (time blocks x columns): no n x n per class
-    scores = [_clustered_scores(A_k, r[c], block_of[c]) for c, A_k in zip(classes, jacobians)]
+    scores = [ClusteredScores.of(A_k, r[c], block_of[c]) for c, A_k in zip(classes, jacobians)]
     pushed, noise = np.zeros(len(rows)), np.zeros(len(rows))
     for c, A_k, Z_k in zip(classes, jacobians, scores):
-        D_R = ((A_k.T @ A_k) @ C_R.T).T @ C  # rows R of C H_k C
+        D_R = bread.solve((A_k.T @ A_k) @ C_R.T).T  # rows R of C H_k C
         pushed += (C_R @ (A_k.T @ r[c])) ** 2
         # diag of C V_k C - 2 (C H_k C) V_k C + (C H_k C) V (C H_k C), V = sum_j V_j + the priors' information
-        noise += np.sum((Z_k @ (C_R - 2 * D_R).T) * (Z_k @ C_R.T), axis=0)
-        noise += sum(np.sum((Z_j @ D_R.T) ** 2, axis=0) for Z_j in scores)
-        noise += np.sum((D_R @ linearised.priors_information) * D_R, axis=1)
+        noise += np.sum(Z_k.times((C_R - 2 * D_R).T) * Z_k.times(C_R.T), axis=0)
+        noise += sum(np.sum(Z_j.times(D_R.T) ** 2, axis=0) for Z_j in scores)
+        noise += np.sum((linearised.priors_information @ D_R.T).T * D_R, axis=1)
     excess = np.split(np.maximum(pushed - noise, 0.0), np.cumsum([len(c) for c in columns])[:-1])
     return dict(zip(keys, excess))
 
@@ -99,14 +100,32 @@ def _time_blocks(time_s: np.ndarray) -> np.ndarray:
     return np.unique(np.floor(np.asarray(time_s) / BLOCK_S), return_inverse=True)[1].ravel()
 
 
-def _clustered_scores(A, r: np.ndarray, block_of: np.ndarray) -> np.ndarray:
-    """(G, columns) Z with Z^T Z = G/(G-1) sum_c (g_c - g)(g_c - g)^T over the G time blocks the pairs span (module
-    docstring): the clustered meat, kept as its factor."""
-    _, block_of = np.unique(block_of, return_inverse=True)
-    n_blocks = int(block_of.max()) + 1 if len(r) else 0
-    scores = (sparse.csr_matrix((r, (block_of.ravel(), np.arange(len(r)))), shape=(n_blocks, len(r))) @ A).toarray()
-    scores -= scores.mean(axis=0)
-    return np.sqrt(n_blocks / max(n_blocks - 1, 1)) * scores
+@dataclass(frozen=True)
+class ClusteredScores:
+    """Z (G, columns) with Z^T Z = G/(G-1) sum_c (g_c - g)(g_c - g)^T over the G time blocks the pairs span (module
+    docstring), the clustered meat's factor, kept as the blocks' sparse scores g_c (each touches the calibration and
+    the controls near its time): Z = f (Z0 - 1 g^T), f = sqrt(G/(G-1)); centred, it would be dense."""
+
+    blocks: sparse.csr_matrix
+    factor: float
+
+    @classmethod
+    def of(cls, A, r: np.ndarray, block_of: np.ndarray) -> ClusteredScores:
+        """A: the pairs' whitened Jacobian, r their whitened residuals, block_of their time blocks."""
+        _, block_of = np.unique(block_of, return_inverse=True)
+        n_blocks = int(block_of.max()) + 1 if len(r) else 0
+        blocks = sparse.csr_matrix((r, (block_of.ravel(), np.arange(len(r)))), shape=(n_blocks, len(r))) @ A
+        return cls(sparse.csr_matrix(blocks), float(np.sqrt(n_blocks / max(n_blocks - 1, 1))))
+
+    def times(self, X: np.ndarray) -> np.ndarray:
+        """Z @ X for X (columns, k) dense."""
+        product = self.blocks @ X
+        return self.factor * (product - product.mean(axis=0))
+
+    def meat(self) -> Meat:
+        """Z^T Z = f^2 (Z0^T Z0 - G g g^T), kept as its factors."""
+        mean = np.asarray(self.blocks.mean(axis=0))
+        return Meat(factors=((self.blocks, self.factor ** 2), (mean, -self.factor ** 2 * self.blocks.shape[0])))
 
 
 def determined(time_s: np.ndarray) -> bool:

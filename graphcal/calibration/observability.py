@@ -13,6 +13,8 @@ from dataclasses import dataclass, replace
 import gtsam
 import numpy as np
 import scipy.linalg
+import scipy.sparse as sparse
+import scipy.sparse.linalg
 
 from graphcal.recording.intrinsics import offsets_to_file_units
 
@@ -46,42 +48,76 @@ class Uncertainty:
                        extrinsic=wider(self.extrinsic, other.extrinsic), controls=wider(self.controls, other.controls))
 
 
-class DenseMarginals:
-    """Marginal covariances from the dense information matrix of the graph linearised at values,
-    inverted scaled (dense_inverse): the fallback when gtsam.Marginals' Cholesky calls a graph
-    "indeterminate" because its information spans many orders of magnitude (millimetre-sharp
-    intrinsics next to a lever arm held only by its 1 m prior). Same interface as gtsam.Marginals
-    (marginalCovariance(key)). Dense over every key: 130 + 6 per trajectory control, its cost the cube of
-    that (docs/dev/open-questions.md)."""
+class Meat:
+    """A sandwich's meat over the information matrix's columns, never a dense n x n but where it is as dense as
+    DENSE_FROM (a drive that comes back often ties most controls together): a sparse symmetric matrix plus factors,
+    matrix + sum_i weight_i Z_i^T Z_i (Z_i: rows x columns, sparse or dense), each kept as it is given (a factor
+    of few rows, as time blocks' scores, costs less than its product). Summed first, then multiplied."""
 
-    def __init__(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values):
-        keys = list(values.keys())
-        dims = [len(v) for v in (values.zeroVectors().at(k) for k in keys)]
-        information, _ = graph.linearize(values).hessian(gtsam.Ordering(keys))
-        self._of(information, dict(zip(keys, dims)))
+    def __init__(self, matrix=None, factors: tuple = ()):
+        self.matrix = None if matrix is None else sparse.csr_matrix(matrix)
+        self.factors = tuple(factors)  # (Z, weight)
 
-    @classmethod
-    def of(cls, information: np.ndarray, widths: dict[int, int]) -> DenseMarginals:
-        """The marginals of a dense information matrix whose columns are the keys' tangent spaces, in order."""
-        out = cls.__new__(cls)
-        out._of(information, widths)
+    def __add__(self, other: Meat) -> Meat:
+        matrices = [m for m in (self.matrix, other.matrix) if m is not None]
+        return Meat(sum(matrices[1:], matrices[0]) if matrices else None, self.factors + other.factors)
+
+    def times(self, X: np.ndarray) -> np.ndarray:
+        """meat @ X for X (columns, k) dense."""
+        if sparse.issparse(self.matrix) and self.matrix.nnz >= DENSE_FROM * np.prod(self.matrix.shape):
+            self.matrix = self.matrix.toarray()  # a dense product is several times faster than a sparse one there
+        out = np.zeros_like(X) if self.matrix is None else self.matrix @ X
+        for Z, weight in self.factors:
+            out += weight * (Z.T @ (Z @ X))
         return out
 
-    def _of(self, information: np.ndarray, widths: dict[int, int]) -> None:
+
+class FactorisedMarginals:
+    """Marginal covariances of the graph linearised at values, from its information matrix H (the priors'
+    included, assembled sparse) factorised once (ScaledSolver): each block asked for is solved for and H^-1 is never
+    made whole, nor the sandwiches' products (Meat), so that the memory holds one factor of H (sparse where H is
+    sparse) beside a few chunks of columns, where the whole inverses would hold several n x n (130 + 6 per
+    trajectory control: an hour's drive, 3 601 controls, 1 GB per dense copy). Same interface as gtsam.Marginals
+    (marginalCovariance(key)); the fallback when gtsam.Marginals' Cholesky calls a graph "indeterminate" because
+    its information spans many orders of magnitude (millimetre-sharp intrinsics next to a lever arm held only by
+    its 1 m prior), and the bread of the sandwich covariances (sandwich)."""
+
+    def __init__(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values):
+        widths = tangent_widths(values)
+        self._of(information_of(graph, values, widths), widths)
+
+    @classmethod
+    def of(cls, information, widths: dict[int, int]) -> FactorisedMarginals:
+        """The marginals of an information matrix (dense or sparse) whose columns are the keys' tangent spaces, in
+        order."""
+        out = cls.__new__(cls)
+        out._of(sparse.csc_matrix(information), widths)
+        return out
+
+    def _of(self, information: sparse.csc_matrix, widths: dict[int, int]) -> None:
         self._information = information
-        self._covariance = dense_inverse(information)
-        self._right = None  # a sandwich's meat x covariance: its covariance is _covariance @ _right
+        self.solve = ScaledSolver(information)
+        self._meat = None  # a sandwich's Meat: its covariance is H^-1 meat H^-1
         self._added = {}  # {key: variance added to its tangent coordinates' diagonal} (widened)
+        self._marginals = {}  # {key: its marginal block}, made a chunk of keys at a time
         starts = np.r_[0, np.cumsum(list(widths.values()))]
         self._span = {k: slice(a, b) for k, a, b in zip(widths, starts[:-1], starts[1:])}
 
     def marginalCovariance(self, key) -> np.ndarray:
-        return self.jointCovariance(key, key)
+        if key not in self._marginals:
+            self._marginals = self._chunk_from(key)
+        block = self._marginals[key]
+        return block + np.diag(self._added[key]) if key in self._added else block
 
     @property
     def width(self) -> int:
         """Columns of the information matrix: every key's tangent space."""
-        return max(span.stop for span in self._span.values())
+        return self._information.shape[0]
+
+    @property
+    def widths(self) -> dict[int, int]:
+        """Each key's tangent dimension, in the order of the information matrix's columns."""
+        return {key: span.stop - span.start for key, span in self._span.items()}
 
     def columns(self) -> dict[int, int]:
         """Each key's first column in the information matrix."""
@@ -93,64 +129,173 @@ class DenseMarginals:
 
     def jointCovariance(self, a, b) -> np.ndarray:
         """The covariance block of keys a (rows) and b (columns)."""
-        if self._right is None:
-            block = self._covariance[self._span[a], self._span[b]]
-        else:
-            block = self._covariance[self._span[a]] @ self._right[:, self._span[b]]
-        return block + np.diag(self._added[a]) if a == b and a in self._added else block
+        if a == b:
+            return self.marginalCovariance(a)
+        of_a = self.rows(self.columns_of(a))
+        if self._meat is None:
+            return of_a[:, self._span[b]]
+        return of_a @ self._meat.times(self.rows(self.columns_of(b)).T)
+
+    def rows(self, columns: np.ndarray) -> np.ndarray:
+        """(len(columns), width) the given rows of H^-1 (not a sandwich's, nor widened)."""
+        return self.solve.inverse_columns(columns).T
 
     @property
-    def information(self) -> np.ndarray:
-        """H, the dense information matrix (the priors' included), in the columns of columns()."""
+    def information(self) -> sparse.csc_matrix:
+        """H, the sparse information matrix (the priors' included), in the columns of columns()."""
         return self._information
 
-    @property
-    def covariance(self) -> np.ndarray:
-        """H^-1 in the columns of columns() (not a sandwich's, nor widened)."""
-        return self._covariance
-
-    def widened(self, variance: dict[int, np.ndarray]) -> DenseMarginals:
+    def widened(self, variance: dict[int, np.ndarray]) -> FactorisedMarginals:
         """These marginals with variance[key] added to the diagonal of each given key's block."""
         out = copy.copy(self)
         out._added = {**self._added, **{key: self._added.get(key, 0.0) + v for key, v in variance.items()}}
         return out
 
-    def sandwich(self, meat: np.ndarray) -> DenseMarginals:
-        """The marginals of H^-1 meat H^-1 (a sandwich covariance on the same keys), each block made when asked
-        for from H^-1 and meat H^-1: one product of the keys' size here instead of two."""
+    def sandwich(self, meat: Meat) -> FactorisedMarginals:
+        """The marginals of H^-1 meat H^-1 (a sandwich covariance on the same keys)."""
         out = copy.copy(self)
-        out._right = meat @ self._covariance
+        out._meat, out._marginals = meat, {}
+        return out
+
+    def _chunk_from(self, key) -> dict:
+        """{key: marginal block} for key and the keys after it, up to CHUNK_COLUMNS columns of H^-1 solved at once."""
+        keys = list(self._span)
+        chunk, columns = [], 0
+        for k in keys[keys.index(key):]:
+            if chunk and columns + len(self.columns_of(k)) > CHUNK_COLUMNS:
+                break
+            chunk.append(k)
+            columns += len(self.columns_of(k))
+        wanted = np.concatenate([self.columns_of(k) for k in chunk])
+        solved = self.rows(wanted).T  # (width, chunk's columns) H^-1's columns
+        pushed = solved if self._meat is None else self._meat.times(solved)
+        out, start = {}, 0
+        for k in chunk:
+            local = slice(start, start + len(self.columns_of(k)))
+            out[k] = solved[self._span[k], local] if self._meat is None else solved[:, local].T @ pushed[:, local]
+            start = local.stop
         return out
 
 
-def dense_inverse(information: np.ndarray) -> np.ndarray:
-    """The inverse of a dense information matrix, scaled to a unit diagonal first: the information spans far
-    more than 1/eps between parameters, but mostly through their units and priors, which the scaling takes out.
-    By a Cholesky factor of the scaled matrix where its pivots stay above WELL_CONDITIONED (about 3x faster
-    than an eigen-decomposition, and the inverse grows as the cube of the keys: 130 + 6 per trajectory
-    control), else by eigen-decomposition with the eigenvalues floored at eps times the largest."""
-    scale = 1.0 / np.sqrt(np.diag(information))
-    scaled = information * np.outer(scale, scale)
-    try:
-        factor = scipy.linalg.cholesky(scaled, lower=True, check_finite=False)
-        if np.min(np.diag(factor)) ** 2 < WELL_CONDITIONED:
+CHUNK_COLUMNS = 512  # columns of H^-1 solved for at once (an hour's drive: 11 k rows, 45 MB)
+
+
+class ScaledSolver:
+    """x = H^-1 b for a symmetric positive semi-definite information matrix H (sparse), scaled to a unit diagonal
+    first: H spans far more than 1/eps between parameters, but mostly through their units and priors, which the
+    scaling takes out. By a Cholesky factor of the scaled matrix where its pivots stay above WELL_CONDITIONED:
+    sparse (SuperLU in symmetric mode: a minimum-degree order of H, no pivoting, so H = L D L^T) unless H or its
+    factor is as dense as DENSE_FROM (a drive that comes back often ties most controls together, and a sparse
+    solve is then ten times slower than a dense one), else dense, turned into the inverse in place (one n x n,
+    multiplied by b). Where the pivots
+    vanish, by the dense eigen-decomposition with the eigenvalues floored at eps times the largest (a nearly
+    singular H: its near-null directions get variances of 1/floor instead of infinities)."""
+
+    def __init__(self, information):
+        information = sparse.csc_matrix(information)
+        self._scale = 1.0 / np.sqrt(information.diagonal())
+        self._inverse = None  # the scaled inverse's lower triangle, where it is made dense
+        try:
+            sparse_enough = information.nnz < DENSE_FROM * np.prod(information.shape)
+            self._solve = (sparse_enough and self._sparse_factor(information)) or self._dense_inverse(information)
+            self.factorised = True
+        except (np.linalg.LinAlgError, RuntimeError):  # RuntimeError: SuperLU's exactly singular pivot
+            eigenvalues, vectors = np.linalg.eigh(self._scaled(information))
+            floored = np.maximum(eigenvalues, eigenvalues.max() * np.finfo(float).eps)
+            self._solve, self.factorised = lambda b: (vectors / floored) @ (vectors.T @ b), False
+
+    def __call__(self, b: np.ndarray) -> np.ndarray:
+        scale = self._scale[:, None] if np.ndim(b) == 2 else self._scale
+        return scale * self._solve(np.ascontiguousarray(scale * b))
+
+    def inverse_columns(self, columns: np.ndarray) -> np.ndarray:
+        """(n, len(columns)) the given columns of H^-1: read off the inverse where it is held, else solved for."""
+        columns = np.asarray(columns)
+        if self._inverse is None:
+            unit = np.zeros((len(self._scale), len(columns)))
+            unit[columns, np.arange(len(columns))] = 1.0
+            return self(unit)
+        below = np.arange(len(self._scale))[:, None] >= columns[None, :]  # the lower triangle holds those
+        scaled = np.where(below, self._inverse[:, columns], self._inverse[columns, :].T)
+        return self._scale[:, None] * scaled * self._scale[columns][None, :]
+
+    def _scaled(self, information: sparse.csc_matrix) -> np.ndarray:
+        """The unit-diagonal matrix, dense, scaled in place."""
+        scaled = information.toarray()
+        scaled *= self._scale[:, None]
+        scaled *= self._scale[None, :]
+        return scaled
+
+    def _dense_inverse(self, information: sparse.csc_matrix):
+        """The scaled matrix's inverse made in place over it (LAPACK potrf then potri: one n x n, its lower
+        triangle), solving by a symmetric product."""
+        scaled = self._scaled(information).T  # symmetric: the transposed view is Fortran-ordered, factorised in place
+        factor, info = scipy.linalg.lapack.dpotrf(scaled, lower=1, clean=0, overwrite_a=1)
+        if info != 0 or np.min(np.diag(factor)) ** 2 < WELL_CONDITIONED:
             raise np.linalg.LinAlgError("pivots near rounding")
-        inverse = scipy.linalg.cho_solve((factor, True), np.eye(len(scaled)), check_finite=False)
-        inverse = (inverse + inverse.T) / 2
-        if not np.all(np.diag(inverse) > 0):  # rounding beyond what the pivots showed
-            raise np.linalg.LinAlgError("a variance at or below zero")
-    except np.linalg.LinAlgError:
-        eigenvalues, vectors = np.linalg.eigh(scaled)
-        floor = eigenvalues.max() * np.finfo(float).eps
-        inverse = (vectors / np.maximum(eigenvalues, floor)) @ vectors.T
-    return np.outer(scale, scale) * inverse
+        inverse, info = scipy.linalg.lapack.dpotri(factor, lower=1, overwrite_c=1)
+        if info != 0:
+            raise np.linalg.LinAlgError("a pivot at zero")
+        self._inverse = inverse
+        return lambda b: scipy.linalg.blas.dsymm(1.0, inverse, b.reshape(len(b), -1), lower=1).reshape(b.shape)
+
+    def _sparse_factor(self, information: sparse.csc_matrix):
+        scaled = sparse.csc_matrix(sparse.diags(self._scale) @ information @ sparse.diags(self._scale))
+        factor = scipy.sparse.linalg.splu(scaled, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                                          options={"SymmetricMode": True})
+        if not np.min(factor.U.diagonal()) >= WELL_CONDITIONED:
+            raise np.linalg.LinAlgError("pivots near rounding")
+        filled_in = factor.L.nnz >= DENSE_FROM * np.prod(information.shape) / 2
+        return None if filled_in else factor.solve
 
 
-WELL_CONDITIONED = 1e-10  # the smallest squared Cholesky pivot of a unit-diagonal matrix inverted by its factor
+def tangent_widths(values: gtsam.Values) -> dict[int, int]:
+    """{key: the dimension of its tangent space}, in the values' order (GTSAM's: sorted keys)."""
+    zero = values.zeroVectors()
+    return {key: zero.at(key).size for key in values.keys()}
+
+
+def information_of(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, widths: dict[int, int],
+                   factors: range | None = None) -> sparse.csc_matrix:
+    """H at values, the sum of the graph's factors' (or of the given factors') information, each scattered into
+    its keys' columns (the keys in widths' order), sparse. Linearised and summed a batch of factors at a time:
+    the linear factors and the entries waiting to be summed stay bounded (a drive's thousands of blocks each hold
+    a dense compressed Jacobian), and the batches' sums are merged pairwise as a binary counter (each entry is
+    summed about log(batches) times, not once per batch)."""
+    starts = dict(zip(widths, np.r_[0, np.cumsum(list(widths.values()))]))
+    width = sum(widths.values())
+    factors = range(graph.size()) if factors is None else factors
+    sums = []  # (batches summed, their sum): sizes decreasing as the bits of a binary counter
+    for first in range(factors.start, factors.stop, FACTORS_PER_BATCH):
+        batch = gtsam.NonlinearFactorGraph()
+        for index in range(first, min(first + FACTORS_PER_BATCH, factors.stop)):
+            batch.add(graph.at(index))
+        linear = batch.linearize(values)
+        rows, cols, entries = [], [], []
+        for i in range(linear.size()):
+            factor = linear.at(i)
+            columns = np.concatenate([starts[key] + np.arange(widths[key]) for key in factor.keys()])
+            rows.append(np.repeat(columns, len(columns)))
+            cols.append(np.tile(columns, len(columns)))
+            entries.append(factor.information().ravel())
+        total = (1, sparse.csc_matrix((np.concatenate(entries), (np.concatenate(rows), np.concatenate(cols))),
+                                      shape=(width, width)) if entries else sparse.csc_matrix((width, width)))
+        while sums and sums[-1][0] == total[0]:
+            count, summed = sums.pop()
+            total = (count + total[0], summed + total[1])
+        sums.append(total)
+    return sum((summed for _, summed in sums[1:]), sums[0][1]) if sums else sparse.csc_matrix((width, width))
+
+
+DENSE_FROM = 0.05  # fraction of nonzeros from which a matrix is held and factorised dense
+FACTORS_PER_BATCH = 200  # factors linearised and summed at once (blocks of 232 columns: 260 MB of triplets)
+
+
+WELL_CONDITIONED = 1e-10  # the smallest squared Cholesky pivot (LDL^T) of a unit-diagonal matrix solved by its factor
 
 
 class Marginals:
-    """gtsam.Marginals, switching to DenseMarginals for every key once GTSAM finds the system
+    """gtsam.Marginals, switching to FactorisedMarginals for every key once GTSAM finds the system
     nearly indeterminate (in its constructor, or lazily when a covariance is asked for)."""
 
     def __init__(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values):
@@ -158,19 +303,19 @@ class Marginals:
         try:
             self._marginals = gtsam.Marginals(graph, values)
         except RuntimeError as error:
-            self._marginals = self._dense_after(error)
+            self._marginals = self._solved_after(error)
 
     def marginalCovariance(self, key) -> np.ndarray:  # gtsam.Marginals' name
         try:
             return self._marginals.marginalCovariance(key)
-        except RuntimeError as error:  # DenseMarginals never raises it: this switches once
-            self._marginals = self._dense_after(error)
+        except RuntimeError as error:  # FactorisedMarginals never raises it: this switches once
+            self._marginals = self._solved_after(error)
             return self._marginals.marginalCovariance(key)
 
-    def _dense_after(self, error: RuntimeError) -> DenseMarginals:
+    def _solved_after(self, error: RuntimeError) -> FactorisedMarginals:
         if "Indeterminate" not in str(error):
             raise error
-        return DenseMarginals(self._graph, self._values)
+        return FactorisedMarginals(self._graph, self._values)
 
 
 def intrinsic_sigmas(marginals: gtsam.Marginals, key) -> np.ndarray:

@@ -28,6 +28,7 @@ from graphcal.calibration.observability import (
     Uncertainty,
     intrinsic_sigmas,
     pose_sigmas,
+    tangent_widths,
 )
 from graphcal.calibration.pairing import Association, FeatureCache
 from graphcal.calibration.priors import HELD_SIGMA, Priors, control_prior_sigma
@@ -72,7 +73,7 @@ class History:
 @dataclass(frozen=True)
 class FinalFit:
     """The strict pairs at the final estimate, their residuals [m], the sigmas of the model's marginals
-    (uncertainty: gtsam.Marginals, or the sandwiches' dense bread when those are made) and, for pairs whitened
+    (uncertainty: gtsam.Marginals, or the sandwiches' sparse bread when those are made) and, for pairs whitened
     by the range noise, those counting each return's noise once over the pairs that share it (shared_returns;
     None otherwise), those of the pairs' own residuals clustered by time (cluster_robust, cluster_robust.py; None
     when the drive is too short), and the J [cm^2] the pairs' noise model predicts when they are whitened by the
@@ -432,8 +433,8 @@ class Problem:
             order = gtsam.Ordering.ColamdConstrainedLastGaussianFactorGraph(linear, reached)
             _, linear = linear.eliminatePartialMultifrontal(
                 gtsam.Ordering([order.at(i) for i in range(order.size() - len(reached))]))
-        zero = values.zeroVectors()
-        starts = np.r_[0, np.cumsum([zero.at(key).size for key in keys])]
+        widths = tangent_widths(values)
+        starts = np.r_[0, np.cumsum([widths[key] for key in keys])]
         spans = {key: np.arange(a, b) for key, a, b in zip(keys, starts[:-1], starts[1:])}
         columns = np.concatenate([spans[key] for key in reached]) if reached else np.zeros(0, int)
         information = np.zeros((starts[-1], starts[-1]))
@@ -447,8 +448,7 @@ class Problem:
         of the information of its rigidity prior (E_def, eq. 5.3): what the returns near its time see of it."""
         graph, values = self._pairs_graph(estimate, pairs)
         controls = {X(c): c for c in range(len(estimate.corrections))}
-        zero = values.zeroVectors()
-        width = {key: zero.at(key).size for key in values.keys()}
+        width = tangent_widths(values)
         d = 6 if self.config.trajectory.pose_corrections else 3
         information = np.zeros((len(controls), d, d))
         linear = graph.linearize(values)
@@ -477,7 +477,7 @@ class Problem:
     def final(self, estimate: Estimate, pairs: Correspondences | None = None, shared_returns: bool = False) -> FinalFit:
         """The fit at the estimate on the given pairs (None: the strict association at the estimate): residuals,
         the marginals of the undamped graph without the lock (the weak directions' uncertainty is their
-        priors'; the sandwiches' dense inverse when shared_returns or the clustered sigmas make one), and with
+        priors'; the sandwiches' bread when shared_returns or the clustered sigmas make one), and with
         shared_returns the sigmas of shared_returns.py when the pairs are whitened by the range noise and no
         robust loss reweights them."""
         problem = replace(self.in_phase("fine"), lock=None)
@@ -492,7 +492,8 @@ class Problem:
         time_s = problem.data.time_s[pairs.index_p]
         with_shared = weighting.pair_noise == "incidence" and shared_returns and weighting.robust == "none"
         with_robust = bool(blocks) and cluster_robust.determined(time_s)
-        linearised = Linearised.of(graph, values, blocks, len(pairs)) if with_shared or with_robust else None
+        linearised = (Linearised.of(graph, values, blocks, len(pairs), weighting.robust != "none")
+                      if with_shared or with_robust else None)
         if with_shared:
             shared = problem.uncertainty(shared_returns_covariance(linearised, pairs, problem.data, estimate,
                                                                    weighting.sigma0_m), estimate, control_sigma)
@@ -504,7 +505,7 @@ class Problem:
             robust = problem.uncertainty(cluster_robust.cluster_robust_covariance(
                 linearised, time_s, cluster_robust.surface_classes(pairs.normal), problem.calibration_keys()),
                 estimate, control_sigma)
-        # the sandwiches' bread is the dense inverse of this graph's information: the model's marginals too
+        # the sandwiches' bread is this graph's information, factorised: the model's marginals too
         model = Marginals(graph, values) if linearised is None else linearised.bread
         return FinalFit(pairs, residual, problem.uncertainty(model, estimate, control_sigma), shared, robust, expected)
 

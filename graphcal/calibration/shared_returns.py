@@ -35,7 +35,7 @@ import scipy.sparse as sparse
 
 from factors.point_to_plane import Block, residuals
 from graphcal.calibration.association import Correspondences
-from graphcal.calibration.observability import DenseMarginals
+from graphcal.calibration.observability import FactorisedMarginals, Meat, information_of, tangent_widths
 from graphcal.calibration.returns import Estimate, ReturnData, rays_at, world_at
 
 RETURNS_PER_CHUNK = 200_000  # rows of g computed at once (memory: about 38 nonzeros each)
@@ -43,40 +43,45 @@ RETURNS_PER_CHUNK = 200_000  # rows of g computed at once (memory: about 38 nonz
 
 @dataclass(frozen=True)
 class Linearised:
-    """The undamped graph at the estimate as the sandwich covariances need it: its dense marginals (the bread H^-1,
-    H including the priors) and the whitened Jacobian A of every pair (pairs x the graph's columns, sparse), the
-    pairs' whitened residuals r and whitenings s = sqrt(w) / sigma. Made once, shared by this module's sandwich and
-    cluster_robust.py's."""
+    """The undamped graph at the estimate as the sandwich covariances need it: its marginals (the bread H^-1, H
+    including the priors, factorised once) and the whitened Jacobian A of every pair (pairs x the graph's columns,
+    sparse), the pairs' whitened residuals r and whitenings s = sqrt(w) / sigma, and P the priors'
+    information (sparse). Made once, shared by this module's sandwich and cluster_robust.py's."""
 
-    bread: DenseMarginals
+    bread: FactorisedMarginals
     A: sparse.csr_matrix
     r: np.ndarray
     scale: np.ndarray
-    priors_information: np.ndarray
+    priors_information: sparse.csr_matrix
 
     @classmethod
     def of(cls, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, blocks: list[tuple[np.ndarray, Block]],
-           n_pairs: int) -> Linearised:
-        """blocks: the graph's point-to-plane blocks with their rows among the n_pairs pairs."""
-        bread = DenseMarginals(graph, values)
-        A, r, scale = whitened_jacobian(blocks, values, bread.columns(), n_pairs, bread.width)
-        return cls(bread, A, r, scale, bread.information - (A.T @ A).toarray())
+           n_pairs: int, robust: bool = False) -> Linearised:
+        """blocks: the graph's point-to-plane blocks with their rows among the n_pairs pairs, its first factors
+        (Problem.graph); the factors after them are the priors'. H = A^T A + P, or, where a robust loss
+        reweights the blocks (robust), their own information at values + P."""
+        widths = tangent_widths(values)
+        columns = dict(zip(widths, np.r_[0, np.cumsum(list(widths.values()))[:-1]]))
+        A, r, scale = whitened_jacobian(blocks, values, columns, n_pairs, sum(widths.values()))
+        priors = information_of(graph, values, widths, range(len(blocks), graph.size()))
+        pairs = information_of(graph, values, widths, range(len(blocks))) if robust else A.T @ A
+        return cls(FactorisedMarginals.of(pairs + priors, widths), A, r, scale, priors)
 
-    def sandwich(self, meat_of_pairs: np.ndarray) -> DenseMarginals:
-        """H^-1 (meat_of_pairs + P) H^-1, P = H - A^T A the priors' information: the nominal values are off by their
+    def sandwich(self, meat_of_pairs: Meat) -> FactorisedMarginals:
+        """H^-1 (meat_of_pairs + P) H^-1, P the priors' information: the nominal values are off by their
         priors' sigmas, an error the estimate inherits where the data are silent (a weak direction held at nominal)."""
-        return self.bread.sandwich(meat_of_pairs + self.priors_information)
+        return self.bread.sandwich(meat_of_pairs + Meat(self.priors_information))
 
 
 def shared_returns_covariance(linearised: Linearised, pairs: Correspondences, data: ReturnData, estimate: Estimate,
-                              range_noise_m: float) -> DenseMarginals:
+                              range_noise_m: float) -> FactorisedMarginals:
     """The sandwich covariance above for every key of the graph, with gtsam.Marginals' interface
     (marginalCovariance(key), in each key's tangent space). range_noise_m: sigma, the range noise of one return."""
     A, scale = linearised.A, linearised.scale
     along_p = np.einsum("ni,ni->n", pairs.normal, rays_at(data, estimate, pairs.index_p))
     along_m = np.einsum("ni,ni->n", pairs.normal, rays_at(data, estimate, pairs.index_m))
     own = np.maximum(pairs.weight - (scale * range_noise_m) ** 2 * (along_p ** 2 + along_m ** 2), 0.0)
-    meat = (A.T @ sparse.diags(own) @ A).toarray()
+    meat = A.T @ sparse.diags(own) @ A
     # S (returns x pairs): return r's coefficient in each pair's residual, sigma s_k (+-n.u)
     n_pairs = len(pairs)
     S = sparse.csr_matrix((np.r_[scale * range_noise_m * along_p, -scale * range_noise_m * along_m],
@@ -84,16 +89,18 @@ def shared_returns_covariance(linearised: Linearised, pairs: Correspondences, da
                           shape=(len(data.time_s), n_pairs))
     for first in range(0, S.shape[0], RETURNS_PER_CHUNK):
         G = S[first:first + RETURNS_PER_CHUNK] @ A  # rows g_r
-        meat += (G.T @ G).toarray()
-    return linearised.sandwich(meat + shared_poses_meat(linearised, pairs, data, estimate))
+        meat += G.T @ G
+    return linearised.sandwich(Meat(meat + shared_poses_meat(linearised, pairs, data, estimate)))
 
 
-def shared_poses_meat(linearised: Linearised, pairs: Correspondences, data: ReturnData, estimate: Estimate) -> np.ndarray:
+def shared_poses_meat(linearised: Linearised, pairs: Correspondences, data: ReturnData,
+                      estimate: Estimate) -> sparse.csr_matrix:
     """sum_w sum_c sigma_c^2 h_wc h_wc^T (module docstring): what the error left in the smoothed poses
-    (data.smoothing_error) adds to the information's meat, in the graph's columns (zero when none is left)."""
+    (data.smoothing_error) adds to the information's meat, in the graph's columns, sparse (empty when none is
+    left)."""
     noise, A = data.smoothing_error, linearised.A
     if not noise.interval_s > 0 or not len(pairs):
-        return np.zeros((A.shape[1], A.shape[1]))
+        return sparse.csr_matrix((A.shape[1], A.shape[1]))
     n_pairs = len(pairs)
     returns = np.r_[pairs.index_p, pairs.index_m]  # each pair's p, then each pair's m
     normals = np.tile(pairs.normal, (2, 1))
@@ -105,7 +112,7 @@ def shared_poses_meat(linearised: Linearised, pairs: Correspondences, data: Retu
     columns = np.broadcast_to(np.tile(np.arange(n_pairs), 2)[:, None], rows.shape)
     H = sparse.csr_matrix(((sign[:, None] * coefficients).ravel(), (rows.ravel(), columns.ravel())),
                           shape=(6 * (int(window.max()) + 1), n_pairs)) @ A
-    return (H.T @ H).toarray()
+    return sparse.csr_matrix(H.T @ H)
 
 
 def whitened_jacobian(blocks: list[tuple[np.ndarray, Block]], values: gtsam.Values, column: dict[int, int],
