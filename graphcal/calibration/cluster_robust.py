@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sparse
 
-from graphcal.calibration.observability import Meat, FactorisedMarginals
+from graphcal.calibration.observability import FactorisedMarginals, Meat
 from graphcal.calibration.shared_returns import Linearised
 
 BLOCK_S = 0.5

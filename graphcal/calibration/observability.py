@@ -187,9 +187,9 @@ class ScaledSolver:
     sparse (SuperLU in symmetric mode: a minimum-degree order of H, no pivoting, so H = L D L^T) unless H or its
     factor is as dense as DENSE_FROM (a drive that comes back often ties most controls together, and a sparse
     solve is then ten times slower than a dense one), else dense, turned into the inverse in place (one n x n,
-    multiplied by b). Where the pivots
-    vanish, by the dense eigen-decomposition with the eigenvalues floored at eps times the largest (a nearly
-    singular H: its near-null directions get variances of 1/floor instead of infinities)."""
+    multiplied by b). Where the pivots vanish, by the dense eigen-decomposition with the eigenvalues floored at
+    eps times the largest (a nearly singular H: its near-null directions get variances of 1/floor instead of
+    infinities)."""
 
     def __init__(self, information):
         information = sparse.csc_matrix(information)
