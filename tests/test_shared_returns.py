@@ -16,7 +16,13 @@ import factors.point_to_plane
 import graphcal
 from graphcal.calibration.config import ESTIMATES, CalibrationConfig
 from graphcal.calibration.keys import I
-from graphcal.calibration.observability import INTRINSIC_NAMES, Meat, FactorisedMarginals
+from graphcal.calibration.observability import (
+    INTRINSIC_NAMES,
+    FactorisedMarginals,
+    Meat,
+    information_of,
+    tangent_widths,
+)
 from graphcal.calibration.priors import Priors
 from graphcal.calibration.problem import Problem
 from graphcal.calibration.result import SIGMA_SHARED, SIGMA_WIDENED
@@ -188,3 +194,16 @@ def test_without_pairs_the_estimate_carries_no_range_noise(at_truth):
     prior = priors.intrinsic[0 if data.sensor.reference_fibre else 1]
     np.testing.assert_allclose(covariance.marginalCovariance(I(0 if data.sensor.reference_fibre else 1)),
                                np.diag(prior ** 2), rtol=1e-9, atol=1e-20)
+
+
+def test_the_bread_from_the_pairs_jacobian_is_the_graph_s_own_information(at_truth):
+    """H = A^T A + P (the pairs' whitened Jacobian, the prior factors' information) equals the information of the
+    graph GTSAM linearises (its blocks compressed by factors.point_to_plane.compress), to rounding; so does the
+    path that linearises the blocks themselves (taken when a robust loss reweights them)."""
+    problem, truth, pairs = at_truth
+    blocks = problem.blocks(truth, pairs)
+    graph, values = problem.graph(truth, pairs, damped=False, blocks=blocks)
+    whole = information_of(graph, values, tangent_widths(values)).toarray()
+    for robust in (False, True):
+        H = Linearised.of(graph, values, blocks, len(pairs), robust).bread.information.toarray()
+        np.testing.assert_allclose(H, whole, rtol=1e-6, atol=1e-9 * np.abs(whole).max())
