@@ -73,7 +73,7 @@ class History:
 @dataclass(frozen=True)
 class FinalFit:
     """The strict pairs at the final estimate, their residuals [m], the sigmas of the model's marginals
-    (uncertainty: gtsam.Marginals, or the sandwiches' sparse bread when those are made) and, for pairs whitened
+    (uncertainty: gtsam.Marginals, or the sandwiches' factorised bread when those are made) and, for pairs whitened
     by the range noise, those counting each return's noise once over the pairs that share it (shared_returns;
     None otherwise), those of the pairs' own residuals clustered by time (cluster_robust, cluster_robust.py; None
     when the drive is too short), and the J [cm^2] the pairs' noise model predicts when they are whitened by the
