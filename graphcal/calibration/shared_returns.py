@@ -64,8 +64,8 @@ class Linearised:
         columns = dict(zip(widths, np.r_[0, np.cumsum(list(widths.values()))[:-1]]))
         A, r, scale = whitened_jacobian(blocks, values, columns, n_pairs, sum(widths.values()))
         priors = information_of(graph, values, widths, range(len(blocks), graph.size()))
-        of_pairs = information_of(graph, values, widths, range(len(blocks))) if robust else A.T @ A
-        return cls(FactorisedMarginals.of(of_pairs + priors, widths), A, r, scale, priors)
+        information = (information_of(graph, values, widths, range(len(blocks))) if robust else A.T @ A) + priors
+        return cls(FactorisedMarginals.of(information, widths), A, r, scale, priors)
 
     def sandwich(self, meat_of_pairs: Meat) -> FactorisedMarginals:
         """H^-1 (meat_of_pairs + P) H^-1, P the priors' information: the nominal values are off by their
