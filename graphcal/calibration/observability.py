@@ -64,7 +64,7 @@ class Meat:
 
     def times(self, X: np.ndarray) -> np.ndarray:
         """meat @ X for X (columns, k) dense."""
-        if sparse.issparse(self.matrix) and self.matrix.nnz >= DENSE_FROM * np.prod(self.matrix.shape):
+        if sparse.issparse(self.matrix) and as_dense_as(self.matrix.nnz, self.matrix.shape):
             self.matrix = self.matrix.toarray()  # a dense product is several times faster than a sparse one there
         out = np.zeros_like(X) if self.matrix is None else self.matrix @ X
         for Z, weight in self.factors:
@@ -100,8 +100,7 @@ class FactorisedMarginals:
         self._meat = None  # a sandwich's Meat: its covariance is H^-1 meat H^-1
         self._added = {}  # {key: variance added to its tangent coordinates' diagonal} (widened)
         self._marginals = {}  # {key: its marginal block}, made a chunk of keys at a time
-        starts = np.r_[0, np.cumsum(list(widths.values()))]
-        self._span = {k: slice(a, b) for k, a, b in zip(widths, starts[:-1], starts[1:])}
+        self._span = {key: slice(start, start + widths[key]) for key, start in first_columns(widths).items()}
 
     def marginalCovariance(self, key) -> np.ndarray:
         if key not in self._marginals:
@@ -196,7 +195,7 @@ class ScaledSolver:
         self._scale = 1.0 / np.sqrt(information.diagonal())
         self._inverse = None  # the scaled inverse's lower triangle, where it is made dense
         try:
-            sparse_enough = information.nnz < DENSE_FROM * np.prod(information.shape)
+            sparse_enough = not as_dense_as(information.nnz, information.shape)
             self._solve = (sparse_enough and self._sparse_factor(information)) or self._dense_inverse(information)
             self.factorised = True
         except (np.linalg.LinAlgError, RuntimeError):  # RuntimeError: SuperLU's exactly singular pivot
@@ -245,7 +244,7 @@ class ScaledSolver:
                                           options={"SymmetricMode": True})
         if not np.min(factor.U.diagonal()) >= WELL_CONDITIONED:
             raise np.linalg.LinAlgError("pivots near rounding")
-        filled_in = factor.L.nnz >= DENSE_FROM * np.prod(information.shape) / 2
+        filled_in = as_dense_as(factor.L.nnz, information.shape, 0.5)  # L: a triangle
         return None if filled_in else factor.solve
 
 
@@ -255,6 +254,16 @@ def tangent_widths(values: gtsam.Values) -> dict[int, int]:
     return {key: zero.at(key).size for key in values.keys()}
 
 
+def first_columns(widths: dict[int, int]) -> dict[int, int]:
+    """{key: its first column} when the keys' tangent spaces follow one another in widths' order."""
+    return dict(zip(widths, np.r_[0, np.cumsum(list(widths.values()))[:-1]].tolist()))
+
+
+def as_dense_as(nonzeros: int, shape: tuple[int, int], fraction: float = 1.0) -> bool:
+    """Whether nonzeros fill fraction x DENSE_FROM of a matrix of that shape (held and factorised dense from there)."""
+    return nonzeros >= fraction * DENSE_FROM * np.prod(shape)
+
+
 def information_of(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, widths: dict[int, int],
                    factors: range | None = None) -> sparse.csc_matrix:
     """H at values, the sum of the graph's factors' (or of the given factors') information, each scattered into
@@ -262,7 +271,7 @@ def information_of(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, widt
     the linear factors and the entries waiting to be summed stay bounded (a drive's thousands of blocks each hold
     a dense compressed Jacobian), and the batches' sums are merged pairwise as a binary counter (each entry is
     summed about log(batches) times, not once per batch)."""
-    starts = dict(zip(widths, np.r_[0, np.cumsum(list(widths.values()))]))
+    starts = first_columns(widths)
     width = sum(widths.values())
     factors = range(graph.size()) if factors is None else factors
     sums = []  # (batches summed, their sum): sizes decreasing as the bits of a binary counter

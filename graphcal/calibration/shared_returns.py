@@ -35,7 +35,13 @@ import scipy.sparse as sparse
 
 from factors.point_to_plane import Block, residuals
 from graphcal.calibration.association import Correspondences
-from graphcal.calibration.observability import FactorisedMarginals, Meat, information_of, tangent_widths
+from graphcal.calibration.observability import (
+    FactorisedMarginals,
+    Meat,
+    first_columns,
+    information_of,
+    tangent_widths,
+)
 from graphcal.calibration.returns import Estimate, ReturnData, rays_at, world_at
 
 RETURNS_PER_CHUNK = 200_000  # rows of g computed at once (memory: about 38 nonzeros each)
@@ -61,8 +67,7 @@ class Linearised:
         (Problem.graph); the factors after them are the priors'. H = A^T A + P, or, where a robust loss
         reweights the blocks (robust), their own information at values + P."""
         widths = tangent_widths(values)
-        columns = dict(zip(widths, np.r_[0, np.cumsum(list(widths.values()))[:-1]]))
-        A, r, scale = whitened_jacobian(blocks, values, columns, n_pairs, sum(widths.values()))
+        A, r, scale = whitened_jacobian(blocks, values, first_columns(widths), n_pairs, sum(widths.values()))
         priors = information_of(graph, values, widths, range(len(blocks), graph.size()))
         information = (information_of(graph, values, widths, range(len(blocks))) if robust else A.T @ A) + priors
         return cls(FactorisedMarginals.of(information, widths), A, r, scale, priors)
