@@ -85,3 +85,83 @@ def test_the_controls_marginalised_out_as_a_dense_schur_complement(piecewise_err
     columns = np.concatenate([starts[key] + np.arange(width[key]) for key in reached])
     np.testing.assert_allclose(got[np.ix_(columns, columns)], expected, rtol=1e-6, atol=1e-6 * np.abs(expected).max())
     assert np.count_nonzero(got) == np.count_nonzero(got[np.ix_(columns, columns)])
+
+
+def test_the_coarse_phase_on_every_third_control_places_the_returns_as_every_control_does(piecewise_error):
+    """trajectory.coarse_max_controls: the coarse phase's keys are every k-th control and the last; corrections
+    linear between those knots place every return where the same corrections at every control place it, and
+    going to the knots and back changes nothing."""
+    import gtsam
+
+    from graphcal.calibration.problem import Problem
+    from graphcal.calibration.returns import initial_estimate, knots_every
+
+    config = graphcal.CalibrationConfig(mode="trajectory", trajectory={"coarse_max_controls": 3})
+    problem = Problem.of(piecewise_error, config)
+    n = len(problem.full.control_times_s)
+    assert n == 7 and knots_every(n, 3).tolist() == [0, 3, 6] and knots_every(n, 7) is None
+    assert knots_every(8, 3).tolist() == [0, 4, 7]
+    coarse = problem.in_phase("coarse").on_coarse_controls()
+    assert coarse.knots.tolist() == [0, 3, 6] and len(coarse.data.control_times_s) == 3
+    assert problem.in_phase("coarse").knots is None and coarse.in_phase("fine").knots is None
+    rng = np.random.default_rng(2)
+    knot_poses = [gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(0, 0.01, 3)), rng.normal(0, 0.3, 3)) for _ in range(3)]
+    on_knots = initial_estimate(piecewise_error, problem.full)
+    on_knots = type(on_knots)(on_knots.offsets, on_knots.extrinsic, tuple(knot_poses))
+    everywhere = coarse.at_every_control(on_knots)
+    assert len(everywhere.corrections) == 7
+    for k, c in zip([0, 3, 6], knot_poses):
+        assert everywhere.corrections[k].equals(c, 1e-12)
+    assert all(a.equals(b, 1e-12) for a, b in zip(coarse.own(everywhere).corrections, knot_poses))
+    fine = problem.in_phase("coarse")  # the same returns at every control
+    np.testing.assert_allclose(coarse.points(on_knots), fine.points(everywhere), atol=1e-9)
+    assert not np.allclose(fine.points(everywhere), fine.points(initial_estimate(piecewise_error, problem.full)))
+
+
+@pytest.fixture(scope="module")
+def three_second_error():
+    """sim6_turn with a position error piecewise linear between knots 3 s apart."""
+    from graphcal.simulation.scenario import InsErrors
+
+    return graphcal.simulate(SIM6(size=0.02, seed=4).model_copy(
+        update={"ins": InsErrors(piecewise_error_m=0.35, piecewise_interval_s=3.0)}), quiet=True)
+
+
+ON_THREE = graphcal.CalibrationConfig(mode="trajectory", trajectory={"coarse_max_controls": 3},
+                                      stopping={"max_outer_iterations": 20})
+
+
+def test_translation_corrections_from_a_coarse_phase_on_three_controls(three_second_error):
+    """The coarse phase on every third control (which can follow the error), the fine phase on all: the error
+    removed as the default removes it."""
+    recording = three_second_error
+    result = graphcal.calibrate(recording, ON_THREE, quiet=True)
+    assert [row["phase"] for row in result.history].count("coarse") >= 2
+    evaluation = graphcal.evaluate(result, recording)
+    assert evaluation.cloud_before.mean > 0.10 and evaluation.cloud_after_gauge_free.mean < 0.006, evaluation.table()
+
+
+def test_a_coarse_phase_on_knots_interrupted_resumes_to_the_uninterrupted_result(three_second_error, tmp_path,
+                                                                                monkeypatch):
+    """The checkpoint holds corrections at every control: stopped at the coarse phase's second outer iteration
+    (on three knots) and resumed, the same outer iterations and corrections."""
+    from graphcal.calibration.checkpoint import Checkpoint
+
+    whole = graphcal.calibrate(three_second_error, ON_THREE, quiet=True)
+    path, save = tmp_path / "checkpoint.npz", Checkpoint.save
+
+    def stopping(self, state):
+        save(self, state)
+        if state.inside == (0, 2):
+            assert len(state.estimate.corrections) == 7 and state.rows[-1]["phase"] == "coarse"
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(Checkpoint, "save", stopping)
+    with pytest.raises(KeyboardInterrupt):
+        graphcal.calibrate(three_second_error, ON_THREE, quiet=True, checkpoint=path)
+    monkeypatch.setattr(Checkpoint, "save", save)
+    resumed = graphcal.calibrate(three_second_error, ON_THREE, quiet=True, checkpoint=path)
+    assert [(row["phase"], row["stop"]) for row in resumed.history] == [(row["phase"], row["stop"])
+                                                                        for row in whole.history]
+    for a, b in zip(resumed.calibration.estimate.corrections, whole.calibration.estimate.corrections):
+        assert a.equals(b, 1e-7)

@@ -144,10 +144,14 @@ class TrajectorySettings(BaseModel):
     """Trajectory corrections at control times control_interval_s apart (seed 001: about 1 s), Point3 or
     Pose3 (pose_corrections), held by E_def (eq. 5.3/5.4: lambda_rigid against the normalised energy J,
     both m^2) or Monnier's successive differences (deformation); block_controls control intervals of p per
-    block factor."""
+    block factor; coarse_max_controls: the coarse phase corrects the trajectory at every k-th control only (the
+    others interpolated between them), k the least that leaves at most this many (None: at every control). On a
+    long drive whose passes tie most controls together, the elimination of a solve grows about as the cube of
+    the controls; the coarse phase only has to reach the basin."""
 
     model_config = _SECTION
     control_interval_s: float = Field(1.0, gt=0)
+    coarse_max_controls: int | None = Field(300, ge=2)
     block_controls: int = Field(4, ge=1)
     pose_corrections: bool = False
     lambda_rigid: float = Field(1e-6, gt=0)

@@ -32,7 +32,8 @@ from graphcal.calibration.observability import (
 )
 from graphcal.calibration.pairing import Association, FeatureCache
 from graphcal.calibration.priors import HELD_SIGMA, Priors, control_prior_sigma
-from graphcal.calibration.returns import Estimate, ReturnData, pose_of, prepare, revisits, sight_at, world_at
+from graphcal.calibration.returns import (Estimate, ReturnData, knot_shares, knots_every, pose_of, prepare, resampled, revisits,
+                                         sight_at, world_at)
 from graphcal.calibration import cluster_robust
 from graphcal.calibration.shared_returns import Linearised, shared_returns_covariance
 from graphcal.calibration.tiles import Tiling
@@ -95,7 +96,9 @@ class Problem:
     the nominal T_body_lidar; held: parameters held at nominal by the settings or the static checks;
     fixed_pairs: pairs made once and kept (a static sensor); lock: the factor holding the weak directions;
     effects: candidate effects modelled in every block (graphcal.diagnosis's EffectModel; None: none);
-    tiling: features and pairs tile by tile of space (graphcal.calibration.tiles; None: the whole cloud)."""
+    tiling: features and pairs tile by tile of space (graphcal.calibration.tiles; None: the whole cloud); knots:
+    the controls of full this problem's trajectory keys stand for, the others interpolated between them (the
+    coarse phase's fit on a long drive: on_coarse_controls; None: every control)."""
 
     full: ReturnData
     settings: CalibrationConfig
@@ -110,6 +113,7 @@ class Problem:
     effects: object | None = None
     cache: FeatureCache | None = None
     tiling: Tiling | None = None
+    knots: np.ndarray | None = None
 
     def __post_init__(self):
         if self.data is None:
@@ -161,10 +165,33 @@ class Problem:
         """This problem in a phase: the coarse one on a seeded subset of its returns (with its own features);
         on fixed pairs (made on every return) there is only the fine phase."""
         if phase == "fine" or self.fixed_pairs is not None:
-            return replace(self, phase="fine", data=self.full, cache=None if self.phase == "coarse" else self.cache)
+            return replace(self, phase="fine", data=self.full, cache=None if self.phase == "coarse" else self.cache,
+                           knots=None)
         most = self.settings.association.coarse.max_points
         sample = self.full if most is None else self.full.sample(most, np.random.default_rng(self.settings.seed))
-        return replace(self, phase="coarse", data=sample, cache=None if sample is not self.full else self.cache)
+        return replace(self, phase="coarse", data=sample, cache=None if sample is not self.full else self.cache,
+                       knots=None)
+
+    def on_coarse_controls(self) -> Problem:
+        """This problem with trajectory keys at every k-th control only (trajectory.coarse_max_controls), when it
+        corrects the trajectory of a drive with more controls than that; else itself."""
+        knots = knots_every(len(self.full.control_times_s), self.settings.trajectory.coarse_max_controls)
+        if knots is None or not self.estimated[2]:
+            return self
+        return replace(self, data=self.data.on_knots(knots), knots=knots)
+
+    def own(self, estimate: Estimate) -> Estimate:
+        """The estimate (corrections at every control) with corrections at this problem's keys only."""
+        if self.knots is None or len(estimate.corrections) == len(self.knots):
+            return estimate
+        return replace(estimate, corrections=tuple(estimate.corrections[k] for k in self.knots))
+
+    def at_every_control(self, estimate: Estimate) -> Estimate:
+        """The estimate of this problem's keys with corrections at every control (interpolated between knots)."""
+        if self.knots is None or len(estimate.corrections) != len(self.knots):
+            return estimate
+        return replace(estimate, corrections=resampled(estimate.corrections, self.data.control_times_s,
+                                                        self.full.control_times_s))
 
     def in_stage(self, stage: str) -> Problem:
         """This problem estimating what one stage of the mode estimates."""
@@ -275,28 +302,34 @@ class Problem:
             self._add_trajectory(graph, values, estimate, damped, control_prior_sigma(self.config, weight_sum))
 
     def _add_trajectory(self, graph, values, estimate: Estimate, damped: bool, sigma: float) -> None:
-        """Control corrections and E_def (eq. 5.3) or Monnier's successive differences."""
+        """Control corrections and E_def (eq. 5.3) or Monnier's successive differences. On knots (on_coarse_controls)
+        each prior is that of the controls the knot stands for (knot_shares), each difference that of the controls'
+        successive differences between two knots (corrections linear between them)."""
         trajectory, stopping = self.config.trajectory, self.config.stopping
         pose = trajectory.pose_corrections
-        noise = gtsam.noiseModel.Isotropic.Sigma(6 if pose else 3, sigma)  # rotations: rad x 1 m
+        scale = np.ones(len(estimate.corrections))  # rotations: rad x 1 m
+        if self.knots is not None:
+            scale = (1 / np.sqrt(knot_shares(self.full.control_times_s, self.knots)) if trajectory.deformation == "prior"
+                     else np.sqrt(np.r_[1, np.diff(self.knots)]))
+        noise = [gtsam.noiseModel.Isotropic.Sigma(6 if pose else 3, sigma * s) for s in scale]
         step = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, np.radians(stopping.step_sigma_deg)),
                                                       np.full(3, stopping.step_sigma_m)] if pose
                                                 else np.full(3, stopping.step_sigma_m))
         prior = (lambda c, n: gtsam.PriorFactorPose3(X(c), gtsam.Pose3(), n)) if pose else \
             (lambda c, n: gtsam.PriorFactorPoint3(X(c), np.zeros(3), n))
+        held = self.priors.control_held if self.knots is None else self.priors.control_held[self.knots]
         for c, correction in enumerate(estimate.corrections):
             values.insert(X(c), correction if pose else correction.translation())
             if damped:
                 graph.add(gtsam.PriorFactorPose3(X(c), correction, step) if pose
                           else gtsam.PriorFactorPoint3(X(c), correction.translation(), step))
             if trajectory.deformation == "prior" or c == 0:
-                graph.add(prior(c, noise))
+                graph.add(prior(c, noise[c]))
             if trajectory.deformation == "monnier" and c > 0:
-                graph.add(gtsam.BetweenFactorPose3(X(c - 1), X(c), gtsam.Pose3(), noise) if pose
-                          else gtsam.BetweenFactorPoint3(X(c - 1), X(c), np.zeros(3), noise))
-            if self.priors.control_held[c].any():
-                graph.add(prior(c, gtsam.noiseModel.Diagonal.Sigmas(np.where(self.priors.control_held[c], HELD_SIGMA,
-                                                                              1e6))))
+                graph.add(gtsam.BetweenFactorPose3(X(c - 1), X(c), gtsam.Pose3(), noise[c]) if pose
+                          else gtsam.BetweenFactorPoint3(X(c - 1), X(c), np.zeros(3), noise[c]))
+            if held[c].any():
+                graph.add(prior(c, gtsam.noiseModel.Diagonal.Sigmas(np.where(held[c], HELD_SIGMA, 1e6))))
 
     def step(self, estimate: Estimate, pairs: Correspondences) -> Estimate:
         """One solve on the pairs (stopping.lm_iterations of Levenberg-Marquardt), read back."""
@@ -342,7 +375,9 @@ class Problem:
                 or any(row["phase"] == "fine" or row["max_step"] < stopping.fine_below_m for row in done))
         if (fine and "fine" not in phases) or n_max <= ran:
             return estimate
-        problem = self.in_phase("fine" if fine else "coarse")
+        problem = self.in_phase("fine") if fine else self.in_phase("coarse").on_coarse_controls()
+        estimate = problem.own(estimate)
+        features_at = None if features_at is None else problem.own(features_at)
         gate, association = problem.gates.gate_start_m, problem.association()
         if done and not fine:
             gate = min(done[-1]["gate_m"] * problem.gates.gate_growth, problem.gates.gate_max_m)
@@ -381,19 +416,20 @@ class Problem:
                 if "fine" not in phases:
                     history.rows[-1]["stop"] = "coarse done"
                 else:
-                    problem = self.in_phase("fine")
+                    estimate, problem = problem.at_every_control(estimate), self.in_phase("fine")
                     gate, association = problem.gates.gate_start_m, problem.association()
                     since_refresh, features, points = refresh_every, None, None
             else:
                 gate = min(gate * problem.gates.gate_growth, problem.gates.gate_max_m)
             if after_each is not None:
-                after_each(estimate, None if features is None else problem.cache.estimate)
+                after_each(problem.at_every_control(estimate),
+                           None if features is None else problem.at_every_control(problem.cache.estimate))
             if history.rows[-1]["stop"]:
                 break
         else:
             if history.rows:
                 history.rows[-1]["stop"] = "cap"
-        return estimate
+        return problem.at_every_control(estimate)
 
     # --- what the data see ---------------------------------------------------------------------------
     def layout(self) -> Layout:

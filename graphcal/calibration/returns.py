@@ -86,6 +86,13 @@ class ReturnData:
         per_return = ("rows", "fibre", "range_m", "azimuth_rad", "time_s", "R_nav", "X_nav", "control", "alpha")
         return replace(self, **{name: getattr(self, name)[keep] for name in per_return})
 
+    def on_knots(self, knots: np.ndarray) -> ReturnData:
+        """The same returns between the controls `knots` (indices into control_times_s, increasing, the first and
+        the last among them): fewer trajectory keys, each return interpolated between the knots about it."""
+        control_times = self.control_times_s[knots]
+        control, alpha = between_controls(self.time_s, control_times)
+        return replace(self, control=control, alpha=alpha, control_times_s=control_times)
+
     def returns(self, rows: np.ndarray) -> Returns:
         """The factor-side view of some rows."""
         return Returns(self.range_m[rows], self.azimuth_rad[rows], self.sensor.factory_terms(self.fibre[rows]),
@@ -126,8 +133,7 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
         control_times = control_grid(recording.world.poses.span[0], time[0], time[-1], control_interval_s)
     else:
         control_times = np.asarray(control_times_s, dtype=np.float64)
-    control = np.clip(np.searchsorted(control_times, time, side="right") - 1, 0, len(control_times) - 2)
-    alpha = np.clip((time - control_times[control]) / (control_times[control + 1] - control_times[control]), 0, 1)
+    control, alpha = between_controls(time, control_times)
     return ReturnData(recording.sensor, columns["rows"], columns["fibre"].astype(np.int64),
                       columns["range"].astype(np.float64), columns["azimuth"].astype(np.float64),
                       time, rotation.as_matrix(), position - origin, control, alpha, control_times, origin, range_noise_m,
@@ -155,6 +161,44 @@ def revisits(poses: PoseTrack) -> bool:
         if abs(times[a] - times[b]) >= REVISIT_AFTER_S:
             return True
     return False
+
+
+def between_controls(time_s: np.ndarray, control_times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each time [s], the control c before it and its weight alpha towards c + 1 (eq. 5.4), clipped to the
+    controls' span."""
+    control = np.clip(np.searchsorted(control_times_s, time_s, side="right") - 1, 0, len(control_times_s) - 2)
+    gap = control_times_s[control + 1] - control_times_s[control]
+    return control, np.clip((time_s - control_times_s[control]) / gap, 0, 1)
+
+
+def knots_every(n_controls: int, most: int | None) -> np.ndarray | None:
+    """Indices of every k-th of n_controls controls and the last one, k the least that leaves at most `most`
+    of them (None: every control, when they are no more than that or most is None)."""
+    if most is None or n_controls <= most:
+        return None
+    step = int(np.ceil((n_controls - 1) / (most - 1)))
+    return np.unique(np.r_[np.arange(0, n_controls, step), n_controls - 1])
+
+
+def knot_shares(control_times_s: np.ndarray, knots: np.ndarray) -> np.ndarray:
+    """How many of the controls each knot stands for (K,): the sum of its interpolation weights over them. A
+    prior of sigma / sqrt(share) on each knot gives corrections that move together (the trajectory's common
+    translation) what a prior of sigma on each control gives them."""
+    control, alpha = between_controls(control_times_s, control_times_s[knots])
+    return (np.bincount(control, 1 - alpha, len(knots))
+            + np.bincount(control + 1, alpha, len(knots)))
+
+
+def resampled(corrections: tuple, from_s: np.ndarray, to_s: np.ndarray) -> tuple:
+    """Trajectory corrections (Pose3) given at the times from_s [s], at the times to_s: interpolated as eq. 5.4
+    interpolates them for a return, (Log R, t) linear between the two controls about each time."""
+    rotvec = np.array([gtsam.Rot3.Logmap(c.rotation()) for c in corrections])
+    translation = np.array([c.translation() for c in corrections])
+    control, alpha = between_controls(to_s, from_s)
+    a = alpha[:, None]
+    w = (1 - a) * rotvec[control] + a * rotvec[control + 1]
+    t = (1 - a) * translation[control] + a * translation[control + 1]
+    return tuple(gtsam.Pose3(gtsam.Rot3.Expmap(wi), ti) for wi, ti in zip(w, t))
 
 
 def control_grid(anchor_s: float, first_s: float, last_s: float, interval_s: float) -> np.ndarray:
