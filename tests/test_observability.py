@@ -75,6 +75,10 @@ def test_the_scaled_solver_by_its_factor_or_by_eigenvalues_where_the_pivots_vani
     solver = ScaledSolver(information)
     assert solver.factorised
     np.testing.assert_allclose(solver(np.eye(40)) / scale, np.linalg.inv(information * scale), atol=1e-9)
+    given = information.copy()  # an ndarray, solved by its dense factor (no inverse), left as it was
+    np.testing.assert_allclose(ScaledSolver(given, inverse=False)(np.eye(40)) / scale,
+                               np.linalg.inv(information * scale), atol=1e-9)
+    assert np.array_equal(given, information)
     X[:, 8] = 3.0 * X[:, 7]
     together = X.T @ X
     scale = np.outer(*(1 / np.sqrt(np.diag(together)),) * 2)
@@ -169,3 +173,19 @@ def test_marginals_of_many_keys_made_a_chunk_at_a_time_match_the_dense_inverse(m
     np.testing.assert_allclose(sandwich.jointCovariance(0, 17), whole[spans[0], spans[17]], rtol=1e-9, atol=1e-14)
     np.testing.assert_allclose(bread.jointCovariance(0, 17), H_inv[spans[0], spans[17]], rtol=1e-9, atol=1e-14)
     np.testing.assert_allclose(bread.rows(np.arange(4)), H_inv[:4], rtol=1e-9, atol=1e-14)
+
+
+def test_key_density_counts_the_entries_a_chain_reaches():
+    """Ten Point3 keys in a chain (a prior on the first, a difference between neighbours) and one Vector4 key
+    tied to the last: the key pairs joined are the diagonal and the neighbours."""
+    from graphcal.calibration.observability import key_density
+
+    graph = gtsam.NonlinearFactorGraph()
+    noise3 = gtsam.noiseModel.Isotropic.Sigma(3, 1.0)
+    graph.add(gtsam.PriorFactorPoint3(0, np.zeros(3), noise3))
+    for k in range(1, 10):
+        graph.add(gtsam.BetweenFactorPoint3(k - 1, k, np.zeros(3), noise3))
+    graph.add(gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, 1.0), [9, 10], lambda *_: np.zeros(1)))
+    widths = {k: 3 for k in range(10)} | {10: 4}
+    reached = 10 * 9 + 2 * 9 * 9 + 16 + 2 * 12  # the chain's blocks, the Vector4's own and its pair with key 9
+    assert key_density(graph, widths) == pytest.approx(reached / 34 ** 2, rel=1e-12)

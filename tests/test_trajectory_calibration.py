@@ -165,3 +165,34 @@ def test_a_coarse_phase_on_knots_interrupted_resumes_to_the_uninterrupted_result
                                                                         for row in whole.history]
     for a, b in zip(resumed.calibration.estimate.corrections, whole.calibration.estimate.corrections):
         assert a.equals(b, 1e-7)
+
+
+def test_the_assembled_levenberg_marquardt_takes_gtsams_steps(piecewise_error):
+    """On a joint calibration graph with trajectory corrections (coarse pairs at the start, where the steps are
+    large and lambda changes), LAPACK's solves of the assembled system take GTSAM's steps, iteration by
+    iteration; key_density counts the entries of H its factors reach."""
+    import gtsam
+
+    from graphcal.calibration.levenberg_marquardt import levenberg_marquardt
+    from graphcal.calibration.observability import key_density, tangent_widths
+    from graphcal.calibration.problem import Problem
+    from graphcal.calibration.returns import initial_estimate
+
+    problem = Problem.of(piecewise_error, graphcal.CalibrationConfig(mode="joint_trajectory"))
+    problem = problem.in_stage(problem.stages[-1]).in_phase("coarse")
+    estimate = initial_estimate(piecewise_error, problem.full)
+    graph, values = problem.graph(estimate, problem.associate(estimate))
+    widths = tangent_widths(values)
+    H, _ = graph.linearize(values).hessian(gtsam.Ordering(list(widths)))
+    edges = np.cumsum([0] + list(widths.values()))
+    reached = sum((edges[i + 1] - edges[i]) * (edges[j + 1] - edges[j]) for i in range(len(widths))
+                  for j in range(len(widths)) if np.any(H[edges[i]:edges[i + 1], edges[j]:edges[j + 1]]))
+    assert key_density(graph, widths) == pytest.approx(reached / H.size, rel=1e-12)
+    start = graph.error(values)
+    for iterations in (1, 2, 5):
+        ours = levenberg_marquardt(graph, values, iterations, assembled_from=0)
+        gtsams = levenberg_marquardt(graph, values, iterations, assembled_from=10 ** 9)
+        assert graph.error(ours) == pytest.approx(graph.error(gtsams), rel=1e-12) and graph.error(ours) < start
+        for key in widths:
+            step = gtsams.localCoordinates(ours).at(key)
+            assert np.abs(step).max() < 1e-9, (iterations, key, step)

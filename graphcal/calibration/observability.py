@@ -8,6 +8,7 @@ least-squares fit with point noise sigma0 (Cramér-Rao bound when sigma0 is the 
 from __future__ import annotations
 
 import copy
+import itertools
 from dataclasses import dataclass, replace
 
 import gtsam
@@ -185,18 +186,19 @@ class ScaledSolver:
     scaling takes out. By a Cholesky factor of the scaled matrix where its pivots stay above WELL_CONDITIONED:
     sparse (SuperLU in symmetric mode: a minimum-degree order of H, no pivoting, so H = L D L^T) unless H or its
     factor is as dense as DENSE_FROM (a drive that comes back often ties most controls together, and a sparse
-    solve is then ten times slower than a dense one), else dense, turned into the inverse in place (one n x n,
-    multiplied by b). Where the pivots vanish, by the dense eigen-decomposition with the eigenvalues floored at
-    eps times the largest (a nearly singular H: its near-null directions get variances of 1/floor instead of
-    infinities)."""
+    solve is then ten times slower than a dense one; an ndarray is taken dense), else dense, turned into the
+    inverse in place (one n x n, multiplied by b; inverse=False: the factor kept, b solved by it). Where the pivots
+    vanish, by the dense eigen-decomposition with the eigenvalues floored at eps times the largest (a nearly
+    singular H: its near-null directions get variances of 1/floor instead of infinities)."""
 
-    def __init__(self, information):
-        information = sparse.csc_matrix(information)
+    def __init__(self, information, inverse: bool = True):
+        given_dense = isinstance(information, np.ndarray)  # an ndarray is factorised dense (a copy of it)
+        information = information if given_dense else sparse.csc_matrix(information)
         self._scale = 1.0 / np.sqrt(information.diagonal())
         self._inverse = None  # the scaled inverse's lower triangle, where it is made dense
         try:
-            sparse_enough = not as_dense_as(information.nnz, information.shape)
-            self._solve = (sparse_enough and self._sparse_factor(information)) or self._dense_inverse(information)
+            sparse_enough = not given_dense and not as_dense_as(information.nnz, information.shape)
+            self._solve = (sparse_enough and self._sparse_factor(information)) or self._dense(information, inverse)
             self.factorised = True
         except (np.linalg.LinAlgError, RuntimeError):  # RuntimeError: SuperLU's exactly singular pivot
             eigenvalues, vectors = np.linalg.eigh(self._scaled(information))
@@ -218,20 +220,22 @@ class ScaledSolver:
         scaled = np.where(below, self._inverse[:, columns], self._inverse[columns, :].T)
         return self._scale[:, None] * scaled * self._scale[columns][None, :]
 
-    def _scaled(self, information: sparse.csc_matrix) -> np.ndarray:
-        """The unit-diagonal matrix, dense, scaled in place."""
-        scaled = information.toarray()
+    def _scaled(self, information) -> np.ndarray:
+        """The unit-diagonal matrix, dense (a copy), scaled in place."""
+        scaled = information.toarray() if sparse.issparse(information) else np.array(information)
         scaled *= self._scale[:, None]
         scaled *= self._scale[None, :]
         return scaled
 
-    def _dense_inverse(self, information: sparse.csc_matrix):
-        """The scaled matrix's inverse made in place over it (LAPACK potrf then potri: one n x n, its lower
-        triangle), solving by a symmetric product."""
+    def _dense(self, information, inverse: bool):
+        """The scaled matrix's Cholesky factor made in place over it (LAPACK potrf: one n x n, its lower triangle),
+        solving by it (inverse False), or turned into the inverse in place (potri), solving by a symmetric product."""
         scaled = self._scaled(information).T  # symmetric: the transposed view is Fortran-ordered, factorised in place
         factor, info = scipy.linalg.lapack.dpotrf(scaled, lower=1, clean=0, overwrite_a=1)
         if info != 0 or np.min(np.diag(factor)) ** 2 < WELL_CONDITIONED:
             raise np.linalg.LinAlgError("pivots near rounding")
+        if not inverse:
+            return lambda b: scipy.linalg.lapack.dpotrs(factor, b, lower=1)[0]
         inverse, info = scipy.linalg.lapack.dpotri(factor, lower=1, overwrite_c=1)
         if info != 0:
             raise np.linalg.LinAlgError("a pivot at zero")
@@ -265,35 +269,69 @@ def as_dense_as(nonzeros: int, shape: tuple[int, int], fraction: float = 1.0) ->
 
 
 def information_of(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, widths: dict[int, int],
-                   factors: range | None = None) -> sparse.csc_matrix:
+                   factors: range | None = None, augmented: bool = False, dense: bool = False):
     """H at values, the sum of the graph's factors' (or of the given factors') information, each scattered into
-    its keys' columns (the keys in widths' order), sparse. Linearised and summed a batch of factors at a time:
-    the linear factors and the entries waiting to be summed stay bounded (a drive's thousands of blocks each hold
-    a dense compressed Jacobian), and the batches' sums are merged pairwise as a binary counter (each entry is
-    summed about log(batches) times, not once per batch)."""
-    starts = first_columns(widths)
-    width = sum(widths.values())
-    factors = range(graph.size()) if factors is None else factors
+    its keys' columns (the keys in widths' order), sparse (dense: an ndarray, summed in place); augmented:
+    [H g; g^T f] (n + 1 columns), g = A^T b the right-hand side of the Gauss-Newton step H dx = g (gtsam's
+    augmentedInformation). Linearised a batch of factors at a time (factor_information); sparse, each batch's
+    sum is merged with the others pairwise as a binary counter (each entry is summed about log(batches) times,
+    not once per batch)."""
+    width = sum(widths.values()) + augmented
+    if dense:
+        total = np.zeros((width, width))
+        for columns, information in factor_information(graph, values, widths, factors, augmented):
+            total[np.ix_(columns, columns)] += information
+        return total
     sums = []  # (batches summed, their sum): sizes decreasing as the bits of a binary counter
-    for first in range(factors.start, factors.stop, FACTORS_PER_BATCH):
-        batch = gtsam.NonlinearFactorGraph()
-        for index in range(first, min(first + FACTORS_PER_BATCH, factors.stop)):
-            batch.add(graph.at(index))
-        linear = batch.linearize(values)
-        rows, cols, entries = [], [], []
-        for i in range(linear.size()):
-            factor = linear.at(i)
-            columns = np.concatenate([starts[key] + np.arange(widths[key]) for key in factor.keys()])
-            rows.append(np.repeat(columns, len(columns)))
-            cols.append(np.tile(columns, len(columns)))
-            entries.append(factor.information().ravel())
-        total = (1, sparse.csc_matrix((np.concatenate(entries), (np.concatenate(rows), np.concatenate(cols))),
-                                      shape=(width, width)) if entries else sparse.csc_matrix((width, width)))
+    pieces = factor_information(graph, values, widths, factors, augmented)
+    while batch := list(itertools.islice(pieces, FACTORS_PER_BATCH)):
+        rows = np.concatenate([np.repeat(columns, len(columns)) for columns, _ in batch])
+        cols = np.concatenate([np.tile(columns, len(columns)) for columns, _ in batch])
+        entries = np.concatenate([information.ravel() for _, information in batch])
+        total = (1, sparse.csc_matrix((entries, (rows, cols)), shape=(width, width)))
         while sums and sums[-1][0] == total[0]:
             count, summed = sums.pop()
             total = (count + total[0], summed + total[1])
         sums.append(total)
     return sum((summed for _, summed in sums[1:]), sums[0][1]) if sums else sparse.csc_matrix((width, width))
+
+
+def factor_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, widths: dict[int, int],
+                       factors: range | None = None, augmented: bool = False):
+    """(columns, information) of each of the graph's factors (or of the given ones) at values, its keys' columns
+    in widths' order (augmented: the augmented information, its last column n). Linearised FACTORS_PER_BATCH at
+    a time: the linear factors held stay bounded (a drive's thousands of blocks each hold a dense compressed
+    Jacobian)."""
+    starts = first_columns(widths)
+    last = [[sum(widths.values())]] if augmented else []
+    factors = range(graph.size()) if factors is None else factors
+    for first in range(factors.start, factors.stop, FACTORS_PER_BATCH):
+        batch = gtsam.NonlinearFactorGraph()
+        for index in range(first, min(first + FACTORS_PER_BATCH, factors.stop)):
+            batch.add(graph.at(index))
+        linear = batch.linearize(values)
+        for i in range(linear.size()):
+            factor = linear.at(i)
+            columns = np.concatenate([starts[key] + np.arange(widths[key]) for key in factor.keys()] + last)
+            yield columns, factor.augmentedInformation() if augmented else factor.information()
+
+
+def key_density(graph: gtsam.NonlinearFactorGraph, widths: dict[int, int]) -> float:
+    """The fraction of H's entries (the keys' tangent columns, widths' order) the graph's factors reach: the
+    columns of every pair of keys some factor joins."""
+    index = {key: k for k, key in enumerate(widths)}
+    width = np.array(list(widths.values()), float)
+    if not graph.size() or not widths:
+        return 0.0
+    rows, cols = [], []
+    for i in range(graph.size()):
+        keys = np.array([index[key] for key in graph.at(i).keys() if key in index], np.int64)
+        rows.append(np.repeat(keys, len(keys)))
+        cols.append(np.tile(keys, len(keys)))
+    pattern = sparse.csr_matrix((np.ones(sum(len(r) for r in rows)), (np.concatenate(rows), np.concatenate(cols))),
+                                shape=(len(widths), len(widths)))
+    pattern.data[:] = 1.0  # duplicates summed: each pair once
+    return float(width @ (pattern @ width)) / width.sum() ** 2
 
 
 DENSE_FROM = 0.05  # fraction of nonzeros from which a matrix is held and factorised dense

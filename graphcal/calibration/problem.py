@@ -31,9 +31,10 @@ from graphcal.calibration.observability import (
     tangent_widths,
 )
 from graphcal.calibration.pairing import Association, FeatureCache
+from graphcal.calibration.levenberg_marquardt import levenberg_marquardt
 from graphcal.calibration.priors import HELD_SIGMA, Priors, control_prior_sigma
-from graphcal.calibration.returns import (Estimate, ReturnData, knot_shares, knots_every, pose_of, prepare, resampled, revisits,
-                                         sight_at, world_at)
+from graphcal.calibration.returns import (Estimate, ReturnData, knot_shares, knots_every, pose_of, prepare, resampled,
+                                         revisits, sight_at, world_at)
 from graphcal.calibration import cluster_robust
 from graphcal.calibration.shared_returns import Linearised, shared_returns_covariance
 from graphcal.calibration.tiles import Tiling
@@ -45,10 +46,6 @@ from graphcal.recording.directory import Recording
 from graphcal.recording.intrinsics import offsets_to_file_units
 
 PHASES: tuple[Phase, ...] = ("coarse", "fine")
-# Levenberg-Marquardt's damping bound: the Hessian's diagonal spans from held priors (1/HELD_SIGMA^2 = 1e14)
-# to loose ones
-LAMBDA_UPPER_BOUND = 1e12
-
 MIN_RETURNS = 10_000  # fewer cannot give pairs of neighbouring fibres on enough surfaces
 
 
@@ -309,8 +306,8 @@ class Problem:
         pose = trajectory.pose_corrections
         scale = np.ones(len(estimate.corrections))  # rotations: rad x 1 m
         if self.knots is not None:
-            scale = (1 / np.sqrt(knot_shares(self.full.control_times_s, self.knots)) if trajectory.deformation == "prior"
-                     else np.sqrt(np.r_[1, np.diff(self.knots)]))
+            shares = knot_shares(self.full.control_times_s, self.knots)
+            scale = 1 / np.sqrt(shares) if trajectory.deformation == "prior" else np.sqrt(np.r_[1, np.diff(self.knots)])
         noise = [gtsam.noiseModel.Isotropic.Sigma(6 if pose else 3, sigma * s) for s in scale]
         step = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, np.radians(stopping.step_sigma_deg)),
                                                       np.full(3, stopping.step_sigma_m)] if pose
@@ -603,16 +600,3 @@ def on_plateau(energies: list[float], iterations: int, improvement: float) -> bo
     if len(energies) <= iterations:
         return False
     return min(energies[-iterations:]) > (1.0 - improvement) * min(energies[:-iterations])
-
-
-def levenberg_marquardt(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, iterations: int) -> gtsam.Values:
-    """GTSAM's Levenberg-Marquardt with damping scaled by the Hessian's diagonal. With GTSAM's default
-    (lambda times the identity, lambda <= 1e5) a graph whose diagonal reaches 1e14 (a held parameter
-    beside millimetre-sharp ones) gets Gauss-Newton steps whatever lambda, and when that step overshoots
-    LM rejects every lambda and returns the values unchanged: measured on diagnose's refit with a
-    pitched head (time offset stuck at 0, with this damping 5.14 ms for a true 5 ms)."""
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(iterations)
-    params.setDiagonalDamping(True)
-    params.setlambdaUpperBound(LAMBDA_UPPER_BOUND)
-    return gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
