@@ -1,29 +1,18 @@
-"""Levenberg-Marquardt on a calibration's factor graph: GTSAM's optimizer, or, for a graph of many keys, the same
-algorithm with the linear system assembled and factorised by LAPACK.
-
-A long drive's trajectory keys are tied together by its passes (pairs between passes of the same street): the
-system is nearly dense, and GTSAM's multifrontal elimination of it (Eigen's dense kernels on one core) grows as
-the cube of the keys. Measured on city_loop at the truth: 1 933 columns (ten minutes) 1.6 s an elimination
-against 0.13 s for LAPACK's Cholesky of the dense H; 10 933 (an hour) minutes an outer iteration. The assembled
-variant takes GTSAM's steps (the same damping, lambda schedule, acceptance and stopping rules) with the linear
-algebra of observability.ScaledSolver.
-"""
+"""Levenberg-Marquardt on a calibration's factor graph: GTSAM's optimizer, or, for a graph of many keys nearly
+dense (observability.assembled_dense: a long drive whose passes tie most trajectory keys together), the same
+algorithm with each linearisation assembled dense and factorised by LAPACK."""
 
 from __future__ import annotations
 
-import os
-
 import gtsam
 import numpy as np
-from threadpoolctl import threadpool_limits
 
-from graphcal.calibration.observability import (DENSE_FROM, ScaledSolver, first_columns, information_of, key_density,
-                                                tangent_widths)
+from graphcal.calibration.observability import (ScaledSolver, assembled_dense, every_core, first_columns,
+                                                information_of, tangent_widths)
 
 # Levenberg-Marquardt's damping bound: the Hessian's diagonal spans from held priors (1/HELD_SIGMA^2 = 1e14)
 # to loose ones
 LAMBDA_UPPER_BOUND = 1e12
-ASSEMBLED_FROM = 3000  # columns from which a system DENSE_FROM dense is assembled and factorised by LAPACK
 # GTSAM's defaults (LevenbergMarquardtParams), which the assembled variant follows
 LAMBDA_INITIAL, LAMBDA_FACTOR = 1e-5, 10.0
 MIN_DIAGONAL, MAX_DIAGONAL = 1e-6, 1e32  # the Hessian's diagonal, clipped, scales the damping
@@ -32,16 +21,15 @@ RELATIVE_ERROR_TOL = ABSOLUTE_ERROR_TOL = 1e-5
 
 
 def levenberg_marquardt(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, iterations: int,
-                        assembled_from: int = ASSEMBLED_FROM) -> gtsam.Values:
+                        assembled: bool | None = None) -> gtsam.Values:
     """Levenberg-Marquardt with damping scaled by the Hessian's diagonal, at most `iterations` linearisations.
     With GTSAM's default (lambda times the identity, lambda <= 1e5) a graph whose diagonal reaches 1e14 (a held
     parameter beside millimetre-sharp ones) gets Gauss-Newton steps whatever lambda, and when that step overshoots
     LM rejects every lambda and returns the values unchanged: measured on diagnose's refit with a pitched head
-    (time offset stuck at 0, with this damping 5.14 ms for a true 5 ms). A graph of assembled_from columns or more
-    whose factors reach DENSE_FROM of H (key_density) is solved by assembled_levenberg_marquardt; a sparser one
-    (a drive over new ground) by GTSAM's, whose sparse elimination it suits."""
+    (time offset stuck at 0, with this damping 5.14 ms for a true 5 ms). assembled (None: assembled_dense, a large
+    graph nearly dense) by assembled_levenberg_marquardt; else (a drive over new ground: sparse) by GTSAM's."""
     widths = tangent_widths(values)
-    if sum(widths.values()) >= assembled_from and key_density(graph, widths) >= DENSE_FROM:
+    if assembled or (assembled is None and assembled_dense(graph, widths)):
         return assembled_levenberg_marquardt(graph, values, iterations, widths)
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(iterations)
@@ -87,13 +75,12 @@ def assembled_levenberg_marquardt(graph: gtsam.NonlinearFactorGraph, values: gts
 
 
 def _solved(H: np.ndarray, added: np.ndarray, g: np.ndarray) -> np.ndarray:
-    """(H + diag(added))^-1 g, BLAS on every core the process may use (the calibration holds them to one elsewhere);
-    H is left as it was."""
+    """(H + diag(added))^-1 g, BLAS on every core; H is left as it was."""
     diagonal = np.einsum("ii->i", H)  # a view of H's diagonal
     undamped = diagonal.copy()
     diagonal += added
     try:
-        with threadpool_limits(limits=len(os.sched_getaffinity(0)), user_api="blas"):
+        with every_core():
             return ScaledSolver(H, inverse=False)(g)
     finally:
         diagonal[:] = undamped

@@ -26,8 +26,11 @@ from graphcal.calibration.observability import (
     POSE_TO_FILE_UNITS,
     Marginals,
     Uncertainty,
+    assembled_dense,
+    information_of,
     intrinsic_sigmas,
     pose_sigmas,
+    schur_complement,
     tangent_widths,
 )
 from graphcal.calibration.pairing import Association, FeatureCache
@@ -454,11 +457,15 @@ class Problem:
         given intrinsic and extrinsic keys, the trajectory corrections, when estimated, marginalised out with
         their own priors (E_def, held components): no prior on the calibration's keys is in it. The corrections
         are eliminated from the sparse linearised graph (GTSAM's partial multifrontal elimination, the keys kept
-        last): the Schur complement without a dense matrix over every control."""
+        last): the Schur complement without a dense matrix over every control; from a graph large and nearly dense
+        (observability.assembled_dense: a long drive that comes back), by LAPACK on the assembled dense H."""
         graph, values = self._pairs_graph(estimate, pairs)
         if self.estimated[2]:
             self._add_trajectory(graph, gtsam.Values(), estimate, False,
                                  control_prior_sigma(self.config, float(pairs.weight.sum())))
+        widths = tangent_widths(values)
+        if assembled_dense(graph, widths):
+            return schur_complement(information_of(graph, values, widths, dense=True), widths, keys)
         linear = graph.linearize(values)
         present = set(linear.keyVector())
         reached = [key for key in keys if key in present]
@@ -466,7 +473,6 @@ class Problem:
             order = gtsam.Ordering.ColamdConstrainedLastGaussianFactorGraph(linear, reached)
             _, linear = linear.eliminatePartialMultifrontal(
                 gtsam.Ordering([order.at(i) for i in range(order.size() - len(reached))]))
-        widths = tangent_widths(values)
         starts = np.r_[0, np.cumsum([widths[key] for key in keys])]
         spans = {key: np.arange(a, b) for key, a, b in zip(keys, starts[:-1], starts[1:])}
         columns = np.concatenate([spans[key] for key in reached]) if reached else np.zeros(0, int)
