@@ -336,10 +336,6 @@ def key_density(graph: gtsam.NonlinearFactorGraph, widths: dict[int, int]) -> fl
     return float(width @ (pattern @ width)) / width.sum() ** 2
 
 
-DENSE_FROM = 0.05  # fraction of nonzeros from which a matrix is held and factorised dense
-LARGE_FROM = 3000  # columns from which a graph DENSE_FROM dense is assembled dense and factorised by LAPACK
-
-
 def schur_complement(H: np.ndarray, widths: dict[int, int], keys: list[int]) -> np.ndarray:
     """H_kk - H_ko H_oo^-1 H_ok: the information on the given keys (their columns in keys' order) of a dense H over
     every key of widths (in widths' order), the other keys (o) eliminated; by LAPACK's Cholesky of H_oo on every
@@ -363,12 +359,14 @@ def assembled_dense(graph: gtsam.NonlinearFactorGraph, widths: dict[int, int]) -
     """Whether a graph's system is solved assembled dense rather than by GTSAM's elimination: LARGE_FROM columns
     or more, DENSE_FROM of H reached by its factors (key_density). A long drive's passes tie most trajectory keys
     together, and GTSAM's multifrontal elimination of such a system (Eigen's kernels, one core) grows as the cube
-    of the keys: on city_loop at the truth, 1 933 columns (ten minutes) 1.6 s against 0.13 s for LAPACK's
-    Cholesky of the dense H, 10 933 (an hour) minutes a Levenberg-Marquardt iteration."""
+    of the keys: on city_loop at the truth, 1 933 columns (ten minutes) 1.6 s an elimination against 0.13 s for
+    LAPACK's Cholesky of the dense H; 10 933 (an hour) two Levenberg-Marquardt iterations 475 s against 45 s."""
     return sum(widths.values()) >= LARGE_FROM and key_density(graph, widths) >= DENSE_FROM
+
+
+DENSE_FROM = 0.05  # fraction of nonzeros from which a matrix is held and factorised dense
+LARGE_FROM = 3000  # columns from which a graph DENSE_FROM dense is assembled dense and factorised by LAPACK
 FACTORS_PER_BATCH = 200  # factors linearised and summed at once (blocks of 232 columns: 260 MB of triplets)
-
-
 WELL_CONDITIONED = 1e-10  # the smallest squared Cholesky pivot (LDL^T) of a unit-diagonal matrix solved by its factor
 
 
