@@ -201,3 +201,32 @@ def test_the_assembled_levenberg_marquardt_takes_gtsams_steps(piecewise_error):
         for key in widths:
             step = gtsams.localCoordinates(ours).at(key)
             assert np.abs(step).max() < 1e-9, (iterations, key, step)
+
+
+@pytest.mark.parametrize("deformation", ["prior", "monnier"])
+def test_e_def_on_knots_is_the_controls_e_def(piecewise_error, deformation):
+    """On knots, E_def's terms are those of the controls they stand for: Monnier's successive differences exactly
+    for corrections linear between knots (each knot difference spread over its gap), the prior exactly for a
+    correction common to the whole drive (the gauge it holds)."""
+    import gtsam
+
+    from graphcal.calibration.problem import Problem, control_prior_sigma
+    from graphcal.calibration.returns import initial_estimate
+
+    config = graphcal.CalibrationConfig(mode="trajectory", trajectory={"coarse_max_controls": 3,
+                                                                       "deformation": deformation})
+    every = Problem.of(piecewise_error, config)
+    knots = every.in_phase("coarse").on_coarse_controls()
+    rng = np.random.default_rng(5)
+    common = gtsam.Pose3(gtsam.Rot3(), rng.normal(0, 0.2, 3))
+    varied = [gtsam.Pose3(gtsam.Rot3(), rng.normal(0, 0.2, 3)) for _ in range(3)]
+    start = initial_estimate(piecewise_error, every.full)
+    cases = [[common] * 3] + ([varied] if deformation == "monnier" else [])
+    for poses in cases:
+        on_knots = type(start)(start.offsets, start.extrinsic, tuple(poses))
+        errors = []
+        for problem, estimate in ((knots, on_knots), (every, knots.at_every_control(on_knots))):
+            graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+            problem._add_trajectory(graph, values, estimate, False, control_prior_sigma(problem.config, 1e5))
+            errors.append(graph.error(values))
+        assert errors[1] > 0 and errors[0] == pytest.approx(errors[1], rel=1e-9), errors
