@@ -265,6 +265,11 @@ def first_columns(widths: dict[int, int]) -> dict[int, int]:
     return dict(zip(widths, np.r_[0, np.cumsum(list(widths.values()))[:-1]].tolist()))
 
 
+def columns_of_keys(starts: dict[int, int], widths: dict[int, int], keys) -> np.ndarray:
+    """The columns of the given keys' tangent spaces, in the keys' order (starts: first_columns(widths))."""
+    return np.concatenate([starts[key] + np.arange(widths[key]) for key in keys] or [np.zeros(0, int)])
+
+
 def as_dense_as(nonzeros: int, shape: tuple[int, int], fraction: float = 1.0) -> bool:
     """Whether nonzeros fill fraction x DENSE_FROM of a matrix of that shape (held and factorised dense from there)."""
     return nonzeros >= fraction * DENSE_FROM * np.prod(shape)
@@ -305,7 +310,7 @@ def factor_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, 
     a time: the linear factors held stay bounded (a drive's thousands of blocks each hold a dense compressed
     Jacobian)."""
     starts = first_columns(widths)
-    last = [[sum(widths.values())]] if augmented else []
+    last = np.array([sum(widths.values())] if augmented else [], int)
     factors = range(graph.size()) if factors is None else factors
     for first in range(factors.start, factors.stop, FACTORS_PER_BATCH):
         batch = gtsam.NonlinearFactorGraph()
@@ -314,7 +319,7 @@ def factor_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, 
         linear = batch.linearize(values)
         for i in range(linear.size()):
             factor = linear.at(i)
-            columns = np.concatenate([starts[key] + np.arange(widths[key]) for key in factor.keys()] + last)
+            columns = np.concatenate([columns_of_keys(starts, widths, factor.keys()), last])
             yield columns, factor.augmentedInformation() if augmented else factor.information()
 
 
@@ -340,8 +345,7 @@ def schur_complement(H: np.ndarray, widths: dict[int, int], keys: list[int]) -> 
     """H_kk - H_ko H_oo^-1 H_ok: the information on the given keys (their columns in keys' order) of a dense H over
     every key of widths (in widths' order), the other keys (o) eliminated; by LAPACK's Cholesky of H_oo on every
     core (ScaledSolver). H is left as it was."""
-    starts = first_columns(widths)
-    kept = np.concatenate([starts[key] + np.arange(widths[key]) for key in keys]) if keys else np.zeros(0, int)
+    kept = columns_of_keys(first_columns(widths), widths, keys)
     others = np.setdiff1d(np.arange(len(H)), kept)
     coupling = H[np.ix_(others, kept)]
     with every_core():

@@ -307,11 +307,12 @@ class Problem:
         successive differences between two knots (corrections linear between them)."""
         trajectory, stopping = self.config.trajectory, self.config.stopping
         pose = trajectory.pose_corrections
-        scale = np.ones(len(estimate.corrections))  # rotations: rad x 1 m
-        if self.knots is not None:
-            shares = knot_shares(self.full.control_times_s, self.knots)
-            scale = 1 / np.sqrt(shares) if trajectory.deformation == "prior" else np.sqrt(np.r_[1, np.diff(self.knots)])
-        noise = [gtsam.noiseModel.Isotropic.Sigma(6 if pose else 3, sigma * s) for s in scale]
+        scale = np.ones(len(estimate.corrections))
+        if self.knots is not None and trajectory.deformation == "prior":
+            scale = 1 / np.sqrt(knot_shares(self.full.control_times_s, self.knots))
+        elif self.knots is not None:
+            scale = np.sqrt(np.r_[1, np.diff(self.knots)])
+        noise = [gtsam.noiseModel.Isotropic.Sigma(6 if pose else 3, sigma * s) for s in scale]  # rotations: rad x 1 m
         step = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, np.radians(stopping.step_sigma_deg)),
                                                       np.full(3, stopping.step_sigma_m)] if pose
                                                 else np.full(3, stopping.step_sigma_m))
