@@ -5,8 +5,9 @@ directions and gives the final fit with its sigmas.
 The outer loop (Algorithm 1 of the thesis, ICP-like): associate -> one GTSAM graph -> Levenberg-Marquardt
 -> update. Energy of eq. 4.4/5.2: J = sum w d^2 / sum w, reported in cm^2, with d the point-to-plane
 distance; the graph's cost is (W / sigma0^2) (J + lambda_rigid E_def) + priors, eq. 5.4 with J normalised
-by the weight sum W, so E_def's prior has sigma = sigma0 / sqrt(lambda_rigid W) on each control: the
-balance of data and rigidity does not depend on how many pairs are drawn.
+by the weight sum W, so each term of E_def (a control's correction, eq. 5.3, or the difference of two successive
+ones, Monnier's) has sigma = sigma0 / sqrt(lambda_rigid W): the balance of data and rigidity does not depend on
+how many pairs are drawn.
 """
 
 from __future__ import annotations
@@ -50,6 +51,9 @@ from graphcal.recording.intrinsics import offsets_to_file_units
 
 PHASES: tuple[Phase, ...] = ("coarse", "fine")
 MIN_RETURNS = 10_000  # fewer cannot give pairs of neighbouring fibres on enough surfaces
+# Monnier's differences are quadratic up to this many sigmas and linear beyond (Huber's 95 %-efficiency constant):
+# an INS's error drifts smoothly between a GNSS update's steps, and a step pays in proportion to its size
+JUMP_HUBER = 1.345
 
 
 def enough_returns(recording: Recording) -> None:
@@ -302,7 +306,8 @@ class Problem:
             self._add_trajectory(graph, values, estimate, damped, control_prior_sigma(self.config, weight_sum))
 
     def _add_trajectory(self, graph, values, estimate: Estimate, damped: bool, sigma: float) -> None:
-        """Control corrections and E_def (eq. 5.3) or Monnier's successive differences. On knots (on_coarse_controls)
+        """Control corrections and E_def (eq. 5.3) or Monnier's successive differences (the seed's quotation after
+        eq. 5.3) under a Huber loss of JUMP_HUBER sigmas, with a prior on the first. On knots (on_coarse_controls)
         each prior is that of the controls the knot stands for (knot_shares), each difference that of the controls'
         successive differences between two knots (corrections linear between them)."""
         trajectory, stopping = self.config.trajectory, self.config.stopping
@@ -313,6 +318,10 @@ class Problem:
         elif self.knots is not None:
             scale = np.sqrt(np.r_[1, np.diff(self.knots)])
         noise = [gtsam.noiseModel.Isotropic.Sigma(6 if pose else 3, sigma * s) for s in scale]  # rotations: rad x 1 m
+        if trajectory.deformation == "monnier":  # a difference over n controls: sigma and threshold x sqrt(n)
+            huber = gtsam.noiseModel.mEstimator.Huber.Create
+            noise = [noise[0]] + [gtsam.noiseModel.Robust.Create(huber(JUMP_HUBER * s), n)
+                                  for n, s in zip(noise[1:], scale[1:])]
         step = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, np.radians(stopping.step_sigma_deg)),
                                                       np.full(3, stopping.step_sigma_m)] if pose
                                                 else np.full(3, stopping.step_sigma_m))
