@@ -230,3 +230,40 @@ def test_e_def_on_knots_is_the_controls_e_def(piecewise_error, deformation):
             problem._add_trajectory(graph, values, estimate, False, control_prior_sigma(problem.config, 1e5))
             errors.append(graph.error(values))
         assert errors[1] > 0 and errors[0] == pytest.approx(errors[1], rel=1e-9), errors
+
+
+@pytest.mark.parametrize("deformation", ["prior", "monnier"])
+def test_a_stretch_the_data_do_not_see_follows_its_neighbours_under_monnier(piecewise_error, deformation):
+    """Controls 0-1 and 5-6 pinned by stand-ins for their data (tight priors at an INS error of 20 cm in x), the
+    three between left to E_def alone: Monnier's differences carry the neighbours' correction across them (the
+    along-track corrections of a straight street the data barely see), the seed's eq. 5.3 pulls each to zero
+    (the INS's value). A 30 cm step between two pinned controls costs Huber's linear price, not the square."""
+    import gtsam
+
+    from graphcal.calibration.keys import X
+    from graphcal.calibration.problem import JUMP_HUBER, Problem, control_prior_sigma
+    from graphcal.calibration.returns import initial_estimate
+
+    problem = Problem.of(piecewise_error, graphcal.CalibrationConfig(mode="trajectory",
+                                                                    trajectory={"deformation": deformation}))
+    estimate = initial_estimate(piecewise_error, problem.full)
+    sigma = control_prior_sigma(problem.config, 1e5)
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    problem._add_trajectory(graph, values, estimate, False, sigma)
+    n = len(estimate.corrections)
+    assert n == 7
+    error = np.array([0.2, 0.0, 0.0])
+    for c in (0, 1, n - 2, n - 1):
+        graph.add(gtsam.PriorFactorPoint3(X(c), error, gtsam.noiseModel.Isotropic.Sigma(3, 1e-5)))
+    solved = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
+    middle = np.array([solved.atPoint3(X(c)) for c in range(2, n - 2)])
+    np.testing.assert_allclose(middle, np.tile(error, (3, 1)) if deformation == "monnier" else 0.0 * middle, atol=1e-4)
+    if deformation == "monnier":  # Huber: rho(r) = k |r| - k^2 / 2 beyond k sigmas
+        values = gtsam.Values()
+        for c in range(n):
+            values.insert(X(c), np.array([0.3 if c >= 3 else 0.0, 0.0, 0.0]))
+        step = 0.3 / sigma
+        assert step > JUMP_HUBER
+        assert sum(graph.at(i).error(values) for i in range(graph.size())
+                   if isinstance(graph.at(i), gtsam.BetweenFactorPoint3)) == pytest.approx(
+            JUMP_HUBER * step - JUMP_HUBER ** 2 / 2, rel=1e-9)
