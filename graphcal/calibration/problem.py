@@ -492,9 +492,9 @@ class Problem:
         return information
 
     def control_information(self, estimate: Estimate, pairs: Correspondences) -> np.ndarray:
-        """(C, d, d): the information the pairs alone carry on each control correction (d: 6, rotation then
-        translation, or 3) with every other key held, the Gauss-Newton diagonal block of the pair factors, in units
-        of the information of its rigidity prior (E_def, eq. 5.3): what the returns near its time see of it."""
+        """(C, d, d) [m^-2, rotations in rad x 1 m]: the information the pairs alone carry on each control
+        correction (d: 6, rotation then translation, or 3) with every other key held, the Gauss-Newton diagonal
+        block of the pair factors: what the returns near its time see of it."""
         graph, values = self._pairs_graph(estimate, pairs)
         controls = {X(c): c for c in range(len(estimate.corrections))}
         width = tangent_widths(values)
@@ -511,7 +511,7 @@ class Problem:
                 if key in controls:
                     information[controls[key]] += block[start:start + d, start:start + d]
                 start += width[key]
-        return information * control_prior_sigma(self.config, float(pairs.weight.sum())) ** 2
+        return information
 
     def _pairs_graph(self, estimate: Estimate,
                      pairs: Correspondences) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
