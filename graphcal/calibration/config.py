@@ -144,13 +144,14 @@ class TrajectorySettings(BaseModel):
     """Trajectory corrections at control times control_interval_s apart (seed 001: about 1 s), Point3 or
     Pose3 (pose_corrections), held by E_def (eq. 5.4: lambda_rigid against the normalised energy J, both m^2):
     deformation "monnier" (the default) penalises the differences of successive corrections, quadratic up to
-    problem.JUMP_HUBER sigmas and linear beyond (an INS's error drifts, with a GNSS update's steps), and the first
-    correction; "prior" each correction (eq. 5.3), which pulls every stretch the data barely see back to the INS's
-    value (on an hour's drive, the along-track corrections of its straight streets); block_controls control
-    intervals of p per block factor; coarse_max_controls: the coarse phase corrects the trajectory at every k-th
-    control only (the others interpolated between them), k the least that leaves at most this many (None: at every
-    control). On a long drive whose passes tie most controls together, the elimination of a solve grows about as
-    the cube of the controls; the coarse phase only has to reach the basin."""
+    problem.JUMP_HUBER sigmas and linear beyond (an INS's error drifts, with a GNSS update's steps), and each
+    correction with sqrt(number of controls) times their sigma (the drive's mean); "prior" each correction (eq.
+    5.3), which pulls every stretch the data barely see back to the INS's value (on an hour's drive, the
+    along-track corrections of its straight streets); block_controls control intervals of p per block factor;
+    coarse_max_controls: the coarse phase corrects the trajectory at every k-th control only (the others
+    interpolated between them), k the least that leaves at most this many (None: at every control). On a long drive
+    whose passes tie most controls together, the elimination of a solve grows about as the cube of the controls;
+    the coarse phase only has to reach the basin."""
 
     model_config = _SECTION
     control_interval_s: float = Field(1.0, gt=0)

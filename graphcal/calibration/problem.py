@@ -306,22 +306,27 @@ class Problem:
             self._add_trajectory(graph, values, estimate, damped, control_prior_sigma(self.config, weight_sum))
 
     def _add_trajectory(self, graph, values, estimate: Estimate, damped: bool, sigma: float) -> None:
-        """Control corrections and E_def (eq. 5.3) or Monnier's successive differences (the seed's quotation after
-        eq. 5.3) under a Huber loss of JUMP_HUBER sigmas, with a prior on the first. On knots (on_coarse_controls)
-        each prior is that of the controls the knot stands for (knot_shares), each difference that of the controls'
-        successive differences between two knots (corrections linear between them)."""
+        """Control corrections and E_def: the seed's eq. 5.3 (a prior of sigma on each control) or Monnier's
+        successive differences (the seed's quotation after eq. 5.3) under a Huber loss of JUMP_HUBER sigmas, with a
+        prior of sigma sqrt(N) on each of the N controls, which holds the drive's mean correction (the gauge) with
+        sigma, on every control's INS value, and pulls no stretch back. On knots (on_coarse_controls) each prior is
+        that of the controls the knot stands for (knot_shares), each difference that of the controls' successive
+        differences between two knots (corrections linear between them)."""
         trajectory, stopping = self.config.trajectory, self.config.stopping
         pose = trajectory.pose_corrections
-        scale = np.ones(len(estimate.corrections))
-        if self.knots is not None and trajectory.deformation == "prior":
-            scale = 1 / np.sqrt(knot_shares(self.full.control_times_s, self.knots))
-        elif self.knots is not None:
-            scale = np.sqrt(np.r_[1, np.diff(self.knots)])
-        noise = [gtsam.noiseModel.Isotropic.Sigma(6 if pose else 3, sigma * s) for s in scale]  # rotations: rad x 1 m
-        if trajectory.deformation == "monnier":  # a difference over n controls: sigma and threshold x sqrt(n)
-            huber = gtsam.noiseModel.mEstimator.Huber.Create
-            noise = [noise[0]] + [gtsam.noiseModel.Robust.Create(huber(JUMP_HUBER * s), n)
-                                  for n, s in zip(noise[1:], scale[1:])]
+        every = self.knots is None
+        shares = np.ones(len(estimate.corrections)) if every else knot_shares(self.full.control_times_s, self.knots)
+        gaps = np.ones(len(estimate.corrections)) if every else np.r_[1, np.diff(self.knots)]
+        monnier = trajectory.deformation == "monnier"
+        anchor = sigma * np.sqrt(len(self.full.control_times_s)) if monnier else sigma
+
+        def isotropic(sigma_m: float):  # rotations: rad x 1 m
+            return gtsam.noiseModel.Isotropic.Sigma(6 if pose else 3, sigma_m)
+
+        anchors = [isotropic(anchor / np.sqrt(share)) for share in shares]
+        huber = gtsam.noiseModel.mEstimator.Huber.Create  # a difference over n controls: sigma, threshold x sqrt(n)
+        differences = [gtsam.noiseModel.Robust.Create(huber(JUMP_HUBER * np.sqrt(gap)), isotropic(sigma * np.sqrt(gap)))
+                       for gap in gaps]
         step = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, np.radians(stopping.step_sigma_deg)),
                                                       np.full(3, stopping.step_sigma_m)] if pose
                                                 else np.full(3, stopping.step_sigma_m))
@@ -333,11 +338,10 @@ class Problem:
             if damped:
                 graph.add(gtsam.PriorFactorPose3(X(c), correction, step) if pose
                           else gtsam.PriorFactorPoint3(X(c), correction.translation(), step))
-            if trajectory.deformation == "prior" or c == 0:
-                graph.add(prior(c, noise[c]))
-            if trajectory.deformation == "monnier" and c > 0:
-                graph.add(gtsam.BetweenFactorPose3(X(c - 1), X(c), gtsam.Pose3(), noise[c]) if pose
-                          else gtsam.BetweenFactorPoint3(X(c - 1), X(c), np.zeros(3), noise[c]))
+            graph.add(prior(c, anchors[c]))
+            if monnier and c > 0:
+                graph.add(gtsam.BetweenFactorPose3(X(c - 1), X(c), gtsam.Pose3(), differences[c]) if pose
+                          else gtsam.BetweenFactorPoint3(X(c - 1), X(c), np.zeros(3), differences[c]))
             if held[c].any():
                 graph.add(prior(c, gtsam.noiseModel.Diagonal.Sigmas(np.where(held[c], HELD_SIGMA, 1e6))))
 

@@ -29,7 +29,7 @@ CHUNK_COLUMNS = 1024  # columns of the inverse solved at once: CHUNK_COLUMNS x 8
 def posterior_sigmas(information: np.ndarray, sigma_m: float, deformation: Literal["prior", "monnier"]) -> np.ndarray:
     """(C, d) posterior sigma [m, or rad x 1 m] of each component of each control correction, from the data's
     information on each control (C, d, d) [m^-2] and E_def's terms of sigma_m: a prior on each control (eq. 5.3)
-    or on the first and on each successive difference (monnier)."""
+    or each successive difference, with a prior of sigma_m sqrt(C) on each control (monnier)."""
     controls, width = information.shape[:2]
     n = controls * width
     data = scipy.sparse.block_diag([0.5 * (block + block.T) for block in information], format="csr")
@@ -38,8 +38,7 @@ def posterior_sigmas(information: np.ndarray, sigma_m: float, deformation: Liter
     else:
         ones = np.ones(controls - 1)
         steps = scipy.sparse.diags([ones, -ones], [0, 1], shape=(controls - 1, controls))
-        first = scipy.sparse.csr_matrix(([1.0], ([0], [0])), shape=(1, controls))
-        chain = (steps.T @ steps + first.T @ first).tocsr()
+        chain = (steps.T @ steps + scipy.sparse.identity(controls) / controls).tocsr()
         rigidity = scipy.sparse.kron(chain, scipy.sparse.identity(width), format="csr")
     factor = scipy.sparse.linalg.splu((data + rigidity / sigma_m ** 2).tocsc())
     variance = np.empty(n)
