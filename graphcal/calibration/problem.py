@@ -326,7 +326,7 @@ class Problem:
         anchors = [isotropic(anchor / np.sqrt(share)) for share in shares]
         huber = gtsam.noiseModel.mEstimator.Huber.Create  # a difference over n controls: sigma, threshold x sqrt(n)
         differences = [gtsam.noiseModel.Robust.Create(huber(JUMP_HUBER * np.sqrt(gap)), isotropic(sigma * np.sqrt(gap)))
-                       for gap in gaps]
+                       for gap in gaps] if monnier else []
         step = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, np.radians(stopping.step_sigma_deg)),
                                                       np.full(3, stopping.step_sigma_m)] if pose
                                                 else np.full(3, stopping.step_sigma_m))
