@@ -7,11 +7,14 @@ what is named comes from the drive and the scene, not from errors to find. The l
 
 import html
 
+import gtsam
 import numpy as np
 import yaml
 from typer.testing import CliRunner
 
 import graphcal
+from graphcal.calibration.keys import X
+from graphcal.calibration.problem import Problem
 from graphcal.cli.main import app
 from graphcal.recording.sensor import sensor_from_catalog
 from graphcal.simulation.drive import Drive, spin, straight, turn
@@ -155,11 +158,25 @@ def test_a_street_that_ends_in_an_open_field_names_the_corrections_the_field_can
     result = graphcal.calibrate(recording, graphcal.CalibrationConfig(mode="trajectory"), quiet=True)
     named = set(result.unobservable)
     x_m = -5.0 + 10.0 * (result.calibration.control_times_s - result.calibration.control_times_s[0])
-    field = np.flatnonzero(x_m - 1.0 > 30.0 + 40.0)  # every return of the controls' intervals beyond the range
-    street_ = np.flatnonzero(x_m + 1.0 < 30.0)
+    interval_m = 10.0  # a control's interval on each side: 1 s at 10 m/s
+    field = np.flatnonzero(x_m - interval_m > 30.0 + 40.0)  # every return of the controls' intervals beyond the range
+    street_ = np.flatnonzero(x_m + interval_m < 30.0)  # ... and between the facades
     assert len(field) >= 2 and len(street_) >= 3
     assert all({f"control_{c}.x_m", f"control_{c}.y_m"} <= named for c in field), sorted(named)
     assert not any(f"control_{c}.y_m" in named for c in street_), sorted(named)
     assert not any(name.endswith(".z_m") for name in named)
     assert "too little structure near t = " in result.calibration.reasons[f"control_{field[0]}.y_m"]
+    # the control sigmas are about the drive's mean (its common translation is named, E_def's anchors hold it):
+    # against the covariance of x_c - mean(x) from GTSAM's joint marginals of every control
+    problem = Problem.of(recording, result.config).in_phase("fine")
+    final = problem.final(result.calibration.estimate)
+    graph, values = problem.graph(result.calibration.estimate, final.pairs, damped=False)
+    controls = len(result.calibration.control_times_s)
+    joint = gtsam.Marginals(graph, values).jointMarginalCovariance([X(c) for c in range(controls)]).fullMatrix()
+    about_mean = np.kron(np.eye(controls) - 1.0 / controls, np.eye(3))
+    expected_m = np.sqrt(np.diag(about_mean @ joint @ about_mean)).reshape(controls, 3)
+    np.testing.assert_allclose(final.uncertainty.controls[:, 3:], expected_m, rtol=1e-3)
+    sigma_m = result.sigmas.controls[:, 3:]  # the names are the reported sigmas above the 1 cm noise
+    assert {f"control_{c}.{axis}" for c, k in zip(*np.nonzero(sigma_m > 0.01)) for axis in [("x_m", "y_m", "z_m")[k]]} \
+        == {name for name in named if name.startswith("control_")}
     assert "the trajectory corrections at" in result.verdict

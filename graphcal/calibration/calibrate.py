@@ -21,7 +21,6 @@ from graphcal.calibration.checks import (
 )
 from graphcal.calibration.config import CalibrationConfig, Phase
 from graphcal.calibration.observability import EXTRINSIC_NAMES, TRAJECTORY_GAUGE
-from graphcal.calibration.priors import control_prior_sigma
 from graphcal.calibration.problem import PHASES, FinalFit, History, Problem
 from graphcal.calibration.result import Calibration, CalibrationResult, drive_of
 from graphcal.calibration.returns import Estimate, initial_estimate
@@ -231,9 +230,7 @@ class CalibrationPipeline:
         reasons = {name: HELD_REASON for name in held}
         reasons |= {name: reason for name, reason in self.weak.named().items() if name not in held}
         if estimated[2]:
-            information = self.timed("unseen controls", problem.control_information, estimate, final.pairs)
-            reasons |= unseen_controls(information, data.control_times_s,
-                                       control_prior_sigma(problem.config, float(final.pairs.weight.sum())),
+            reasons |= unseen_controls(final.sigmas.controls, data.control_times_s,
                                        problem.config.trajectory.deformation, problem.config.weighting.sigma0_m)
         unobservable = held + [name for name in reasons if name not in held]
         self.check(final, unobservable)

@@ -51,6 +51,14 @@ class Uncertainty:
                        extrinsic=wider(self.extrinsic, other.extrinsic), controls=wider(self.controls, other.controls))
 
 
+def reported(model: Uncertainty, shared_returns: Uncertainty | None, cluster_robust: Uncertainty | None) -> Uncertainty:
+    """The 1-sigmas a calibration reports: with each return's noise counted once when computed (shared_returns), else
+    the model's, each widened to the cluster-robust sigma where that is larger (the residuals vary more than their
+    model)."""
+    modelled = model if shared_returns is None else shared_returns
+    return modelled if cluster_robust is None else modelled.widest(cluster_robust)
+
+
 class Meat:
     """A sandwich's meat over the information matrix's columns, never a dense n x n but where it is as dense as
     DENSE_FROM (a drive that comes back often ties most controls together): a sparse symmetric matrix plus factors,

@@ -32,6 +32,7 @@ from graphcal.calibration.observability import (
     intrinsic_sigmas,
     pose_sigmas,
     schur_complement,
+    reported,
     tangent_widths,
 )
 from graphcal.calibration.pairing import Association, FeatureCache
@@ -90,6 +91,11 @@ class FinalFit:
     shared_returns: Uncertainty | None
     cluster_robust: Uncertainty | None
     expected_energy_cm2: float | None
+
+    @property
+    def sigmas(self) -> Uncertainty:
+        """The 1-sigmas the calibration reports (observability.reported)."""
+        return reported(self.uncertainty, self.shared_returns, self.cluster_robust)
 
 
 @dataclass(frozen=True)
@@ -318,7 +324,7 @@ class Problem:
         shares = np.ones(len(estimate.corrections)) if every else knot_shares(self.full.control_times_s, self.knots)
         gaps = np.ones(len(estimate.corrections)) if every else np.r_[1, np.diff(self.knots)]
         monnier = trajectory.deformation == "monnier"
-        anchor = sigma * np.sqrt(len(self.full.control_times_s)) if monnier else sigma
+        anchor = self._anchor_sigma(sigma)
 
         def isotropic(sigma_m: float):  # rotations: rad x 1 m
             return gtsam.noiseModel.Isotropic.Sigma(6 if pose else 3, sigma_m)
@@ -344,6 +350,23 @@ class Problem:
                           else gtsam.BetweenFactorPoint3(X(c - 1), X(c), np.zeros(3), differences[c]))
             if held[c].any():
                 graph.add(prior(c, gtsam.noiseModel.Diagonal.Sigmas(np.where(held[c], HELD_SIGMA, 1e6))))
+
+    def _anchor_sigma(self, sigma: float) -> float:
+        """E_def's prior [m, or rad x 1 m] on each control correction: sigma (eq. 5.3), or sigma sqrt(N) on each of
+        the N controls under Monnier's differences (which hold the drive's mean correction with sigma)."""
+        return sigma * np.sqrt(len(self.full.control_times_s)) if self.config.trajectory.deformation == "monnier" \
+            else sigma
+
+    def common_translation_variance(self, sigma: float) -> np.ndarray:
+        """(3,) [m^2] the variance E_def leaves to the drive's common translation along each world axis, present in
+        every control's marginal: the data never see it (every return moves rigidly with it) and Monnier's
+        differences do not either, so only the anchors (and a held component's prior) hold it. With uniform anchors
+        it is an eigen-direction of the posterior covariance, of the model's marginals and of the sandwiches alike
+        (their meat carries the priors' information): subtracting it from a control's variance leaves the variance
+        about the drive's mean."""
+        controls = len(self.full.control_times_s)
+        held = self.priors.control_held[:, -3:].sum(axis=0)
+        return 1.0 / (controls / self._anchor_sigma(sigma) ** 2 + held / HELD_SIGMA ** 2)
 
     def step(self, estimate: Estimate, pairs: Correspondences) -> Estimate:
         """One solve on the pairs (stopping.lm_iterations of Levenberg-Marquardt), read back."""
@@ -495,28 +518,6 @@ class Problem:
             information[np.ix_(columns, columns)] = linear.hessian(gtsam.Ordering(reached))[0]
         return information
 
-    def control_information(self, estimate: Estimate, pairs: Correspondences) -> np.ndarray:
-        """(C, d, d) [m^-2, rotations in rad x 1 m]: the information the pairs alone carry on each control
-        correction (d: 6, rotation then translation, or 3) with every other key held, the Gauss-Newton diagonal
-        block of the pair factors: what the returns near its time see of it."""
-        graph, values = self._pairs_graph(estimate, pairs)
-        controls = {X(c): c for c in range(len(estimate.corrections))}
-        width = tangent_widths(values)
-        d = 6 if self.config.trajectory.pose_corrections else 3
-        information = np.zeros((len(controls), d, d))
-        linear = graph.linearize(values)
-        for i in range(linear.size()):
-            factor = linear.at(i)
-            keys = list(factor.keys())
-            if not any(key in controls for key in keys):
-                continue
-            block, start = factor.information(), 0
-            for key in keys:
-                if key in controls:
-                    information[controls[key]] += block[start:start + d, start:start + d]
-                start += width[key]
-        return information
-
     def _pairs_graph(self, estimate: Estimate,
                      pairs: Correspondences) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
         """The pairs' block factors alone (no prior), with the estimated keys' values at the estimate."""
@@ -579,8 +580,10 @@ class Problem:
         controls = controls_prior = None
         if est_traj:
             rows, prior_rows = [], []
+            common = self.common_translation_variance(control_sigma)
             for c, correction in enumerate(estimate.corrections):
-                cov = marginals.marginalCovariance(X(c))
+                cov = marginals.marginalCovariance(X(c)).copy()
+                cov[-3:, -3:] -= np.diag(np.minimum(common, np.diag(cov)[-3:]))  # about the drive's mean
                 if self.config.trajectory.pose_corrections:
                     rows.append(pose_sigmas(cov, correction.rotation().matrix()))
                 else:

@@ -23,6 +23,7 @@ from graphcal.calibration.observability import (
     EXTRINSIC_NAMES,
     INTRINSIC_NAMES,
     Uncertainty,
+    reported,
 )
 from graphcal.calibration.returns import Estimate, pose_of
 from graphcal.common.errors import RecordingError, finite_number
@@ -199,10 +200,8 @@ class CalibrationResult:
 
     @property
     def sigmas(self) -> Uncertainty:
-        """The 1-sigmas to report: with each return's noise counted once when computed, else the Marginals', each
-        widened to the cluster-robust sigma where that is larger (the residuals vary more than their model)."""
-        modelled = self.uncertainty if self.shared_returns_uncertainty is None else self.shared_returns_uncertainty
-        return modelled if self.cluster_robust_uncertainty is None else modelled.widest(self.cluster_robust_uncertainty)
+        """The 1-sigmas to report (observability.reported)."""
+        return reported(self.uncertainty, self.shared_returns_uncertainty, self.cluster_robust_uncertainty)
 
     @property
     def unobservable(self) -> tuple[str, ...]:
