@@ -197,6 +197,31 @@ class RangeScale(Effect):
 
 
 @register
+class RangeOffset(Effect):
+    """Measured range = true range + offset_m on every fibre, the reference fibre's too. The per-fibre range
+    offsets take such an offset on every fibre but the reference, whose offsets are fixed (the gauge), so the model
+    cannot hold it without this parameter: a range curve's constant (a drift's mean over the drive) has nowhere
+    else to go."""
+
+    name: ClassVar[str] = "range_offset"
+    unit: ClassVar[str] = "m"
+    physics: ClassVar[str] = "every fibre's range, the reference fibre's too, is off by the same amount"
+    signature: ClassVar[str] = "range error common to every fibre, the reference fibre's too"
+    parameters: ClassVar[str] = "range offset common to every fibre [m]"
+    offset_m: float
+
+    def magnitude(self) -> float:
+        return self.offset_m
+
+    def measured_range(self, range_m, cos_incidence, intensity, elapsed_s):
+        return range_m + self.offset_m
+
+    @classmethod
+    def basis(cls, context: Context) -> Basis:
+        return Basis(1, range=-_ones(context))
+
+
+@register
 class IncidenceRangeBias(Effect):
     """Range bias growing with incidence: + bias_m (1 - cos alpha), bias_m at grazing (90 deg)."""
 
@@ -525,6 +550,10 @@ class FiringDelay(_SimulatedOnly):
 CANDIDATES: dict[str, type[Effect]] = {name: REGISTRY[name] for name in (
     "intra_sweep_motion", "time_offset", "spin_rate", "range_scale", "incidence_range_bias", "azimuth_eccentricity",
     "heading_bias", "heading_drift", "lever_arm", "projection_scale", "fibre_horizontal_offset")}
+# a channel's constant that neither an ordinary parameter nor a candidate takes: never tested on its own, solved
+# beside every discrepancy of its channel when that one is added (graphcal.diagnosis: the discrepancies' bases
+# have no constant)
+SOLVED_BESIDE: dict[str, type[Effect]] = {"range": REGISTRY["range_offset"]}
 SIMULATED: dict[str, type[Effect]] = {name: cls for name, cls in REGISTRY.items() if cls.simulated}
 
 
@@ -533,6 +562,9 @@ def candidate(name: str) -> type[Effect] | Discrepancy:
     names (factors.discrepancy)."""
     if name in CANDIDATES:
         return CANDIDATES[name]
+    beside = {cls.name: cls for cls in SOLVED_BESIDE.values()}
+    if name in beside:
+        return beside[name]
     if is_discrepancy(name):
         return Discrepancy.parse(name)
     raise KeyError(f"no effect and no discrepancy is named {name!r}")
