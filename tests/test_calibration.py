@@ -72,6 +72,20 @@ def test_result_saved_loaded_and_applied(street_with_traffic, street_result, tmp
     assert applied.shape == (len(street_with_traffic.points), 3)
 
 
+def test_a_calibration_with_the_effects_a_diagnosis_writes_loads(street_with_traffic, street_result, tmp_path):
+    """diagnose's calibration.yaml lists its findings and the constants solved beside them (a range curve's
+    range_offset): each is a name the file may hold."""
+    path = street_result.save(tmp_path / "run")
+    content = yaml.safe_load(path.read_text())
+    content["effects"] = [{"effect": "discovered", "magnitude": 0.02, "sigma": 0.001, "unit": "m",
+                           "parameters": [0.01, 0.02], "statement": "a range curve"},
+                          {"effect": "range_offset", "magnitude": 0.013, "sigma": 0.002, "unit": "m",
+                           "parameters": [0.013], "statement": "solved beside it"}]
+    path.write_text(yaml.safe_dump(content))
+    loaded = Calibration.load(path, street_with_traffic.sensor)
+    np.testing.assert_allclose(loaded.estimate.offsets, street_result.calibration.estimate.offsets, atol=1e-9)
+
+
 @pytest.mark.parametrize("edit, field", [
     (lambda d: d.update(extrinsic=[0.8, 0.0, 1.9]), "extrinsic"),
     (lambda d: d["sensor"].update(reference_fibre=3), "sensor.reference_fibre"),
