@@ -31,8 +31,8 @@ from graphcal.calibration.observability import (
     information_of,
     intrinsic_sigmas,
     pose_sigmas,
-    schur_complement,
     reported,
+    schur_complement,
     tangent_widths,
 )
 from graphcal.calibration.pairing import Association, FeatureCache
