@@ -9,12 +9,14 @@ import html
 
 import gtsam
 import numpy as np
+import pytest
 import yaml
 from typer.testing import CliRunner
 
 import graphcal
 from graphcal.calibration.keys import X
 from graphcal.calibration.problem import Problem
+from graphcal.calibration.returns import initial_estimate
 from graphcal.cli.main import app
 from graphcal.recording.sensor import sensor_from_catalog
 from graphcal.simulation.drive import Drive, spin, straight, turn
@@ -144,17 +146,42 @@ def test_a_standstill_prints_one_plain_line_through_the_command_line(tmp_path):
     assert html.escape(calibration["verdict"]) in (tmp_path / "run" / "report.html").read_text()
 
 
-def test_a_street_that_ends_in_an_open_field_names_the_corrections_the_field_cannot_show():
-    """A straight street of facades 40 m long, then 60 m of open ground beyond the head's 40 m range: once the
-    facades are out of reach only the ground's normal is seen, so the trajectory corrections there are named along
-    the ground (x, y), never in height; in the street the facades show the across-track (y)."""
+@pytest.fixture(scope="module")
+def street_then_field():
+    """A straight street of facades 40 m long, then 60 m of open ground beyond the head's 40 m range (max_range_m),
+    driven at 10 m/s from x = -5 m."""
     scene = [Ground(center_xy=(50.0, 0.0), size_m=(200.0, 60.0)),
              Facade(start_xy=(30.0, 8.0), end_xy=(-10.0, 8.0), relief_spacing_m=5.0, ledge_heights_m=(3.5,)),
              Facade(start_xy=(-10.0, -8.0), end_xy=(30.0, -8.0), relief_spacing_m=5.0, ledge_heights_m=(3.5,)),
              Pole(xy=(5.0, 5.0)), Pole(xy=(15.0, -5.0))]
     drive = Drive(segments=straight(120.0), speed_knots=[(0.0, 10.0), (10.0, 10.0)], start_xy=(-5.0, 0.0))
-    recording = graphcal.simulate(Scenario(name="street_then_field", duration_s=9.5, size=0.02, seed=1, scene=scene,
-                                           drive=drive, extrinsic=PITCHED_HEAD, max_range_m=40.0), quiet=True)
+    return graphcal.simulate(Scenario(name="street_then_field", duration_s=9.5, size=0.02, seed=1, scene=scene,
+                                      drive=drive, extrinsic=PITCHED_HEAD, max_range_m=40.0), quiet=True)
+
+
+@pytest.mark.parametrize("deformation", ["monnier", "prior"])
+def test_the_control_sigmas_are_about_the_drives_mean(street_then_field, deformation):
+    """No pair sees the drive's common translation (it is named; E_def's anchors hold it), so every control's
+    marginal carries its variance: the reported sigmas leave it out. Against the covariance of x_c - mean(x) from
+    GTSAM's joint marginals of every control, under both forms of E_def, at the nominal (here the true) model."""
+    config = graphcal.CalibrationConfig(mode="trajectory", trajectory={"deformation": deformation})
+    problem = Problem.of(street_then_field, config).in_phase("fine")
+    estimate = initial_estimate(street_then_field, problem.full)
+    final = problem.final(estimate)
+    graph, values = problem.graph(estimate, final.pairs, damped=False)
+    controls = len(estimate.corrections)
+    joint = gtsam.Marginals(graph, values).jointMarginalCovariance([X(c) for c in range(controls)]).fullMatrix()
+    about_mean = np.kron(np.eye(controls) - 1.0 / controls, np.eye(3))
+    expected_m = np.sqrt(np.diag(about_mean @ joint @ about_mean)).reshape(controls, 3)
+    np.testing.assert_allclose(final.uncertainty.controls[:, 3:], expected_m, rtol=1e-3)
+    # with the common translation's variance left in, every control would be known no better than E_def's term
+    assert np.sqrt(np.diag(joint)).reshape(controls, 3).min() > 1.2 * expected_m.min()
+
+
+def test_a_street_that_ends_in_an_open_field_names_the_corrections_the_field_cannot_show(street_then_field):
+    """Once the facades are out of reach only the ground's normal is seen, so the trajectory corrections there
+    are named along the ground (x, y), never in height; in the street the facades show the across-track (y)."""
+    recording = street_then_field
     result = graphcal.calibrate(recording, graphcal.CalibrationConfig(mode="trajectory"), quiet=True)
     named = set(result.unobservable)
     x_m = -5.0 + 10.0 * (result.calibration.control_times_s - result.calibration.control_times_s[0])
@@ -166,16 +193,6 @@ def test_a_street_that_ends_in_an_open_field_names_the_corrections_the_field_can
     assert not any(f"control_{c}.y_m" in named for c in street_), sorted(named)
     assert not any(name.endswith(".z_m") for name in named)
     assert "too little structure near t = " in result.calibration.reasons[f"control_{field[0]}.y_m"]
-    # the control sigmas are about the drive's mean (its common translation is named, E_def's anchors hold it):
-    # against the covariance of x_c - mean(x) from GTSAM's joint marginals of every control
-    problem = Problem.of(recording, result.config).in_phase("fine")
-    final = problem.final(result.calibration.estimate)
-    graph, values = problem.graph(result.calibration.estimate, final.pairs, damped=False)
-    controls = len(result.calibration.control_times_s)
-    joint = gtsam.Marginals(graph, values).jointMarginalCovariance([X(c) for c in range(controls)]).fullMatrix()
-    about_mean = np.kron(np.eye(controls) - 1.0 / controls, np.eye(3))
-    expected_m = np.sqrt(np.diag(about_mean @ joint @ about_mean)).reshape(controls, 3)
-    np.testing.assert_allclose(final.uncertainty.controls[:, 3:], expected_m, rtol=1e-3)
     sigma_m = result.sigmas.controls[:, 3:]  # the names are the reported sigmas above the 1 cm noise
     assert {f"control_{c}.{axis}" for c, k in zip(*np.nonzero(sigma_m > 0.01)) for axis in [("x_m", "y_m", "z_m")[k]]} \
         == {name for name in named if name.startswith("control_")}
