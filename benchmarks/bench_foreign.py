@@ -9,7 +9,9 @@ named unobservable (cm, deg, deg, cm), the fraction of their errors within 3 rep
 fraction named unobservable, the extrinsic errors, J, seconds and peak memory. --from-truth starts each
 calibration at the truth (sensor.yaml and extrinsic.yaml set to the true values, the truth then zero
 offsets): the fit must stay within its sigmas. --far draws the truth within the widest errors a factory
-model is expected to have (5 cm and 0.5 deg per fibre, the extrinsic within 10 cm and 1 deg). Writes
+model is expected to have (5 cm and 0.5 deg per fibre, the extrinsic within 10 cm and 1 deg). --reference-error
+puts the nominal model's reference fibre off the truth in range and elevation (the simulator draws it exact; a
+real head's factory model is off on it as on the others, while the calibration's gauge holds it). Writes
 benchmarks/results/foreign.json (foreign_from_truth.json, foreign_far.json; or --out).
 """
 
@@ -37,21 +39,23 @@ MOUNTS = ("level", "tilted")
 
 
 def _case(family: str, mount: str, size: float, duration_s: float, seed: int, from_truth: bool, far: bool,
-          settings: dict, queue) -> None:
+          settings: dict, reference_error: tuple[float, float] | None, queue) -> None:
     import graphcal
     from graphcal.calibration.evaluate import scorecard
     from graphcal.common.errors import CalibrationError
     from tools.foreign_sim import simulate
-    from tools.truth_as_nominal import truth_as_nominal
+    from tools.truth_as_nominal import reference_off, truth_as_nominal
 
     with tempfile.TemporaryDirectory() as folder:
         directory = simulate(family, Path(folder) / "rec", duration_s=duration_s, size=size, seed=seed, mount=mount,
                              **(WIDEST_FACTORY_ERRORS if far else {}))
         if from_truth:
             directory = truth_as_nominal(Path(directory), Path(folder) / "at_truth")
+        if reference_error is not None:
+            directory = reference_off(Path(directory), Path(folder) / "reference_off", *reference_error)
         recording = graphcal.Recording.load(directory)
         row = {"family": family, "mount": mount, "seed": seed, "from_truth": from_truth, "far": far,
-               "returns": len(recording.points)}
+               "reference_error": reference_error, "returns": len(recording.points)}
         started = time.perf_counter()
         try:
             result = graphcal.calibrate(recording, graphcal.CalibrationConfig(**settings, seed=seed), quiet=True)
@@ -83,6 +87,8 @@ def main() -> None:
     parser.add_argument("--from-truth", action="store_true", help="start each calibration at the truth")
     parser.add_argument("--far", action="store_true", help="true errors within 5 cm, 0.5 deg (extrinsic 10 cm, 1 deg)")
     parser.add_argument("--mode", default=None, help="calibrate's mode (default: its default)")
+    parser.add_argument("--reference-error", type=float, nargs=2, metavar=("RANGE_M", "ELEVATION_DEG"),
+                        help="the nominal model's reference fibre off the truth by these (the gauge holds it exact)")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
     settings = {} if args.mode is None else {"mode": args.mode}
@@ -91,7 +97,7 @@ def main() -> None:
         for mount in args.mounts:
             for seed in range(args.seeds):
                 row = run_in_process(_case, family, mount, args.size, args.duration, seed, args.from_truth, args.far,
-                                     settings)
+                                     settings, args.reference_error)
                 rows.append(row)
                 if "refused" in row:
                     print(f"{family}/{mount} seed {seed}: refused ({row['calibrate_s']:.0f} s): {row['refused']}",
@@ -111,7 +117,7 @@ def main() -> None:
         tmp.write_text(json.dumps({"machine": platform.platform(), "processor": platform.processor(),
                                    "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
                                    "size": args.size, "duration_s": args.duration, "settings": settings,
-                                   "true_error_bounds": bounds,
+                                   "true_error_bounds": bounds, "reference_error": args.reference_error,
                                    "cases": rows}, indent=2))
     print(f"wrote {out}")
 

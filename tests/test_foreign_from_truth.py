@@ -21,3 +21,29 @@ def test_started_at_the_truth_the_fit_stays_within_its_sigmas(foreign_box_street
     assert card.within_3_sigma >= 0.95, card
     assert card.rms_observable[0] < 0.5 and card.rms_observable[3] < 0.5 and card.rms_observable[2] < 0.02, card
     assert np.abs(result.calibration.estimate.offsets[:, 2]).max() < np.radians(0.05)  # no elevation slid
+
+
+def test_a_reference_fibre_off_its_nominal_keeps_the_true_head(foreign_box_street, tmp_path):
+    """bench_foreign.py --reference-error's copy: the nominal's reference fibre moved by the error, the truth's
+    offsets by the opposite, so that nominal plus truth is the same head on every fibre (the returns are the same)
+    and only the reference fibre's nominal differs."""
+    from graphcal.common.yamlfile import read_yaml
+    from graphcal.recording.intrinsics import load_offsets_csv
+    from graphcal.recording.sensor import SensorModel
+    from tools.truth_as_nominal import reference_off
+
+    def head(folder):
+        sensor = SensorModel.from_dict(read_yaml(folder / "sensor.yaml"), folder / "sensor.yaml")
+        return sensor, load_offsets_csv(folder / "truth" / "intrinsics.csv", sensor.n_fibres)
+
+    sensor, truth = head(foreign_box_street)
+    moved = reference_off(foreign_box_street, tmp_path / "off", 0.02, 0.2)
+    moved_sensor, moved_truth = head(moved)
+    for name in ("range_offset_m", "elevation_deg", "azimuth_offset_deg", "height_offset_m"):
+        np.testing.assert_allclose(getattr(moved_sensor.with_offsets(moved_truth), name),
+                                   getattr(sensor.with_offsets(truth), name), atol=1e-9, err_msg=name)
+    ref = sensor.reference_fibre
+    assert np.isclose(moved_sensor.range_offset_m[ref], sensor.range_offset_m[ref] - 0.02)
+    assert np.isclose(moved_sensor.elevation_deg[ref], sensor.elevation_deg[ref] - 0.2)
+    others = np.arange(sensor.n_fibres) != ref
+    np.testing.assert_array_equal(moved_sensor.elevation_deg[others], sensor.elevation_deg[others])
