@@ -89,9 +89,13 @@ def main() -> None:
     parser.add_argument("--mode", default=None, help="calibrate's mode (default: its default)")
     parser.add_argument("--reference-error", type=float, nargs=2, metavar=("RANGE_M", "ELEVATION_DEG"),
                         help="the nominal model's reference fibre off the truth by these (the gauge holds it exact)")
+    parser.add_argument("--reference-fibre", choices=("fixed", "range_elevation"), default=None,
+                        help="priors.reference_fibre (default: calibrate's)")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
     settings = {} if args.mode is None else {"mode": args.mode}
+    if args.reference_fibre is not None:
+        settings["priors"] = {"reference_fibre": args.reference_fibre}
     rows = []
     for family in args.families:
         for mount in args.mounts:

@@ -27,7 +27,7 @@ def make_blocks(data: ReturnData, estimate: Estimate, pairs: Correspondences, co
     gives each block's candidate effects (graphcal.diagnosis; None: none)."""
     est_int, est_ext, est_traj = estimated
     pose = config.trajectory.pose_corrections
-    ref = data.sensor.reference_fibre
+    ref = config.priors.fixed_fibre(data.sensor.reference_fibre)
     normal_lidar = normals_to_lidar(data.returns(pairs.index_p), estimate.extrinsic.rotation().matrix(),
                                     corrections_at(estimate, data.control[pairs.index_p], pose), pairs.normal)
     fi, fj = data.fibre[pairs.index_p], data.fibre[pairs.index_m]

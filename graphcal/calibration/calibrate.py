@@ -159,7 +159,7 @@ class CalibrationPipeline:
         default a static sensor holds them all), at the start."""
         problem, static = self.problem, self.problem.settings.static
         if not ((static.hold_soft or static.check_halves) and problem.estimated[0]
-                and problem.priors.free_intrinsics(problem.data.sensor.reference_fibre).any()):
+                and problem.priors.free_intrinsics(problem.fixed_fibre).any()):
             return
         start = initial_estimate(self.recording, problem.full)
         draws = self.timed("pair draws", pair_draws, problem, start, problem.associate(start))
@@ -227,12 +227,13 @@ class CalibrationPipeline:
         problem, estimate = self.problem, self.estimate
         data, config, estimated = problem.full, problem.settings, problem.estimated
         held = list(problem.held)
-        reasons = {name: HELD_REASON for name in held}
+        gauges = config.priors.gauges(data.sensor.reference_fibre)  # held, not named: the gauge is no finding
+        reasons = {name: HELD_REASON for name in held if name not in gauges}
         reasons |= {name: reason for name, reason in self.weak.named().items() if name not in held}
         if estimated[2]:
             reasons |= unseen_controls(final.sigmas.controls, data.control_times_s,
                                        problem.config.trajectory.deformation, problem.config.weighting.sigma0_m)
-        unobservable = held + [name for name in reasons if name not in held]
+        unobservable = [name for name in held if name not in gauges] + [name for name in reasons if name not in held]
         self.check(final, unobservable)
         if estimated[2]:
             unobservable += list(TRAJECTORY_GAUGE[:2 if config.trajectory.pose_corrections else 1])

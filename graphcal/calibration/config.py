@@ -136,8 +136,22 @@ class PriorSettings(BaseModel):
     model_config = _SECTION
     intrinsic_range_m: float = Field(0.02, gt=0, description="d_range and Hz")
     intrinsic_angle_deg: float = Field(0.2, gt=0, description="d_azimuth and d_elevation")
+    reference_fibre: Literal["fixed", "range_elevation"] = Field(
+        "fixed", description="fixed: the reference fibre's four offsets held at nominal (the seed's gauge); "
+                             "range_elevation: its range and elevation offsets estimated under the priors above, its "
+                             "azimuth and height held (the gauges: the boresight's yaw and the lever arm's z)")
     extrinsic_lever_arm_m: float = Field(0.1, gt=0, description="each lever-arm axis")
     extrinsic_boresight_deg: float = Field(1.0, gt=0, description="each boresight angle")
+
+    def fixed_fibre(self, reference_fibre: int) -> int | None:
+        """The fibre whose offsets are all held (no key in the graph): the reference, or None when its range and
+        elevation are estimated."""
+        return reference_fibre if self.reference_fibre == "fixed" else None
+
+    def gauges(self, reference_fibre: int) -> list[str]:
+        """The reference fibre's offsets held as the gauge when the others are estimated (none when it is fixed)."""
+        return [] if self.reference_fibre == "fixed" else [f"fibre_{reference_fibre}.d_azimuth_deg",
+                                                           f"fibre_{reference_fibre}.h_z_m"]
 
 
 class TrajectorySettings(BaseModel):

@@ -55,10 +55,12 @@ class Priors:
                 control[index, column] = True
         return replace(self, intrinsic=intrinsic, extrinsic=extrinsic, control_held=control)
 
-    def free_intrinsics(self, reference_fibre: int) -> np.ndarray:
-        """(n_fibres, 4) True where an intrinsic is estimated: not held, not the reference fibre's."""
+    def free_intrinsics(self, fixed_fibre: int | None) -> np.ndarray:
+        """(n_fibres, 4) True where an intrinsic is estimated: not held, not the fixed fibre's (the reference,
+        PriorSettings.fixed_fibre)."""
         free = self.intrinsic > HELD_SIGMA
-        free[reference_fibre] = False
+        if fixed_fibre is not None:
+            free[fixed_fibre] = False
         return free
 
     def hold_at_nominal(self, estimate: Estimate, nominal_extrinsic: gtsam.Pose3) -> Estimate:

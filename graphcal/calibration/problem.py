@@ -143,7 +143,9 @@ class Problem:
                        points_per_s=config.points_per_s)
         config = config.for_sensor(data.static, data.range_noise_m, revisits(recording.world.poses), data.one_viewpoint)
         try:  # the settings allow any head's fibres: this recording's head may have fewer, or fix the one named
-            held = held_names(config.static.hold, data.sensor.n_fibres, data.sensor.reference_fibre)
+            reference = data.sensor.reference_fibre
+            held = held_names(config.static.hold, data.sensor.n_fibres, config.priors.fixed_fibre(reference))
+            held += [name for name in config.priors.gauges(reference) if name not in held]
         except ConfigError as error:
             raise ConfigError(f"{recording.path or recording.name}: hold: {error} (sensor {data.sensor.model}, "
                               f"{data.sensor.n_fibres} fibres, reference fibre {data.sensor.reference_fibre})") from None
@@ -294,7 +296,7 @@ class Problem:
         step_m, step_rad = stopping.step_sigma_m, np.radians(stopping.step_sigma_deg)
         if est_int:
             for fibre in range(self.data.sensor.n_fibres):
-                if fibre != self.data.sensor.reference_fibre:
+                if fibre != self.fixed_fibre:
                     values.insert(I(fibre), estimate.offsets[fibre])
                     graph.add(gtsam.PriorFactorVector(I(fibre), np.zeros(4),
                                                       gtsam.noiseModel.Diagonal.Sigmas(self.priors.intrinsic[fibre])))
@@ -351,6 +353,12 @@ class Problem:
             if held[c].any():
                 graph.add(prior(c, gtsam.noiseModel.Diagonal.Sigmas(np.where(held[c], HELD_SIGMA, 1e6))))
 
+    @property
+    def fixed_fibre(self) -> int | None:
+        """The fibre with no key in the graph (PriorSettings.fixed_fibre: the reference, unless priors.reference_fibre
+        estimates its range and elevation)."""
+        return self.settings.priors.fixed_fibre(self.full.sensor.reference_fibre)
+
     def _anchor_sigma(self, sigma: float) -> float:
         """E_def's prior [m, or rad x 1 m] on each control correction: sigma (eq. 5.3), or sigma sqrt(N) on each of
         the N controls under Monnier's differences (which hold the drive's mean correction with sigma)."""
@@ -380,7 +388,7 @@ class Problem:
         offsets = estimate.offsets.copy()
         if est_int:
             for fibre in range(self.data.sensor.n_fibres):
-                if fibre != self.data.sensor.reference_fibre:
+                if fibre != self.fixed_fibre:
                     offsets[fibre] = values.atVector(I(fibre))
         extrinsic = values.atPose3(E(0)) if est_ext else estimate.extrinsic
         corrections = estimate.corrections
@@ -470,10 +478,10 @@ class Problem:
 
     # --- what the data see ---------------------------------------------------------------------------
     def layout(self) -> Layout:
-        """The parameters a weak-direction analysis covers: the intrinsics of every fibre but the reference
-        (when estimated) and the extrinsic (when estimated), with their prior sigmas."""
+        """The parameters a weak-direction analysis covers: the intrinsics of every fibre but the fixed one (when
+        estimated) and the extrinsic (when estimated), with their prior sigmas."""
         data, estimated = self.full, self.estimated
-        fibres = tuple(f for f in range(data.sensor.n_fibres) if f != data.sensor.reference_fibre) if estimated[0] else ()
+        fibres = tuple(f for f in range(data.sensor.n_fibres) if f != self.fixed_fibre) if estimated[0] else ()
         sigma = np.r_[self.priors.intrinsic[list(fibres)].ravel(), self.priors.extrinsic if estimated[1] else np.zeros(0)]
         return Layout(fibres, estimated[1], sigma, self.nominal.rotation().matrix())
 
@@ -571,7 +579,7 @@ class Problem:
         intrinsics = np.full((n, 4), np.nan)
         if est_int:
             for fibre in range(n):
-                if fibre != data.sensor.reference_fibre:
+                if fibre != self.fixed_fibre:
                     intrinsics[fibre] = intrinsic_sigmas(marginals, I(fibre))
         extrinsic = extrinsic_prior = None
         if est_ext:

@@ -235,7 +235,7 @@ class CalibrationResult:
             names = [f"fibre_{fibre}.{name}" for name in INTRINSIC_NAMES]
             row.update({name: (None if full in held else float(v))
                         for name, full, v in zip(INTRINSIC_NAMES, names, values)})
-            row["sigma"] = (None if fibre == cal.reference_fibre or not self.estimated[0] else
+            row["sigma"] = (None if not self.estimated[0] or np.isnan(unc.intrinsics[fibre]).all() else
                             {name: (None if full in held else float(s))
                              for name, full, s in zip(INTRINSIC_NAMES, names, unc.intrinsics[fibre])})
             rows.append(row)
