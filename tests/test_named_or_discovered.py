@@ -1,10 +1,12 @@
 """Which model of a channel's structure a finding takes (diagnose.generic_if_better): the named winner, or a
 generic discrepancy of its channel that explains the structure better; and a discrepancy that an eligible named
-candidate explains gives way to it (diagnose.named_if_it_explains); from test figures made up here."""
+candidate explains gives way to it (diagnose.named_if_it_explains); from test figures made up here. And which
+channel constant is solved beside a discrepancy (diagnose.solved_beside)."""
 
 import numpy as np
 
-from graphcal.diagnosis.diagnose import generic_if_better, named_if_it_explains, refit_floor_cm2
+from graphcal.calibration.config import PriorSettings
+from graphcal.diagnosis.diagnose import generic_if_better, named_if_it_explains, refit_floor_cm2, solved_beside
 from graphcal.diagnosis.score import CandidateTest
 
 SIGMA0_M = 0.01
@@ -113,3 +115,16 @@ def test_a_discrepancys_refit_must_lower_j_by_the_square_of_the_floor_it_passed(
     assert discovery.significant(10) and not rival.significant(10)
     assert np.isclose(refit_floor_cm2(discovery, 10), 0.1 ** 2)
     assert np.isclose(refit_floor_cm2(rival, 10), 0.01 ** 2)
+
+
+def test_a_range_curve_gets_the_range_constant_beside_it_once_and_only_while_the_reference_is_fixed():
+    """The range's constant is solved beside a range curve when nothing else holds it: not beside a time or
+    elevation curve, not twice, and not when priors.reference_fibre estimates the reference fibre's range (that
+    offset is the constant then)."""
+    fixed, estimated = PriorSettings(), PriorSettings(reference_fibre="range_elevation")
+    assert solved_beside(RANGE_TIME, (), fixed) == ("range_offset",)
+    assert solved_beside(RANGE_TIME, ("range_offset",), fixed) == ()
+    assert solved_beside(RANGE_TIME, (), estimated) == ()
+    assert solved_beside("time~fibre/31/0:31", (), fixed) == ()
+    assert solved_beside("elevation~azimuth/8/0:360", (), fixed) == ()
+    assert solved_beside("range_scale", (), fixed) == ()

@@ -27,7 +27,7 @@ from factors.effects import CANDIDATES, SOLVED_BESIDE, candidate
 from graphcal.common.atomic import atomic_path
 from graphcal.common.jsonable import plain
 from graphcal.calibration.checks import outside_priors
-from graphcal.calibration.config import CalibrationConfig
+from graphcal.calibration.config import CalibrationConfig, PriorSettings
 from graphcal.calibration.result import CalibrationResult
 from graphcal.diagnosis.fit import BLOCK_S, Fit, baseline, refit
 from graphcal.diagnosis.hypotheses import hypotheses
@@ -451,7 +451,7 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
                 not_separable = [n for n in not_separable if n["named"] != winner.name]
             else:
                 findings.append(_finding(winner, fit, before, at_refit, hypothesis, previous and previous[0], compared))
-                for name in solved_beside(winner.name, previous[0].model.names if previous else ()):
+                for name in solved_beside(winner.name, previous[0].model.names if previous else (), fit.config.priors):
                     findings[-1] = with_constant(findings[-1], name, fit, modelled[name])
             added = None
         if first_round is None:
@@ -507,14 +507,15 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
                      time.perf_counter() - started, at_known_size, calibration, fit, withdrawn, slid)
 
 
-def solved_beside(name: str, modelled: tuple[str, ...]) -> tuple[str, ...]:
+def solved_beside(name: str, modelled: tuple[str, ...], priors: PriorSettings) -> tuple[str, ...]:
     """The channel's constant (factors.effects.SOLVED_BESIDE) to solve beside a discrepancy that is not modelled
     yet, or (). A discrepancy's basis has no constant, and no ordinary parameter takes a range error common to
-    every fibre (the reference fibre's offsets are the gauge): a thermal range drift of 2 cm (1 - exp(-t / 2 s))
+    every fibre while the reference fibre's offsets are all held (priors.reference_fibre fixed; estimated in range,
+    the reference fibre's range offset is that constant already): a thermal range drift of 2 cm (1 - exp(-t / 2 s))
     over a 5.7 s drive has a mean of 1.36 cm, and its range against time curve, refitted without that constant,
     came out at 0.51-0.65 of the truth's size (the lever arm and the fibres' offsets took the rest, J lower than
     at the truth); with it, 0.94-1.0, the constant 1.36-1.48 cm."""
-    if not is_discrepancy(name):
+    if not is_discrepancy(name) or priors.reference_fibre != "fixed":
         return ()
     constant = SOLVED_BESIDE.get(Discrepancy.parse(name).channel)
     return () if constant is None or constant.name in modelled else (constant.name,)
@@ -540,7 +541,8 @@ def _refit_with(fit: Fit, test: CandidateTest, iterations: int, added: bool = Tr
     without it, the control its refit is compared with), and in both the channel's constant a discrepancy needs
     beside it (solved_beside); each effect's prior ten times its size or the test's sigma, whichever is larger
     (loose: it keeps a weak effect from running off, not from its size)."""
-    active = fit.model.names + ((test.name,) if added else ()) + solved_beside(test.name, fit.model.names)
+    active = fit.model.names + ((test.name,) if added else ()) + solved_beside(test.name, fit.model.names,
+                                                                               fit.config.priors)
     floor = 10 * np.sqrt(np.max(np.diag(test.covariance)))
     prior = {n: float(max(10 * np.abs(fit.model.values.get(n, test.theta)).max(), floor)) for n in active}
     return refit(fit, active, prior, iterations)
