@@ -554,17 +554,16 @@ CANDIDATES: dict[str, type[Effect]] = {name: REGISTRY[name] for name in (
 # beside every discrepancy of its channel when that one is added (graphcal.diagnosis: the discrepancies' bases
 # have no constant)
 SOLVED_BESIDE: dict[str, type[Effect]] = {"range": REGISTRY["range_offset"]}
+# every named effect the finder models: its candidates and the constants it solves beside a discrepancy
+MODELLED: dict[str, type[Effect]] = CANDIDATES | {cls.name: cls for cls in SOLVED_BESIDE.values()}
 SIMULATED: dict[str, type[Effect]] = {name: cls for name, cls in REGISTRY.items() if cls.simulated}
 
 
 def candidate(name: str) -> type[Effect] | Discrepancy:
-    """What the mismatch finder tests under a name: a registered effect, or the generic discrepancy its spec
-    names (factors.discrepancy)."""
-    if name in CANDIDATES:
-        return CANDIDATES[name]
-    beside = {cls.name: cls for cls in SOLVED_BESIDE.values()}
-    if name in beside:
-        return beside[name]
+    """What the mismatch finder models under a name: a candidate or a constant it solves beside a discrepancy
+    (MODELLED), or the generic discrepancy its spec names (factors.discrepancy)."""
+    if name in MODELLED:
+        return MODELLED[name]
     if is_discrepancy(name):
         return Discrepancy.parse(name)
     raise KeyError(f"no effect and no discrepancy is named {name!r}")

@@ -15,7 +15,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from scipy.spatial.transform import Rotation
 
-from factors.effects import CANDIDATES, SOLVED_BESIDE
+from factors.effects import MODELLED
 from graphcal.common.atomic import atomic_path
 from graphcal.calibration.config import CalibrationConfig
 from graphcal.calibration.observability import (
@@ -41,7 +41,7 @@ HALVES_FILE = "halves.yaml"
 # the largest intrinsic offset a calibration file may hold (file units): beyond, it is not a calibration of this head
 OFFSET_BOUND_M = 1.0
 # what a calibration.yaml's `effects` may name: graphcal.diagnose's findings and the constants solved beside them
-KNOWN_EFFECTS = frozenset(CANDIDATES) | {cls.name for cls in SOLVED_BESIDE.values()} | {"discovered", "unexplained"}
+KNOWN_EFFECTS = frozenset(MODELLED) | {"discovered", "unexplained"}
 OFFSET_BOUND_DEG = 10.0
 
 
