@@ -98,7 +98,7 @@ def test_a_sensor_on_the_turning_axis_turning_on_the_spot_is_not_static():
     assert "static sensor" not in result.verdict and "a static sensor" not in result.calibration.reasons.values()
     assert result.verdict.startswith("this drive cannot observe the boresight yaw (a drive along a road would show it)"
                                      "; the lever arm z (a drive with slopes")
-    assert "124 intrinsic" not in result.verdict and "31 fibre heights (a drive past facades" in result.verdict
+    assert "intrinsic parameters held" not in result.verdict and "31 fibre heights (a drive past facades" in result.verdict
     estimated, truth = result.calibration.extrinsic(), recording.truth.extrinsic
     np.testing.assert_allclose(estimated.boresight_deg[:2], truth.boresight_deg[:2], atol=0.05)  # 0.3 deg off at start
     np.testing.assert_allclose(estimated.lever_arm_m[:2], truth.lever_arm_m[:2], atol=0.005)  # 3 cm off at start
@@ -139,7 +139,7 @@ def test_a_standstill_prints_one_plain_line_through_the_command_line(tmp_path):
     lines = run.output.strip().splitlines()
     verdicts = [line for line in lines if "unobservable" in line]
     assert len(verdicts) == 1 and verdicts[0].startswith(
-        "static sensor: the extrinsic and the trajectory are unobservable; 124 intrinsic parameters held")
+        "static sensor: the extrinsic and the trajectory are unobservable; 126 intrinsic parameters held")  # 4 x 31 + 2
     assert len(lines) <= 6 and "fibre_" not in run.output
     calibration = yaml.safe_load((tmp_path / "run" / "calibration.yaml").read_text())
     assert verdicts[0].startswith(calibration["verdict"])

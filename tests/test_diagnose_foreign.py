@@ -27,10 +27,10 @@ def test_a_range_scale_of_the_independent_simulator_is_named_first_and_sized(tmp
 
 def test_a_clean_recording_of_the_independent_simulator_gets_no_discovery(tmp_path):
     """With the generic discrepancies on, curves that fit the pipeline's own misfit of this street (range and
-    elevation against the incidence) pass the linear tests; once re-solved with them J does not fall below the fit
-    without them re-solved as long, and they are withdrawn. Seed 0 at this size; seed 1 discovers a curve of the
-    elevation against the intensity, and the benchmark's seed 0 (size 0.1, 80 k returns) the range against the
-    range (docs/dev/open-questions.md)."""
+    elevation against the incidence, the range against the range) pass the linear tests; once re-solved with them
+    J does not fall by its floor below the fit without them re-solved as long, and they are withdrawn. Seed 0 at
+    this size; seed 1 discovers a curve of the elevation against the intensity, and the benchmark's seed 0 (size
+    0.1, 80 k returns) the range against the range (docs/dev/open-questions.md)."""
     directory = simulate("box_street", tmp_path / "clean", duration_s=15.0, size=0.03, seed=0, mount="level")
     recording = graphcal.Recording.load(directory)
     settings = CalibrationConfig(mode="joint", max_points=40_000, stopping={
@@ -38,5 +38,6 @@ def test_a_clean_recording_of_the_independent_simulator_gets_no_discovery(tmp_pa
     diagnosis = graphcal.diagnose(recording, settings, max_effects=1, quiet=True, open_world=True)
     assert diagnosis.findings == [], diagnosis.summary()
     unlowered = [w for w in diagnosis.withdrawn if w["energy_cm2"]["before"] is not None]
-    assert unlowered and all(w["energy_cm2"]["after"] >= w["energy_cm2"]["before"] for w in unlowered)
-    assert all("does not lower J" in w["statement"] for w in unlowered)
+    assert unlowered and all(w["energy_cm2"]["after"] > w["energy_cm2"]["before"] - w["energy_cm2"]["floor"]
+                             for w in unlowered)
+    assert all("does not lower J by its floor" in w["statement"] for w in unlowered)

@@ -121,7 +121,7 @@ def test_a_range_curve_gets_the_range_constant_beside_it_once_and_only_while_the
     """The range's constant is solved beside a range curve when nothing else holds it: not beside a time or
     elevation curve, not twice, and not when priors.reference_fibre estimates the reference fibre's range (that
     offset is the constant then)."""
-    fixed, estimated = PriorSettings(), PriorSettings(reference_fibre="range_elevation")
+    fixed, estimated = PriorSettings(reference_fibre="fixed"), PriorSettings()
     assert solved_beside(RANGE_TIME, (), fixed) == ("range_offset",)
     assert solved_beside(RANGE_TIME, ("range_offset",), fixed) == ()
     assert solved_beside(RANGE_TIME, (), estimated) == ()

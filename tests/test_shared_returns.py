@@ -49,6 +49,7 @@ def at_truth():
     truth = replace(initial_estimate(recording, data), offsets=recording.truth.intrinsics)
     problem = Problem(data, config, INTRINSIC, truth.extrinsic,
                       Priors.of(config, data.sensor.n_fibres, len(data.control_times_s)))
+    problem = problem.holding(config.priors.gauges(data.sensor.reference_fibre))  # as Problem.of holds them
     return problem, truth, problem.associate(truth)
 
 

@@ -198,13 +198,18 @@ def test_a_calibration_on_city_loop_with_traffic_stays_close_to_the_one_without(
     3 cm / 0.3 deg RMS, calibrated (mode intrinsic) without traffic and with its default traffic (about a fifth of
     the returns on movers, rejection of moving pairs off as by default). Over the parameters each does not name
     unobservable (most of them): each RMS error against the truth a quarter of its start or less, the two within
-    a tenth of the start error of each other."""
+    a tenth of the start error of each other. The reference fibre is held exact (priors.reference_fibre: fixed, as
+    the simulator makes it): with its range and elevation estimated (the default), this small drive's elevations
+    end 0.079 deg RMS off without traffic and 0.061 deg with it, against sigmas of about 0.06 deg, and the fibres'
+    common range offset, barely seen (information about 11 times its prior's), 0.5 cm: the bar would then measure
+    the draw, not the traffic."""
     rms, shares = {}, {}
     for traffic in (False, True):
         scenario = CITY(duration_s=3.0, size=0.012, seed=0, traffic=traffic)
         scenario = scenario.model_copy(update={"extrinsic": PITCHED_HEAD, "intrinsic_errors": SECTION_4_5_2_ERRORS})
         recording = graphcal.simulate(scenario, quiet=True)
-        result = graphcal.calibrate(recording, graphcal.CalibrationConfig(mode="intrinsic", stopping={
+        result = graphcal.calibrate(recording, graphcal.CalibrationConfig(mode="intrinsic", priors={
+            "reference_fibre": "fixed"}, stopping={
             "max_outer_iterations": 40, "tolerance_m": 1e-4}), quiet=True)
         truth = recording.truth.intrinsics
         start = intrinsic_rms(np.zeros_like(truth), truth, recording.sensor.reference_fibre)  # cm, deg, deg, cm

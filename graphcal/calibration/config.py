@@ -137,9 +137,11 @@ class PriorSettings(BaseModel):
     intrinsic_range_m: float = Field(0.02, gt=0, description="d_range and Hz")
     intrinsic_angle_deg: float = Field(0.2, gt=0, description="d_azimuth and d_elevation")
     reference_fibre: Literal["fixed", "range_elevation"] = Field(
-        "fixed", description="fixed: the reference fibre's four offsets held at nominal (the seed's gauge); "
-                             "range_elevation: its range and elevation offsets estimated under the priors above, its "
-                             "azimuth and height held (the gauges: the boresight's yaw and the lever arm's z)")
+        "range_elevation", description="range_elevation: the reference fibre's range and elevation offsets estimated "
+                                       "under the priors above (a factory model is off there as on the other fibres), "
+                                       "its azimuth and height held (the gauges: the boresight's yaw and the lever "
+                                       "arm's z); fixed: its four offsets held at nominal (the seed's gauge, for a "
+                                       "reference fibre known exact)")
     extrinsic_lever_arm_m: float = Field(0.1, gt=0, description="each lever-arm axis")
     extrinsic_boresight_deg: float = Field(1.0, gt=0, description="each boresight angle")
 

@@ -140,16 +140,17 @@ class Scorecard:
 
 
 def scorecard(result: CalibrationResult, recording: Recording) -> Scorecard:
-    """The intrinsics of a calibration result against the recording's truth (Scorecard)."""
+    """The intrinsics of a calibration result against the recording's truth (Scorecard), over the estimated ones
+    (a sigma reported: not the gauges held, not a fixed reference fibre's) and the named ones."""
     sensor = recording.sensor
-    names = [[f"fibre_{f}.{name}" for name in INTRINSIC_NAMES] for f in range(sensor.n_fibres)]
-    named = set(result.unobservable)
-    free = np.array([[f != sensor.reference_fibre and name not in named for name in row] for f, row in enumerate(names)])
+    unobservable = set(result.unobservable)
+    named = np.array([[f"fibre_{f}.{name}" in unobservable for name in INTRINSIC_NAMES] for f in range(sensor.n_fibres)])
+    sigma = result.sigmas.intrinsics
+    free = np.isfinite(sigma) & ~named
     error = offsets_to_file_units(result.calibration.estimate.offsets - recording.truth.intrinsics)
     rms = np.array([np.sqrt(np.mean(error[free[:, k], k] ** 2)) if free[:, k].any() else np.nan for k in range(4)])
-    sigma = result.sigmas.intrinsics
     within = float(np.mean(np.abs(error[free]) <= 3 * sigma[free])) if free.any() else np.nan
-    total = 4 * (sensor.n_fibres - 1)
+    total = int((free | named).sum())
     extrinsic_z = {}
     if result.sigmas.extrinsic is not None:
         truth = recording.truth.extrinsic
@@ -158,7 +159,8 @@ def scorecard(result: CalibrationResult, recording: Recording) -> Scorecard:
         error = np.r_[turn, estimate.translation() - np.asarray(truth.lever_arm_m)]
         extrinsic_z = {name: float(e / s) for name, e, s in zip(EXTRINSIC_NAMES, error, result.sigmas.extrinsic)
                        if f"extrinsic.{name}" not in named}
-    return Scorecard(rms * DISPLAY_FROM_FILE_UNITS, within, float((total - free.sum()) / total), extrinsic_z)
+    named_fraction = float((total - free.sum()) / total) if total else np.nan
+    return Scorecard(rms * DISPLAY_FROM_FILE_UNITS, within, named_fraction, extrinsic_z)
 
 
 def intrinsic_rms(offsets: np.ndarray, truth: np.ndarray, reference_fibre: int) -> np.ndarray:

@@ -50,6 +50,15 @@ class Uncertainty:
         return replace(self, intrinsics=wider(self.intrinsics, other.intrinsics),
                        extrinsic=wider(self.extrinsic, other.extrinsic), controls=wider(self.controls, other.controls))
 
+    def without(self, held: set[str]) -> Uncertainty:
+        """These sigmas with NaN for the named parameters (held at nominal: not estimated, no sigma to report)."""
+        intrinsics = self.intrinsics.copy()
+        for fibre, row in enumerate(intrinsics):
+            row[[f"fibre_{fibre}.{name}" in held for name in INTRINSIC_NAMES]] = np.nan
+        extrinsic = None if self.extrinsic is None else np.where(
+            [f"extrinsic.{name}" in held for name in EXTRINSIC_NAMES], np.nan, self.extrinsic)
+        return replace(self, intrinsics=intrinsics, extrinsic=extrinsic)
+
 
 def reported(model: Uncertainty, shared_returns: Uncertainty | None, cluster_robust: Uncertainty | None) -> Uncertainty:
     """The 1-sigmas a calibration reports: with each return's noise counted once when computed (shared_returns), else

@@ -200,8 +200,9 @@ class CalibrationResult:
 
     @property
     def sigmas(self) -> Uncertainty:
-        """The 1-sigmas to report (observability.reported)."""
-        return reported(self.uncertainty, self.shared_returns_uncertainty, self.cluster_robust_uncertainty)
+        """The 1-sigmas to report (observability.reported), NaN for the parameters held at nominal."""
+        sigmas = reported(self.uncertainty, self.shared_returns_uncertainty, self.cluster_robust_uncertainty)
+        return sigmas.without(set(self.calibration.held))
 
     @property
     def unobservable(self) -> tuple[str, ...]:

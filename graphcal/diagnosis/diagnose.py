@@ -446,7 +446,7 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
             unlowered = compared is not None and compared[0] - compared[1] < floor_cm2
             if hypothesis is None and (p_value >= ALPHA / (len(names) + 1) or unlowered):
                 withdrawn.append(_withdrawn(winner, fit, at_refit.sigma, statistic, p_value,
-                                            compared if unlowered else None, floor_cm2))
+                                            *((compared, floor_cm2) if unlowered else ())))
                 fit, names, tests, modelled, lin = previous
                 not_separable = [n for n in not_separable if n["named"] != winner.name]
             else:
@@ -712,7 +712,7 @@ def _withdrawn(test: CandidateTest, fit: Fit, sigma: float, statistic: float, p_
     before, after = compared or (None, fit.energy_cm2)
     return {"effect": test.name, "magnitude": magnitude, "sigma": sigma, "unit": candidate(test.name).unit,
             "statement": statement, "score_statistic": test.statistic, "refit_statistic": statistic,
-            "refit_p_value": p_value, "energy_cm2": {"before": before, "after": after}}
+            "refit_p_value": p_value, "energy_cm2": {"before": before, "after": after, "floor": floor_cm2}}
 
 
 def _calibration(result: CalibrationResult, fit: Fit, findings: list[dict]) -> CalibrationResult:
