@@ -100,10 +100,11 @@ def recorded_intensity(recording: Recording, rows: np.ndarray) -> np.ndarray | N
     return None if not np.any(intensity) else np.asarray(intensity, dtype=np.float64)
 
 
-def refit(fit: Fit, names: tuple[str, ...], prior_sigma: dict, iterations: int = 4) -> Fit:
-    """Re-solve with the effects `names` modelled (keys in every block, starting from the fit's values
-    or zero): at most `iterations` outer iterations of the fine phase (Problem.fit)."""
-    values = {n: fit.model.values.get(n, np.zeros(fit.model.dim(n))) for n in names}
+def refit(fit: Fit, names: tuple[str, ...], prior_sigma: dict, iterations: int = 4, start: dict | None = None) -> Fit:
+    """Re-solve with the effects `names` modelled (keys in every block, starting from the fit's values, else from
+    start's, else zero): at most `iterations` outer iterations of the fine phase (Problem.fit)."""
+    start = start or {}
+    values = {n: fit.model.values.get(n, start.get(n, np.zeros(fit.model.dim(n)))) for n in names}
     model = EffectModel(tuple(names), values, fit.model.context, prior_sigma)
     problem = replace(fit.problem, effects=model, lock=None)
     estimate = problem.fit(replace(fit.estimate, effects=values), History(), "refit", ("fine",), iterations)
