@@ -32,8 +32,9 @@ CONCEALED = CONCEALED_SCENARIO.__globals__["CONCEALED"]
 SIZE = 0.03
 # effects whose one-run spread at the per-effect tests' size is over 10 % of their size: their size is judged on
 # the mean over seeds (incidence_range_bias, 80 k returns: sigma 15-17 %; seeds 1-4 gave -29.4, +4.8, -5.3, +3.4 %;
-# azimuth_eccentricity: sigma 9 %, but seeds 1-3 gave -23.4, +5.3, +4.6 %, a spread of 16 %)
-MANY_SEEDS = {"incidence_range_bias": (1, 2, 3, 4), "azimuth_eccentricity": (1, 2, 3)}
+# azimuth_eccentricity: sigma 9 %, but seeds 1-3 gave -23.4, +5.3, +4.6 %, a spread of 16 %; heading_drift: sigma
+# 11-13 %, seeds 1-2 gave +21.6, -6.7 %)
+MANY_SEEDS = {"incidence_range_bias": (1, 2, 3, 4), "azimuth_eccentricity": (1, 2, 3), "heading_drift": (1, 2)}
 VIEWER_POINTS = 5000
 
 

@@ -109,12 +109,18 @@ def test_a_named_and_an_unlisted_effect_together_are_both_found():
     assert discovered["energy_cm2"]["held_out_after"] < discovered["energy_cm2"]["held_out_before"]
 
 
-def _first_finding(effect: str, size: float, max_points: int):
-    """(the recording, the first finding) of the open-world diagnosis of an unlisted effect's courtyard drive."""
+def _diagnosed(effect: str, size: float, max_points: int):
+    """(the recording, the open-world diagnosis) of an unlisted effect's courtyard drive."""
     recording = graphcal.simulate(UNLISTED_SCENARIO(size=size, seed=0, effect=effect), quiet=True)
     config = CalibrationConfig(mode="joint", max_points=max_points, stopping={
         "max_outer_iterations": 3, "tolerance_m": 1e-3, "refuse_unconverged": False})
-    diagnosis = graphcal.diagnose(recording, config, max_effects=1, refit_iterations=2, quiet=True, open_world=True)
+    return recording, graphcal.diagnose(recording, config, max_effects=1, refit_iterations=2, quiet=True,
+                                        open_world=True)
+
+
+def _first_finding(effect: str, size: float, max_points: int):
+    """(the recording, the first finding) of the open-world diagnosis of an unlisted effect's courtyard drive."""
+    recording, diagnosis = _diagnosed(effect, size, max_points)
     return recording, diagnosis.findings[0]
 
 
@@ -155,17 +161,20 @@ def test_a_range_walk_with_intensity_is_discovered_with_its_shape():
 
 
 @pytest.mark.slow
-def test_a_thermal_range_drift_is_discovered_with_its_size_and_its_mean_solved_beside():
+def test_a_thermal_range_drift_is_discovered_with_its_size_and_its_mean_in_the_range_offsets():
     """The range offset warms up by 2 cm (1 - exp(-t / 2 s)) over the drive: discovered first on the range against
     the time, held-out J lower, the curve the truth's up to a constant (weighted by its band); the drift's mean over
-    the drive, which no ordinary parameter takes (the reference fibre's offsets are the gauge), solved beside the
-    curve as a range offset common to every fibre, within 20 % of the truth's mean over the curve's span."""
-    _, first = _first_finding("thermal_range_drift", 0.05, 120_000)
+    the drive, a range error common to every fibre, taken by the fibres' range offsets (the reference fibre's
+    range is estimated by default, so no constant is solved beside the curve): their mean shift within 20 % of the
+    truth's mean over the curve's span (measured: -11 %)."""
+    recording, diagnosis = _diagnosed("thermal_range_drift", 0.05, 120_000)
+    first = diagnosis.findings[0]
     assert (first["effect"], first["channel"], first["regressor"]) == ("discovered", "range", "time")
     assert first["energy_cm2"]["held_out_after"] < first["energy_cm2"]["held_out_before"]
     curve = {name: np.asarray(values) for name, values in first["curve"].items()}
     truth = UNLISTED["thermal_range_drift"].curve(curve["x"])
     assert _shape_error(curve["y"], truth, 1.0 / curve["sigma"] ** 2) <= 0.35
-    constant = first["solved_beside"]
-    assert constant["effect"] == "range_offset" and "solved beside it" in first["statement"]
-    assert constant["magnitude"] == pytest.approx(truth.mean(), rel=0.2)
+    assert "solved_beside" not in first
+    # r = rho + d_rho (eq. 4.2): ranges that read long by the drift's mean are corrected by offsets that much lower
+    shift = diagnosis.calibration.calibration.estimate.offsets[:, 0] - recording.truth.intrinsics[:, 0]
+    assert -shift.mean() == pytest.approx(truth.mean(), rel=0.2)
