@@ -14,6 +14,7 @@ import yaml
 from typer.testing import CliRunner
 
 import graphcal
+from graphcal.calibration.evaluate import scorecard
 from graphcal.calibration.keys import X
 from graphcal.calibration.problem import Problem
 from graphcal.calibration.returns import initial_estimate
@@ -99,6 +100,7 @@ def test_a_sensor_on_the_turning_axis_turning_on_the_spot_is_not_static():
     assert result.verdict.startswith("this drive cannot observe the boresight yaw (a drive along a road would show it)"
                                      "; the lever arm z (a drive with slopes")
     assert "intrinsic parameters held" not in result.verdict and "31 fibre heights (a drive past facades" in result.verdict
+    assert set(scorecard(result, recording).extrinsic_z) == {"roll_deg", "pitch_deg", "lever_arm_x_m", "lever_arm_y_m"}
     estimated, truth = result.calibration.extrinsic(), recording.truth.extrinsic
     np.testing.assert_allclose(estimated.boresight_deg[:2], truth.boresight_deg[:2], atol=0.05)  # 0.3 deg off at start
     np.testing.assert_allclose(estimated.lever_arm_m[:2], truth.lever_arm_m[:2], atol=0.005)  # 3 cm off at start

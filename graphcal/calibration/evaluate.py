@@ -158,7 +158,7 @@ def scorecard(result: CalibrationResult, recording: Recording) -> Scorecard:
         turn = Rotation.from_matrix(estimate.rotation().matrix() @ truth.R_body_lidar.T).as_rotvec(degrees=True)
         error = np.r_[turn, estimate.translation() - np.asarray(truth.lever_arm_m)]
         extrinsic_z = {name: float(e / s) for name, e, s in zip(EXTRINSIC_NAMES, error, result.sigmas.extrinsic)
-                       if f"extrinsic.{name}" not in named}
+                       if f"extrinsic.{name}" not in unobservable}
     named_fraction = float((total - free.sum()) / total) if total else np.nan
     return Scorecard(rms * DISPLAY_FROM_FILE_UNITS, within, named_fraction, extrinsic_z)
 
