@@ -550,10 +550,10 @@ class FiringDelay(_SimulatedOnly):
 CANDIDATES: dict[str, type[Effect]] = {name: REGISTRY[name] for name in (
     "intra_sweep_motion", "time_offset", "spin_rate", "range_scale", "incidence_range_bias", "azimuth_eccentricity",
     "heading_bias", "heading_drift", "lever_arm", "projection_scale", "fibre_horizontal_offset")}
-# a channel's constant that neither an ordinary parameter nor a candidate takes: never tested on its own, solved
-# beside every discrepancy of its channel when that one is added (graphcal.diagnosis: the discrepancies' bases
-# have no constant)
-SOLVED_BESIDE: dict[str, type[Effect]] = {"range": REGISTRY["range_offset"]}
+# a channel's constant, solved beside every discrepancy of its channel when that one is added (graphcal.diagnosis:
+# the discrepancies' bases have no constant, and no ordinary parameter holds it): the range's is never tested on
+# its own; the time's is the latency, also a candidate (a per-laser firing delay's mean over the fibres is one)
+SOLVED_BESIDE: dict[str, type[Effect]] = {"range": REGISTRY["range_offset"], "time": REGISTRY["time_offset"]}
 # every named effect the finder models: its candidates and the constants it solves beside a discrepancy
 MODELLED: dict[str, type[Effect]] = CANDIDATES | {cls.name: cls for cls in SOLVED_BESIDE.values()}
 SIMULATED: dict[str, type[Effect]] = {name: cls for name, cls in REGISTRY.items() if cls.simulated}

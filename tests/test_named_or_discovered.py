@@ -117,14 +117,16 @@ def test_a_discrepancys_refit_must_lower_j_by_the_square_of_the_floor_it_passed(
     assert np.isclose(refit_floor_cm2(rival, 10), 0.01 ** 2)
 
 
-def test_a_range_curve_gets_the_range_constant_beside_it_once_and_only_while_the_reference_is_fixed():
-    """The range's constant is solved beside a range curve when nothing else holds it: not beside a time or
-    elevation curve, not twice, and not when priors.reference_fibre estimates the reference fibre's range (that
-    offset is the constant then)."""
+def test_a_curve_gets_its_channel_s_constant_beside_it_once_and_the_range_s_only_while_the_reference_is_fixed():
+    """The range's constant is solved beside a range curve when nothing else holds it: not beside an elevation
+    curve, not twice, and not when priors.reference_fibre estimates the reference fibre's range (that offset is the
+    constant then). A time curve gets the latency beside it, whatever the reference fibre."""
     fixed, estimated = PriorSettings(reference_fibre="fixed"), PriorSettings()
     assert solved_beside(RANGE_TIME, (), fixed) == ("range_offset",)
     assert solved_beside(RANGE_TIME, ("range_offset",), fixed) == ()
     assert solved_beside(RANGE_TIME, (), estimated) == ()
-    assert solved_beside("time~fibre/31/0:31", (), fixed) == ()
+    assert solved_beside("time~fibre/31/0:31", (), fixed) == solved_beside("time~fibre/31/0:31", (), estimated) == (
+        "time_offset",)
+    assert solved_beside("time~fibre/31/0:31", ("time_offset",), estimated) == ()
     assert solved_beside("elevation~azimuth/8/0:360", (), fixed) == ()
     assert solved_beside("range_scale", (), fixed) == ()
