@@ -189,3 +189,16 @@ def test_key_density_counts_the_entries_a_chain_reaches():
     widths = {k: 3 for k in range(10)} | {10: 4}
     reached = 10 * 9 + 2 * 9 * 9 + 16 + 2 * 12  # the chain's blocks, the Vector4's own and its pair with key 9
     assert key_density(graph, widths) == pytest.approx(reached / 34 ** 2, rel=1e-12)
+
+
+def test_held_parameters_have_no_sigma_to_report():
+    """Uncertainty.without: NaN exactly at the held intrinsic, extrinsic and control names, the rest untouched."""
+    sigmas = observability.Uncertainty(np.full((3, 4), 0.5), np.ones((3, 4)), np.full(6, 0.2), np.ones(6),
+                                       np.full((2, 6), 0.1), np.ones((2, 6)))
+    held = {"fibre_1.d_azimuth_deg", "fibre_1.h_z_m", "extrinsic.lever_arm_z_m", "control_1.y_m"}
+    out = sigmas.without(held)
+    assert np.argwhere(np.isnan(out.intrinsics)).tolist() == [[1, 1], [1, 3]]
+    assert np.flatnonzero(np.isnan(out.extrinsic)).tolist() == [5]
+    assert np.argwhere(np.isnan(out.controls)).tolist() == [[1, 4]]
+    assert not np.isnan(sigmas.intrinsics).any()  # a copy: the input keeps its values
+    assert np.nansum(out.intrinsics) == 0.5 * 10 and np.nansum(out.controls) == pytest.approx(0.1 * 11)

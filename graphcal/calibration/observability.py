@@ -57,7 +57,10 @@ class Uncertainty:
             row[[f"fibre_{fibre}.{name}" in held for name in INTRINSIC_NAMES]] = np.nan
         extrinsic = None if self.extrinsic is None else np.where(
             [f"extrinsic.{name}" in held for name in EXTRINSIC_NAMES], np.nan, self.extrinsic)
-        return replace(self, intrinsics=intrinsics, extrinsic=extrinsic)
+        controls = None if self.controls is None else self.controls.copy()
+        for control, row in enumerate(() if controls is None else controls):
+            row[[f"control_{control}.{name}" in held for name in CONTROL_NAMES]] = np.nan
+        return replace(self, intrinsics=intrinsics, extrinsic=extrinsic, controls=controls)
 
 
 def reported(model: Uncertainty, shared_returns: Uncertainty | None, cluster_robust: Uncertainty | None) -> Uncertainty:
