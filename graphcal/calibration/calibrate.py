@@ -227,13 +227,14 @@ class CalibrationPipeline:
         problem, estimate = self.problem, self.estimate
         data, config, estimated = problem.full, problem.settings, problem.estimated
         held = list(problem.held)
-        gauges = config.priors.gauges(data.sensor.reference_fibre)  # held, not named: the gauge is no finding
-        reasons = {name: HELD_REASON for name in held if name not in gauges}
+        gauges = config.priors.gauges(data.sensor.reference_fibre)
+        named_held = [name for name in held if name not in gauges]  # held, not named: the gauge is no finding
+        reasons = {name: HELD_REASON for name in named_held}
         reasons |= {name: reason for name, reason in self.weak.named().items() if name not in held}
         if estimated[2]:
             reasons |= unseen_controls(final.sigmas.controls, data.control_times_s,
                                        problem.config.trajectory.deformation, problem.config.weighting.sigma0_m)
-        unobservable = [name for name in held if name not in gauges] + [name for name in reasons if name not in held]
+        unobservable = named_held + [name for name in reasons if name not in held]
         self.check(final, unobservable)
         if estimated[2]:
             unobservable += list(TRAJECTORY_GAUGE[:2 if config.trajectory.pose_corrections else 1])

@@ -18,7 +18,7 @@ from graphcal.calibration.returns import (
 )
 from graphcal.calibration.result import Calibration, CalibrationResult
 from graphcal.common.errors import GraphcalError
-from graphcal.calibration.observability import EXTRINSIC_NAMES, INTRINSIC_NAMES
+from graphcal.calibration.observability import EXTRINSIC_NAMES, intrinsic_mask
 from graphcal.recording.intrinsics import (
     DISPLAY_FROM_FILE_UNITS,
     DISPLAY_NAMES,
@@ -144,7 +144,7 @@ def scorecard(result: CalibrationResult, recording: Recording) -> Scorecard:
     (a sigma reported: not the gauges held, not a fixed reference fibre's) and the named ones."""
     sensor = recording.sensor
     unobservable = set(result.unobservable)
-    named = np.array([[f"fibre_{f}.{name}" in unobservable for name in INTRINSIC_NAMES] for f in range(sensor.n_fibres)])
+    named = intrinsic_mask(unobservable, sensor.n_fibres)
     sigma = result.sigmas.intrinsics
     free = np.isfinite(sigma) & ~named
     error = offsets_to_file_units(result.calibration.estimate.offsets - recording.truth.intrinsics)

@@ -28,6 +28,28 @@ TRAJECTORY_GAUGE = ("trajectory.common_translation", "trajectory.common_rotation
 CONTROL_NAMES = ("rotation_x_deg", "rotation_y_deg", "rotation_z_deg", "x_m", "y_m", "z_m")
 
 
+def parameter_at(name: str) -> tuple[str, int, int]:
+    """Where a parameter named fibre_<i>.<intrinsic>, extrinsic.<axis> or control_<c>.<component> sits: its group
+    ("intrinsics", "extrinsic", "controls"), its row (the fibre, the control; 0 for the extrinsic) and its column
+    (in INTRINSIC_NAMES, EXTRINSIC_NAMES, CONTROL_NAMES)."""
+    owner, parameter = name.split(".")
+    if owner.startswith("fibre_"):
+        return "intrinsics", int(owner[6:]), INTRINSIC_NAMES.index(parameter)
+    if owner == "extrinsic":
+        return "extrinsic", 0, EXTRINSIC_NAMES.index(parameter)
+    return "controls", int(owner.split("_")[1]), CONTROL_NAMES.index(parameter)
+
+
+def intrinsic_mask(names, n_fibres: int) -> np.ndarray:
+    """(n_fibres, 4) True where fibre_i.<intrinsic> is among the names (any other name is passed over)."""
+    mask = np.zeros((n_fibres, 4), bool)
+    for name in names:
+        owner, _, parameter = name.partition(".")
+        if owner.startswith("fibre_") and parameter in INTRINSIC_NAMES:
+            mask[parameter_at(name)[1:]] = True
+    return mask
+
+
 @dataclass(frozen=True)
 class Uncertainty:
     """Posterior and prior 1-sigma per parameter, in the file units of each name (m or deg):
@@ -53,13 +75,16 @@ class Uncertainty:
     def without(self, held: set[str]) -> Uncertainty:
         """These sigmas with NaN for the named parameters (held at nominal: not estimated, no sigma to report)."""
         intrinsics = self.intrinsics.copy()
-        for fibre, row in enumerate(intrinsics):
-            row[[f"fibre_{fibre}.{name}" in held for name in INTRINSIC_NAMES]] = np.nan
-        extrinsic = None if self.extrinsic is None else np.where(
-            [f"extrinsic.{name}" in held for name in EXTRINSIC_NAMES], np.nan, self.extrinsic)
+        extrinsic = None if self.extrinsic is None else self.extrinsic.copy()
         controls = None if self.controls is None else self.controls.copy()
-        for control, row in enumerate(() if controls is None else controls):
-            row[[f"control_{control}.{name}" in held for name in CONTROL_NAMES]] = np.nan
+        for name in held:  # a group not estimated (None) has no sigma to hide
+            group, row, column = parameter_at(name)
+            if group == "intrinsics":
+                intrinsics[row, column] = np.nan
+            elif group == "extrinsic" and extrinsic is not None:
+                extrinsic[column] = np.nan
+            elif group == "controls" and controls is not None:
+                controls[row, column] = np.nan
         return replace(self, intrinsics=intrinsics, extrinsic=extrinsic, controls=controls)
 
 

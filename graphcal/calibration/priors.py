@@ -10,7 +10,7 @@ import gtsam
 import numpy as np
 
 from graphcal.calibration.config import CalibrationConfig
-from graphcal.calibration.observability import CONTROL_NAMES, EXTRINSIC_NAMES, INTRINSIC_NAMES, tangent_to_axes
+from graphcal.calibration.observability import parameter_at, tangent_to_axes
 from graphcal.calibration.returns import Estimate
 
 HELD_SIGMA = 1e-7  # prior sigma (m or rad) that holds a parameter at its nominal value
@@ -44,15 +44,13 @@ class Priors:
         """These priors with the named parameters' sigmas shrunk to HELD_SIGMA (held at nominal)."""
         intrinsic, extrinsic, control = self.intrinsic.copy(), self.extrinsic.copy(), self.control_held.copy()
         for name in names:
-            owner, parameter = name.split(".")
-            index = int(owner.split("_")[1]) if "_" in owner else 0
-            if owner.startswith("fibre_"):
-                intrinsic[index, INTRINSIC_NAMES.index(parameter)] = HELD_SIGMA
-            elif owner == "extrinsic":
-                extrinsic[EXTRINSIC_NAMES.index(parameter)] = HELD_SIGMA
-            else:
-                column = CONTROL_NAMES.index(parameter) - (6 - control.shape[1])
-                control[index, column] = True
+            group, row, column = parameter_at(name)
+            if group == "intrinsics":
+                intrinsic[row, column] = HELD_SIGMA
+            elif group == "extrinsic":
+                extrinsic[column] = HELD_SIGMA
+            else:  # translation-only controls have no rotation columns
+                control[row, column - (6 - control.shape[1])] = True
         return replace(self, intrinsic=intrinsic, extrinsic=extrinsic, control_held=control)
 
     def free_intrinsics(self, fixed_fibre: int | None) -> np.ndarray:

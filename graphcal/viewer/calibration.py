@@ -30,7 +30,7 @@ from graphcal.calibration.evaluate import (
     returns_for,
     world_of,
 )
-from graphcal.calibration.observability import INTRINSIC_NAMES
+from graphcal.calibration.observability import intrinsic_mask
 from graphcal.calibration.result import CalibrationResult
 from graphcal.recording.geodesy import to_world
 from graphcal.recording.intrinsics import (
@@ -149,7 +149,7 @@ def log_parameters(stream: rr.RecordingStream, recording: Recording, result: Cal
     if result.estimated[0]:
         values = offsets_to_file_units(calibration.estimate.offsets)
         true = offsets_to_file_units(truth.intrinsics) if truth is not None else None
-        held = unobservable_mask(calibration.unobservable, values.shape[0])
+        held = intrinsic_mask(calibration.unobservable, values.shape[0])
         for k, (name, factor) in enumerate(zip(DISPLAY_NAMES, DISPLAY_FROM_FILE_UNITS)):
             log_with_sigma(stream, f"parameters/intrinsics/{name}", "fibre",
                            np.where(held[:, k], np.nan, values[:, k] * factor), uncertainty.intrinsics[:, k] * factor,
@@ -161,16 +161,6 @@ def log_parameters(stream: rr.RecordingStream, recording: Recording, result: Cal
             log_with_sigma(stream, f"parameters/corrections/{name}", "control", translation_cm[:, k],
                            uncertainty.controls[:, 3 + k] * 100.0)
     log_summary(stream, parameter_table(result), "parameters/table")
-
-
-def unobservable_mask(names, n_fibres: int) -> np.ndarray:
-    """(n_fibres, 4) True where fibre_i.<intrinsic> is named unobservable."""
-    mask = np.zeros((n_fibres, 4), bool)
-    for name in names:
-        owner, _, parameter = name.partition(".")
-        if owner.startswith("fibre_") and parameter in INTRINSIC_NAMES:
-            mask[int(owner[6:]), INTRINSIC_NAMES.index(parameter)] = True
-    return mask
 
 
 def parameter_table(result: CalibrationResult) -> str:
