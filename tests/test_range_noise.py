@@ -48,7 +48,7 @@ def test_stand_ins_only_for_a_noisy_head():
     assert sight_at(data, estimate, points) is None
     for noise_m in (NOISY_ABOVE_M, np.nan):
         sight = sight_at(replace(data, range_noise_m=noise_m), estimate, points)
-        assert sight is not None and sight.stand_ins.shape == points.shape
+        assert sight is not None and sight.stand_ins(points).shape == points.shape
     noisy = graphcal.simulate(load_scenario_builder("sim2_street")(size=0.1, seed=0, range_noise_m=0.01), quiet=True)
     assert sight_at(*_at(noisy)) is not None
 

@@ -191,7 +191,7 @@ def test_returns_on_stand_ins_are_the_measured_points_with_offsets_held():
     with_held, _ = world_points(returns, offsets, R_E, t_E, corrections, jacobians=False, held_lidar=held)
     np.testing.assert_allclose(with_held, points[rows], atol=1e-9)
     at_stand_ins, _ = world_points(returns, offsets, R_E, t_E, corrections, jacobians=False)
-    np.testing.assert_allclose(at_stand_ins, sight.stand_ins[rows], atol=1e-6)
+    np.testing.assert_allclose(at_stand_ins, sight.stand_ins(points)[rows], atol=1e-6)
     assert np.mean(sight.shift_m != 0) > 0.5  # most returns have firing neighbours near enough
     row = int(np.flatnonzero(sight.shift_m != 0)[100])
     bumped = dataclasses.replace(data, range_m=data.range_m + 0.05 * (np.arange(len(points)) == row))

@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields
+from functools import cached_property
 
 import numpy as np
 import open3d as o3d
@@ -25,15 +26,12 @@ def rows_of(table, rows: np.ndarray):
 
 @dataclass(frozen=True)
 class Features:
-    """Per-point local shape from the k nearest neighbours: unit normal (N,3) and the
-    dimensionality features of the sqrt-eigenvalues s1 >= s2 >= s3 of the covariance:
-    linearity (s1-s2)/s1, planarity (s2-s3)/s1, scattering s3/s1 (each in [0, 1]), and s3 itself,
+    """Per-point local shape from the k nearest neighbours: unit normal (N,3) and, of the sqrt-eigenvalues
+    s1 >= s2 >= s3 of the covariance, the planarity (s2-s3)/s1 (in [0, 1]; the weight of eq. 4.4) and s3 itself,
     out_of_plane_m [m]: the RMS distance of the neighbourhood from its best plane."""
 
     normal: np.ndarray
-    linearity: np.ndarray
     planarity: np.ndarray
-    scattering: np.ndarray
     out_of_plane_m: np.ndarray
 
     def take(self, rows: np.ndarray) -> Features:
@@ -74,15 +72,19 @@ class Correspondences:
 
 @dataclass(frozen=True)
 class Sight:
-    """Per return: its unit line of sight rays (N,3) in the points' axes, and its stand-in (N,3) [m],
-    the point of that line at the range the PROXY_FIRINGS returns its fibre fired before it and after it
-    give at its azimuth (its own range left out; itself at an edge or a gap, _shift_to_neighbours), shift_m (N,) [m]
-    along the line from the return to it (the stand-in of its range is range + shift). Range noise
-    moves a return along its line of sight, so its stand-in does not depend on its own noise."""
+    """Per return: its unit line of sight rays (N,3) in the points' axes, and the shift_m (N,) [m] along that
+    line from the return to its stand-in, the point of the line at the range the PROXY_FIRINGS returns its fibre
+    fired before it and after it give at its azimuth (its own range left out; itself at an edge or a gap,
+    _shift_to_neighbours): the stand-in of its range is range + shift (stand_ins). Range noise moves a return
+    along its line of sight, so its stand-in does not depend on its own noise."""
 
     rays: np.ndarray
-    stand_ins: np.ndarray
     shift_m: np.ndarray
+
+    def stand_ins(self, points_m: np.ndarray) -> np.ndarray:
+        """The stand-ins (N,3) [m] of the returns at points_m (N,3) [m]: each moved by its shift along its ray
+        (not kept: three columns of every return that a tile's job would carry)."""
+        return points_m + self.shift_m[:, None] * self.rays
 
     def take(self, rows: np.ndarray) -> Sight:
         """The lines of sight of the returns at rows (indices or a boolean mask)."""
@@ -103,7 +105,7 @@ class Sight:
                     around = rows[centre[:, None] + np.r_[np.arange(-k, 0), np.arange(1, k + 1)]]
                     shift[inner], found[inner] = _shift_to_neighbours(range_m[inner], azimuth_rad[inner],
                                                                       range_m[around], azimuth_rad[around])
-        return cls(rays, points_m + shift[:, None] * rays, shift)
+        return cls(rays, shift)
 
 
 def _shift_to_neighbours(range_m: np.ndarray, azimuth_rad: np.ndarray, around_range_m: np.ndarray,
@@ -155,10 +157,7 @@ def local_features(points_m: np.ndarray, radius_m: float = 0.5, max_nn: int = 20
     s = np.sqrt(np.clip(eigenvalues, 0.0, None))[:, ::-1]  # s1 >= s2 >= s3
     s1 = np.where(s[:, 0] > 0, s[:, 0], 1.0)
     valid = s[:, 1] > 0
-    return Features(normal=eigenvectors[:, :, 0],
-                    linearity=np.where(valid, (s[:, 0] - s[:, 1]) / s1, 0.0),
-                    planarity=np.where(valid, (s[:, 1] - s[:, 2]) / s1, 0.0),
-                    scattering=np.where(valid, s[:, 2] / s1, 0.0),
+    return Features(normal=eigenvectors[:, :, 0], planarity=np.where(valid, (s[:, 1] - s[:, 2]) / s1, 0.0),
                     out_of_plane_m=s[:, 2])
 
 
@@ -185,6 +184,11 @@ class PairCloud:
     fibre: np.ndarray
     features: Features
     sight: Sight | None = None
+
+    @cached_property
+    def stand_ins_m(self) -> np.ndarray:
+        """What the association searches (N,3) [m]: the stand-ins (Sight.stand_ins), the points without a sight."""
+        return self.points_m if self.sight is None else self.sight.stand_ins(self.points_m)
 
 
 @dataclass(frozen=True)
@@ -230,7 +234,7 @@ def associate(cloud: PairCloud, neighbours: dict[int, list[int]], gates: PairGat
     candidates = np.arange(len(points_m)) if candidates is None else np.asarray(candidates)
     rng = rng or np.random.default_rng(0)
     by_fibre = rows_by_fibre(fibre)
-    stand_ins = points_m if sight is None else sight.stand_ins
+    stand_ins = cloud.stand_ins_m
     trees = {f: cKDTree(stand_ins[rows], balanced_tree=False, compact_nodes=False) for f, rows in by_fibre.items()}
     planar = features.planarity >= gates.min_planarity
     planar_candidates = candidates[planar[candidates]]
@@ -265,7 +269,7 @@ def _nearest(p: np.ndarray, j_rows: np.ndarray, tree: cKDTree, cloud: PairCloud,
         found = np.isfinite(distance)
         return found, j_rows[nearest[found]]
     k = min(LINE_CANDIDATES, len(j_rows))
-    stand_ins, rays = cloud.sight.stand_ins, cloud.sight.rays
+    stand_ins, rays = cloud.stand_ins_m, cloud.sight.rays
     distance, nearest = tree.query(stand_ins[p], k=k, distance_upper_bound=gate_m)
     distance, nearest = distance.reshape(len(p), k), nearest.reshape(len(p), k)
     found = np.isfinite(distance[:, 0])
@@ -280,22 +284,23 @@ def _nearest(p: np.ndarray, j_rows: np.ndarray, tree: cKDTree, cloud: PairCloud,
 def _pairs_with(rows: tuple[np.ndarray, np.ndarray], tree: cKDTree, cloud: PairCloud, planar: np.ndarray,
                 gates: PairGates, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """(p, m) rows: the candidates p_rows paired with a return of fibre j (rows j_rows, in tree; rows =
-    (p_rows, j_rows)), with planar the mask of returns planar enough, as associate keeps them; at most gates.most, a uniform random subset of those kept: the candidates
-    are taken in a random order and only as many are searched as it takes to keep that many."""
+    (p_rows, j_rows)), with planar the mask of returns planar enough, as associate keeps them; at most gates.most,
+    a uniform random subset of those kept: the candidates are taken in a random order and only as many are
+    searched as it takes to keep that many."""
     p_rows, j_rows = rows
     most = gates.most
     if most is not None:
         p_rows = p_rows[rng.permutation(len(p_rows))]
     chunk = 100_000 if most is None else 2 * most
+    features, points = cloud.features, cloud.points_m
     kept_p, kept_m, count = [], [], 0
     for start in range(0, len(p_rows), chunk):
         p = p_rows[start:start + chunk]
         found, m = _nearest(p, j_rows, tree, cloud, gates.gate_m)
         p = p[found]
-        normal = cloud.features.normal[p]
-        points = cloud.points_m
+        normal = features.normal[p]
         same_surface = (planar[m]
-                        & (np.abs(np.einsum("ni,ni->n", normal, cloud.features.normal[m])) >= gates.min_normal_cos)
+                        & (np.abs(np.einsum("ni,ni->n", normal, features.normal[m])) >= gates.min_normal_cos)
                         & (np.abs(np.einsum("ni,ni->n", normal, points[p] - points[m])) <= gates.max_plane_distance_m))
         kept_p.append(p[same_surface])
         kept_m.append(m[same_surface])

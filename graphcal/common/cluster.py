@@ -52,20 +52,24 @@ class OnCluster:
         return max(len(self.client.scheduler_info().get("workers", {})), 1)
 
     def __call__(self, function: Callable, jobs: Sequence, costs: Sequence[float] | None = None) -> list:
-        # each job's arrays go straight to one worker (scatter), not through the scheduler inside a task graph;
-        # with costs, to the worker balanced_loads gives it (a scattered job's task runs where its arrays are)
+        # each job's arrays go straight to its worker (scatter), not through the scheduler inside a task graph, to
+        # the worker balanced_loads gives it (round robin without costs), the costliest first; each job is
+        # submitted as soon as its arrays are there, so that workers compute while the next jobs' arrays travel,
+        # and its result is fetched as soon as it is done
+        from dask.distributed import as_completed
+
         addresses = sorted(self.client.scheduler_info().get("workers", {}))
-        if costs is None or len(addresses) < 2:
-            held = self.client.scatter(list(jobs), hash=False)
-        else:
-            held = [None] * len(jobs)
-            where = balanced_loads(costs, len(addresses))
-            for worker, address in enumerate(addresses):
-                mine = np.flatnonzero(where == worker).tolist()
-                for index, future in zip(mine, self.client.scatter([jobs[i] for i in mine], workers=[address],
-                                                                   hash=False)):
-                    held[index] = future
-        return self.client.gather(self.client.map(function, held, pure=False))
+        costs = np.ones(len(jobs)) if costs is None else np.asarray(costs, dtype=float)
+        where = balanced_loads(costs, max(len(addresses), 1))
+        index_of = {}
+        for index in np.argsort(-costs, kind="stable").tolist():
+            worker = [addresses[where[index]]] if addresses else None
+            [held] = self.client.scatter([jobs[index]], workers=worker, hash=False)
+            index_of[self.client.submit(function, held, workers=worker, pure=False)] = index
+        out = [None] * len(jobs)
+        for future, result in as_completed(index_of, with_results=True):
+            out[index_of[future]] = result
+        return out
 
 
 def balanced_loads(costs: Sequence[float], workers: int) -> np.ndarray:

@@ -70,7 +70,7 @@ def compare(recording: Recording, simulation: Recording, max_points: int | None 
     features = features_at(sim_points, settings.features)
     sim_tree = cKDTree(sim_points)
     rows, nearest, normal = _paired(points, sim_tree, features)
-    context = ReturnContext.of(data, recording.world.poses, points, Features(normal, *(np.zeros(len(points)),) * 4),
+    context = ReturnContext.of(data, recording.world.poses, points, Features(normal, *(np.zeros(len(points)),) * 2),
                                estimate.extrinsic.translation(), sight_at(data, with_controls(estimate, data), points))
     names = list(candidates or CANDIDATES)
     estimate = with_controls(estimate, data)
