@@ -7,7 +7,6 @@ graph stays on the driver. Points are world coordinates minus a local origin [m]
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields
 from functools import cached_property
@@ -17,6 +16,7 @@ import open3d as o3d
 from scipy.spatial import cKDTree
 
 from graphcal.calibration.config import PhaseGates
+from graphcal.common.cluster import usable_cores
 
 
 def rows_of(table, rows: np.ndarray):
@@ -248,7 +248,7 @@ def associate(cloud: PairCloud, neighbours: dict[int, list[int]], gates: PairGat
         return _pairs_with((p_of[i], by_fibre[j]), trees[j], cloud, planar, gates, stream)
 
     # the KD-tree queries and NumPy release the GIL: fibre pairs side by side on the cores
-    with ThreadPoolExecutor(os.cpu_count() or 1) as pool:
+    with ThreadPoolExecutor(usable_cores()) as pool:
         parts = list(pool.map(pairs_of, jobs, streams))
     if not parts:
         empty = np.zeros(0, dtype=np.int64)

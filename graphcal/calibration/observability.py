@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import copy
 import itertools
-import os
 from dataclasses import dataclass, replace
 
 import gtsam
@@ -19,6 +18,7 @@ import scipy.sparse as sparse
 import scipy.sparse.linalg
 from threadpoolctl import threadpool_limits
 
+from graphcal.common.cluster import usable_cores
 from graphcal.recording.intrinsics import offsets_to_file_units
 
 POSE_TO_FILE_UNITS = np.r_[np.full(3, np.degrees(1.0)), np.ones(3)]  # [rad x3, m x3] -> [deg x3, m x3]
@@ -401,7 +401,7 @@ def schur_complement(H: np.ndarray, widths: dict[int, int], keys: list[int]) -> 
 def every_core():
     """BLAS on every core the process may use (the calibration holds it to one around the block factors'
     callbacks), for a large dense factorisation."""
-    return threadpool_limits(limits=len(os.sched_getaffinity(0)), user_api="blas")
+    return threadpool_limits(limits=usable_cores(), user_api="blas")
 
 
 def assembled_dense(graph: gtsam.NonlinearFactorGraph, widths: dict[int, int]) -> bool:

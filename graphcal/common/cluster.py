@@ -7,7 +7,7 @@ cluster spreads them so that its workers' loads are even (the largest first, eac
 open_task_map(address) gives one:
 
 - None: in this process, one job after the other;
-- "local" or "local:N": a LocalCluster of N worker processes (default: the machine's cores), one thread each,
+- "local" or "local:N": a LocalCluster of N worker processes (default: the cores this process may use), one thread each,
   started here and closed when the block ends (not confined to a core each: their libraries' thread pools,
   open3d's among them, use every core);
 - "tcp://HOST:PORT" (or any scheduler address dask.distributed accepts): an existing cluster. The workers
@@ -85,11 +85,17 @@ def balanced_loads(costs: Sequence[float], workers: int) -> np.ndarray:
 IN_PROCESS = InProcess()
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its affinity: a worker confined to one core sees one), not the
+    machine's."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
 def local_workers(address: str) -> int:
-    """The worker count of "local" (the cores) or "local:N"; ConfigError naming the option otherwise."""
+    """The worker count of "local" (the usable cores) or "local:N"; ConfigError naming the option otherwise."""
     _, _, count = address.partition(":")
     if not count:
-        return os.cpu_count() or 1
+        return usable_cores()
     if not count.isdigit() or int(count) < 1:
         raise _not_an_address(address)
     return int(count)
