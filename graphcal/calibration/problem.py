@@ -187,7 +187,8 @@ class Problem:
     def on_coarse_controls(self) -> Problem:
         """This problem with trajectory keys at every k-th control only (trajectory.coarse_max_controls), when it
         corrects the trajectory of a drive with more controls than that; else itself."""
-        knots = knots_every(len(self.full.control_times_s), self.settings.trajectory.coarse_max_controls)
+        knots = knots_every(len(self.full.control_times_s), self.settings.trajectory.coarse_max_controls,
+                            self.full.about_breaks)
         if knots is None or not self.estimated[2]:
             return self
         return replace(self, data=self.data.on_knots(knots), knots=knots)
@@ -317,14 +318,19 @@ class Problem:
         """Control corrections and E_def: the seed's eq. 5.3 (a prior of sigma on each control) or Monnier's
         successive differences (the seed's quotation after eq. 5.3) under a Huber loss of JUMP_HUBER sigmas, with a
         prior of sigma sqrt(N) on each of the N controls, which holds the drive's mean correction (the gauge) with
-        sigma, on every control's INS value, and pulls no stretch back. On knots (on_coarse_controls) each prior is
-        that of the controls the knot stands for (knot_shares), each difference that of the controls' successive
-        differences between two knots (corrections linear between them)."""
+        sigma, on every control's INS value, and pulls no stretch back. A difference over a time of g control
+        intervals has g times a difference's variance (on knots, on_coarse_controls: the controls' successive
+        differences between two knots, corrections linear between them; about a step of the INS: the shorter
+        intervals); none ties the two controls about a step (ReturnData.control_breaks). On knots each prior is
+        that of the controls the knot stands for (knot_shares)."""
         trajectory, stopping = self.config.trajectory, self.config.stopping
         pose = trajectory.pose_corrections
-        every = self.knots is None
-        shares = np.ones(len(estimate.corrections)) if every else knot_shares(self.full.control_times_s, self.knots)
-        gaps = np.ones(len(estimate.corrections)) if every else np.r_[1, np.diff(self.knots)]
+        shares = np.ones(len(estimate.corrections)) if self.knots is None else knot_shares(self.full.control_times_s,
+                                                                                            self.knots)
+        interval_s = trajectory.control_interval_s
+        gaps = (np.r_[1.0, np.diff(self.data.control_times_s) / interval_s] if np.isfinite(interval_s)
+                else np.ones(len(estimate.corrections)))  # in control intervals
+        breaks = np.zeros(len(gaps), bool) if self.data.control_breaks is None else self.data.control_breaks
         monnier = trajectory.deformation == "monnier"
         anchor = self._anchor_sigma(sigma)
 
@@ -347,7 +353,7 @@ class Problem:
                 graph.add(gtsam.PriorFactorPose3(X(c), correction, step) if pose
                           else gtsam.PriorFactorPoint3(X(c), correction.translation(), step))
             graph.add(prior(c, anchors[c]))
-            if monnier and c > 0:
+            if monnier and c > 0 and not breaks[c]:
                 graph.add(gtsam.BetweenFactorPose3(X(c - 1), X(c), gtsam.Pose3(), differences[c]) if pose
                           else gtsam.BetweenFactorPoint3(X(c - 1), X(c), np.zeros(3), differences[c]))
             if held[c].any():

@@ -23,11 +23,13 @@ from graphcal.recording.directory import Recording
 from graphcal.recording.sensor import SensorModel
 from graphcal.recording.subset import subset_rows
 from graphcal.recording.trajectory_noise import PoseNoise
+from graphcal.recording.trajectory_steps import position_steps
 
 STATIC_BELOW_M = 1.0  # a sensor whose positions span less than this sees from one viewpoint ...
 TURNED_DEG = 45.0  # ... and is static unless its heading spans this much [deg]: then it turned on the spot
 REVISIT_WITHIN_M = 5.0  # a drive revisits a place when it passes within this of where it was ...
 REVISIT_AFTER_S = 20.0  # ... at least this much earlier
+STEP_CONTROL_APART_S = 1e-3  # a control of the grid this close to a step's control [s] gives way to it
 
 
 @dataclass(frozen=True)
@@ -37,7 +39,9 @@ class ReturnData:
     noise (trajectory_noise.PoseNoise), the nominal lever arm [m, body frame], which places the sensor
     on the vehicle, and the spans [s] (k, 2) of the drive the returns were drawn in (recording.subset; None:
     the whole drive); smoothing_error: the error smoothing left in the recorded poses, shared by the returns fired
-    within its interval_s (WorldTrajectory.smoothing_error)."""
+    within its interval_s (WorldTrajectory.smoothing_error); control_breaks (per control, None: none): True where
+    the recorded trajectory steps between the previous control and this one (controls_about_steps), so that E_def
+    does not tie their corrections."""
 
     sensor: SensorModel
     rows: np.ndarray
@@ -56,6 +60,7 @@ class ReturnData:
     lever_arm_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
     spans_s: np.ndarray | None = None
     smoothing_error: PoseNoise = PoseNoise.none()
+    control_breaks: np.ndarray | None = None
 
     @property
     def one_viewpoint(self) -> bool:
@@ -88,10 +93,20 @@ class ReturnData:
 
     def on_knots(self, knots: np.ndarray) -> ReturnData:
         """The same returns between the controls `knots` (indices into control_times_s, increasing, the first and
-        the last among them): fewer trajectory keys, each return interpolated between the knots about it."""
+        the last among them, and both controls about each break): fewer trajectory keys, each return interpolated
+        between the knots about it."""
         control_times = self.control_times_s[knots]
         control, alpha = between_controls(self.time_s, control_times)
-        return replace(self, control=control, alpha=alpha, control_times_s=control_times)
+        breaks = None if self.control_breaks is None else self.control_breaks[knots]
+        return replace(self, control=control, alpha=alpha, control_times_s=control_times, control_breaks=breaks)
+
+    @property
+    def about_breaks(self) -> np.ndarray:
+        """The controls on either side of a break (indices, sorted)."""
+        if self.control_breaks is None:
+            return np.zeros(0, np.int64)
+        after = np.flatnonzero(self.control_breaks)
+        return np.union1d(after - 1, after)
 
     def returns(self, rows: np.ndarray) -> Returns:
         """The factor-side view of some rows."""
@@ -129,8 +144,11 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
     time = columns["time"]
     position, rotation = recording.world.poses.interpolate(time)
     origin = np.round(position.mean(axis=0))
+    breaks = None
     if control_times_s is None:
-        control_times = control_grid(recording.world.poses.span[0], time[0], time[-1], control_interval_s)
+        poses = recording.world.poses
+        control_times, breaks = controls_about_steps(control_grid(poses.span[0], time[0], time[-1], control_interval_s),
+                                                     position_steps(poses))
     else:
         control_times = np.asarray(control_times_s, dtype=np.float64)
     control, alpha = between_controls(time, control_times)
@@ -139,7 +157,7 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
                       time, rotation.as_matrix(), position - origin, control, alpha, control_times, origin, range_noise_m,
                       recording.world.pose_noise,
                       np.asarray(recording.extrinsic.lever_arm_m, dtype=np.float64), spans_s,
-                      recording.world.smoothing_error)
+                      recording.world.smoothing_error, breaks)
 
 
 def heading_span_deg(R_world_body: np.ndarray) -> float:
@@ -171,13 +189,15 @@ def between_controls(time_s: np.ndarray, control_times_s: np.ndarray) -> tuple[n
     return control, np.clip((time_s - control_times_s[control]) / gap, 0, 1)
 
 
-def knots_every(n_controls: int, most: int | None) -> np.ndarray | None:
-    """Indices of every k-th of n_controls controls and the last one, k the least that leaves at most `most`
-    of them (None: every control, when they are no more than that or most is None)."""
+def knots_every(n_controls: int, most: int | None, kept: np.ndarray | None = None) -> np.ndarray | None:
+    """Indices of every k-th of n_controls controls, the last one and the controls `kept` (those about a break),
+    k the least that leaves at most `most` of them besides those kept (None: every control, when they are no more
+    than that or most is None)."""
     if most is None or n_controls <= most:
         return None
     step = int(np.ceil((n_controls - 1) / (most - 1)))
-    return np.unique(np.r_[np.arange(0, n_controls, step), n_controls - 1])
+    kept = np.zeros(0, np.int64) if kept is None else kept
+    return np.unique(np.r_[np.arange(0, n_controls, step), n_controls - 1, kept]).astype(np.int64)
 
 
 def knot_shares(control_times_s: np.ndarray, knots: np.ndarray) -> np.ndarray:
@@ -211,6 +231,22 @@ def control_grid(anchor_s: float, first_s: float, last_s: float, interval_s: flo
     k_first = np.floor((first_s - anchor_s) / interval_s + 1e-9)
     k_last = max(np.ceil((last_s - anchor_s) / interval_s - 1e-9), k_first + 1)
     return anchor_s + interval_s * np.arange(k_first, k_last + 1)
+
+
+def controls_about_steps(control_times_s: np.ndarray, steps_s: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """The control times [s] with a control at each side of each step of the recorded positions (steps_s (S, 2):
+    the samples' times either side, trajectory_steps.position_steps) inside their span, so that corrections
+    interpolated between controls can step with the INS; a control of the grid between the two or within a
+    millisecond of either is left out. Also the breaks (bool per control: True at the control after a step;
+    None without a step)."""
+    inside = (steps_s[:, 0] > control_times_s[0]) & (steps_s[:, 1] < control_times_s[-1])
+    steps_s = steps_s[inside]
+    if not len(steps_s):
+        return control_times_s, None
+    near = np.any((control_times_s[:, None] > steps_s[:, 0] - STEP_CONTROL_APART_S)
+                  & (control_times_s[:, None] < steps_s[:, 1] + STEP_CONTROL_APART_S), axis=1)
+    times = np.sort(np.r_[control_times_s[~near], steps_s.ravel()])
+    return times, np.isin(times, steps_s[:, 1])
 
 
 def pose_of(extrinsic: Extrinsic) -> gtsam.Pose3:

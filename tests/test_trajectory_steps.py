@@ -1,0 +1,55 @@
+"""Steps of a recorded trajectory's positions (graphcal.recording.trajectory_steps) and the controls placed about
+them (graphcal.calibration.returns.controls_about_steps)."""
+
+import numpy as np
+
+from graphcal.calibration.returns import between_controls, controls_about_steps, control_grid, knots_every
+from graphcal.recording.poses import PoseTrack
+from graphcal.recording.trajectory_steps import position_steps
+
+
+def _drive(rate_hz: float, seconds: float, walk_m_sqrt_s: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(time [s], position [m]) of a vehicle turning a 40 m circle at 8 m/s while braking, with an INS error
+    that walks at walk_m_sqrt_s per axis."""
+    rng = np.random.default_rng(seed)
+    time_s = np.arange(0.0, seconds, 1.0 / rate_hz)
+    along_m = 8.0 * time_s - 0.1 * time_s ** 2
+    truth = np.column_stack([40 * np.cos(along_m / 40), 40 * np.sin(along_m / 40), 0.02 * time_s])
+    walk = np.cumsum(rng.normal(0.0, walk_m_sqrt_s / np.sqrt(rate_hz), truth.shape), axis=0)
+    return time_s, truth + walk
+
+
+def _track(time_s, position_m) -> PoseTrack:
+    return PoseTrack.from_rpy(time_s, position_m, np.zeros((len(time_s), 3)))
+
+
+def test_the_steps_of_an_ins_are_found_and_nothing_else():
+    """Three steps of 1.5-6 cm injected after known samples of a drive at 100 Hz whose INS error walks at 5 mm/sqrt(s)
+    (0.5 mm a sample) are found, each between its two samples; a step of 3 mm is not (below MIN_STEP_M), nor is
+    anything on the drive without steps, on three draws."""
+    for seed in range(3):
+        time_s, position_m = _drive(100.0, 60.0, 0.005, seed)
+        assert len(position_steps(_track(time_s, position_m))) == 0
+        steps = {1234: [0.04, -0.03, 0.01], 3000: [0.0, 0.015, 0.0], 4500: [-0.06, 0.0, 0.02], 5200: [0.003, 0, 0]}
+        stepped = position_m.copy()
+        for after, step_m in steps.items():
+            stepped[after + 1:] += step_m
+        found = position_steps(_track(time_s, stepped))
+        np.testing.assert_array_equal(found, time_s[[[1234, 1235], [3000, 3001], [4500, 4501]]])
+
+
+def test_controls_stand_either_side_of_each_step():
+    """The grid's controls with one on each side of each step inside their span (a grid control within a
+    millisecond of one of them gives way), the break at the control after; a return just before a step is
+    interpolated almost wholly from the control before it, one just after from the control after; the coarse
+    knots keep both controls about each step."""
+    grid = control_grid(0.0, 0.2, 9.7, 1.0)  # 0, 1, ..., 10
+    steps = np.array([[3.0, 3.01], [6.5, 6.51], [12.0, 12.01]])  # the last outside the controls' span
+    times, breaks = controls_about_steps(grid, steps)
+    np.testing.assert_allclose(times, [0, 1, 2, 3.0, 3.01, 4, 5, 6, 6.5, 6.51, 7, 8, 9, 10])
+    assert np.flatnonzero(breaks).tolist() == [4, 9]
+    control, alpha = between_controls(np.array([2.999, 3.009, 3.011]), times)
+    assert control.tolist() == [2, 3, 4] and alpha[0] > 0.99 and np.isclose(alpha[1], 0.9) and alpha[2] < 0.01
+    assert controls_about_steps(grid, np.zeros((0, 2)))[1] is None
+    knots = knots_every(len(times), 4, np.array([3, 4, 8, 9]))
+    assert {3, 4, 8, 9} <= set(knots.tolist()) and knots[0] == 0 and knots[-1] == len(times) - 1
