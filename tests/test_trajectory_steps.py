@@ -53,3 +53,16 @@ def test_controls_stand_either_side_of_each_step():
     assert controls_about_steps(grid, np.zeros((0, 2)))[1] is None
     knots = knots_every(len(times), 4, np.array([3, 4, 8, 9]))
     assert {3, 4, 8, 9} <= set(knots.tolist()) and knots[0] == 0 and knots[-1] == len(times) - 1
+
+
+def test_a_hard_brake_at_ten_poses_a_second_is_no_step():
+    """At 10 poses a second a brake of 8 m/s^2 (from 16 m/s, starting and ending at once) changes the velocity
+    between intervals by up to 0.8 m/s, 4 cm over a 0.1 s interval: not a step (at most 1 g of acceleration is the
+    vehicle's); a 15 cm step there is."""
+    time_s = np.arange(0.0, 30.0, 0.1)
+    braking = np.clip(time_s - 10.0, 0.0, 1.5)
+    along_m = 16.0 * time_s - 4.0 * braking ** 2 - 12.0 * np.clip(time_s - 11.5, 0.0, None)
+    position_m = np.column_stack([along_m, np.zeros_like(time_s), np.zeros_like(time_s)])
+    assert len(position_steps(_track(time_s, position_m))) == 0
+    position_m[201:, 1] += 0.15
+    np.testing.assert_array_equal(position_steps(_track(time_s, position_m)), [time_s[[200, 201]]])
