@@ -299,6 +299,7 @@ def test_corrections_step_where_the_ins_steps():
     result = graphcal.calibrate(recording, config, quiet=True)
     times = result.calibration.control_times_s
     assert set(recorded.time[stepped]) | set(recorded.time[stepped + 1]) <= set(times)
+    np.testing.assert_array_equal(result.ins_steps_s, position_steps(recorded))  # reported (graphcal calibrate prints)
     inside = (times >= recorded.span[0]) & (times <= recorded.span[1])
     error = (np.array([c.translation() for c in result.calibration.estimate.corrections])[inside]
              - (true.interpolate(times[inside])[0] - recorded.interpolate(times[inside])[0]))

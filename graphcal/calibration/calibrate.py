@@ -252,7 +252,8 @@ class CalibrationPipeline:
                                  shared_returns_uncertainty=final.shared_returns,
                                  cluster_robust_uncertainty=final.cluster_robust,
                                  verdict=verdict(unobservable, reasons, Motion.of(data.R_nav, data.X_nav)),
-                                 trajectory_noise=self.recording.world.white_noise)
+                                 trajectory_noise=self.recording.world.white_noise,
+                                 ins_steps_s=data.steps_s if estimated[2] else data.steps_s[:0])
 
     def check(self, final: FinalFit, unobservable: list[str]) -> None:
         """Refuse a result that is not one (CalibrationError, exit code 3)."""

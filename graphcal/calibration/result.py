@@ -174,7 +174,9 @@ class CalibrationResult:
     gtsam.Marginals' (pairs as independent), which names the unobservable parameters; verdict: one plain line on what
     the drive could not observe and which manoeuvre or scene would show it (verdict.py; None when it names nothing
     beyond the trajectory's common motion); trajectory_noise: the white noise smoothed out of the recorded poses
-    before the calibration used them (recording.world.white_noise)."""
+    before the calibration used them (recording.world.white_noise); ins_steps_s (S, 2): the times [s] of the
+    recorded poses on either side of each step of the recorded positions, with a control at each
+    (ReturnData.steps_s)."""
 
     calibration: Calibration
     uncertainty: Uncertainty
@@ -192,6 +194,7 @@ class CalibrationResult:
     cluster_robust_uncertainty: Uncertainty | None = None
     verdict: str | None = None
     trajectory_noise: PoseNoise = field(default_factory=PoseNoise.none)
+    ins_steps_s: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
     @property
     def energy_cm2(self) -> tuple[float, float]:

@@ -103,10 +103,17 @@ class ReturnData:
     @property
     def about_breaks(self) -> np.ndarray:
         """The controls on either side of a break (indices, sorted)."""
-        if self.control_breaks is None:
-            return np.zeros(0, np.int64)
-        after = np.flatnonzero(self.control_breaks)
+        after = self._after_breaks()
         return np.union1d(after - 1, after)
+
+    @property
+    def steps_s(self) -> np.ndarray:
+        """(S, 2) the times [s] of the controls on either side of each break (the recorded trajectory's steps)."""
+        after = self._after_breaks()
+        return np.column_stack([self.control_times_s[after - 1], self.control_times_s[after]])
+
+    def _after_breaks(self) -> np.ndarray:
+        return np.zeros(0, np.int64) if self.control_breaks is None else np.flatnonzero(self.control_breaks)
 
     def returns(self, rows: np.ndarray) -> Returns:
         """The factor-side view of some rows."""
