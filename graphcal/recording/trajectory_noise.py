@@ -23,6 +23,7 @@ from scipy.interpolate import make_smoothing_spline
 from graphcal.recording.poses import PoseTrack
 from graphcal.recording.range_noise import FOURTH_DIFFERENCE, MIN_DIFFERENCES
 from graphcal.recording.rotations import rotation_from_rpy_deg, unwrap_deg
+from graphcal.recording.trajectory_steps import noisy_steps
 
 UNIFORM_TOLERANCE = 0.01  # relative spread of five samples' intervals for their difference to count
 # white noise above which the poses are smoothed: a post-processed (smoothed) GNSS/INS trajectory is far below
@@ -80,16 +81,24 @@ def smoothed_poses(poses: PoseTrack) -> tuple[PoseTrack, PoseNoise, PoseNoise]:
     same object, unchanged, where it is below or cannot be measured), the noise measured on them, and the error
     the smoothing leaves (_PenaltyWindows.smoothed; PoseNoise.none() when not smoothed). Each position axis [m]
     and attitude angle (roll, pitch, unwrapped yaw [deg]) is a cubic smoothing spline of time (scipy
-    make_smoothing_spline) with penalties chosen for that channel's own noise (_PenaltyWindows.smoothed)."""
+    make_smoothing_spline) with penalties chosen for that channel's own noise (_PenaltyWindows.smoothed), on
+    either side of each step of the positions apart (trajectory_steps.noisy_steps: a GNSS update's jump, which
+    one spline would spread over its window)."""
     noise = measured_pose_noise(poses)
     if not (noise.position_m > SMOOTH_ABOVE_M or noise.attitude_rad > SMOOTH_ABOVE_RAD):
         return poses, noise, PoseNoise.none()
     rpy_deg = poses.rpy_deg
     rpy_deg[:, 2] = unwrap_deg(rpy_deg[:, 2])
     channels = np.column_stack([poses.position_m, rpy_deg])
-    smooth, left, shared_s = _PenaltyWindows.of(poses.time).smoothed(channels)
+    pieces = np.split(np.arange(len(poses.time)), noisy_steps(poses.position_m) + 1)  # smoothed apart: steps kept
+    parts = [_PenaltyWindows.of(poses.time[rows]).smoothed(channels[rows]) for rows in pieces]
+    smooth = np.concatenate([part[0] for part in parts])
+    weight = np.array([len(rows) for rows in pieces]) / len(poses.time)
+    left = np.sqrt(sum(w * part[1] ** 2 for w, part in zip(weight, parts)))
+    interval_s = float(np.median(np.diff(poses.time)))
+    share = sum(w * interval_s / part[2] for w, part in zip(weight, parts) if part[2] > 0)  # smoothed's g^2
     left_noise = PoseNoise(float(np.sqrt(np.mean(left[:3] ** 2))), float(np.radians(np.sqrt(np.mean(left[3:] ** 2)))),
-                           shared_s)
+                           interval_s / share if share > 0 else 0.0)
     return PoseTrack(poses.time, smooth[:, :3], rotation_from_rpy_deg(smooth[:, 3:])), noise, left_noise
 
 

@@ -12,17 +12,26 @@ itself at k and minus half of it at k - 1 and k + 1; the vehicle's own accelerat
 10 ms: 0.3 mm; at most MAX_ACCELERATION_M_S2 dt^2, which bounds the jumps counted as steps from below: a
 trajectory of 10 poses a second cannot tell a 5 cm step from a hard brake) and a random walk of the INS's error
 (5 mm/sqrt(s): 0.6 mm) far less.
+
+Under white noise a step is not one sample's jump (5 mm of noise a sample gives jumps of 11 mm RMS per axis): it is
+the difference between what the samples on either side say at the boundary, a quadratic fitted to the
+STEP_WINDOW samples before and one fitted to the STEP_WINDOW after, both taken at the boundary
+(noisy_steps). The smoothing of the trajectory's white noise (trajectory_noise.py) runs on either side of those
+steps apart, so that it keeps them; position_steps then finds them in the smoothed poses.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import maximum_filter1d
 
 from graphcal.recording.poses import PoseTrack
 
 STEP_TIMES_MEDIAN = 10.0  # a step's jump is at least this many times the median jump over the drive ...
 MIN_STEP_M = 0.01  # ... and at least this [m]: a smaller step leaves at most half of it, within a 1 cm range noise
 MAX_ACCELERATION_M_S2 = 10.0  # ... and above what a vehicle's acceleration (1 g) gives over the interval
+STEP_WINDOW = 50  # samples of each side's quadratic under white noise (0.5 s at 100 Hz)
+STEP_SIGMAS = 8.0  # a step under white noise stands this many of its own sigmas out (3 axes: chi, 3 dof)
 
 
 def position_steps(poses: PoseTrack) -> np.ndarray:
@@ -41,3 +50,32 @@ def position_steps(poses: PoseTrack) -> np.ndarray:
             & (jump_m >= padded[:-2]) & (jump_m >= padded[2:]))
     interval = np.flatnonzero(peak) + 1  # jump_m[i] is the interval i + 1's
     return np.column_stack([time_s[interval], time_s[interval + 1]])
+
+
+def noisy_steps(position_m: np.ndarray) -> np.ndarray:
+    """Sample indices k (increasing) such that the positions (N,3) [m], evenly sampled and under white noise, step
+    between samples k and k+1: the difference d_k between the quadratics fitted to the STEP_WINDOW samples on
+    either side, both taken half-way between k and k+1, stands out by more than STEP_SIGMAS (its 3 axes, each
+    over its robust sigma, 1.4826 x the median absolute d over the drive), and is the largest within a window
+    either way. The quadratics follow the vehicle's acceleration; its jerk over half a second (3 m/s^3) moves
+    them by a millimetre. None on fewer than 4 STEP_WINDOW samples."""
+    window = STEP_WINDOW
+    if len(position_m) < 4 * window:
+        return np.zeros(0, np.int64)
+    before, after = _edge_filter(window, float(window) - 0.5), _edge_filter(window, -0.5)  # fit at sample offsets 0..
+    windows = np.lib.stride_tricks.sliding_window_view(position_m, window, axis=0)  # (N - window + 1, 3, window)
+    at_end, at_start = windows @ before, windows @ after  # each window's value just past its end / before its start
+    boundary = np.arange(window - 1, len(position_m) - window)  # k: windows k-window+1..k and k+1..k+window
+    d = at_start[boundary + 1] - at_end[boundary - window + 1]
+    sigma = 1.4826 * np.median(np.abs(d), axis=0)
+    z = np.sqrt(np.sum((d / np.maximum(sigma, 0.1 * sigma.max() + 1e-12)) ** 2, axis=1))
+    peak = (z > STEP_SIGMAS) & (z >= maximum_filter1d(z, size=2 * window + 1, mode="constant"))
+    return boundary[peak]
+
+
+def _edge_filter(window: int, at: float) -> np.ndarray:
+    """(window,) weights whose product with window samples (offsets 0..window-1) is the least-squares quadratic's
+    value at offset `at`."""
+    offsets = np.arange(window, dtype=np.float64)
+    design = np.vander(offsets, 3, increasing=True)
+    return np.vander(np.array([at]), 3, increasing=True)[0] @ np.linalg.pinv(design)
