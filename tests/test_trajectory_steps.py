@@ -90,3 +90,11 @@ def test_steps_under_white_noise_are_kept_by_the_smoothing_and_found():
         error_m = np.linalg.norm(smooth.position_m - stepped, axis=1)
         near = np.abs(np.arange(len(time_s))[:, None] - np.array([1234, 3000, 4500])).min(axis=1) < 20
         assert np.sqrt(np.mean(error_m[near] ** 2)) < 0.003 and np.sqrt(np.mean(error_m[~near] ** 2)) < 0.003
+
+
+def test_two_steps_a_sample_apart_share_their_middle_control():
+    """Steps between 2.0 and 2.01 s and between 2.01 and 2.02 s: three controls there, a break after each step,
+    no two controls at one time (between_controls would divide by a zero interval)."""
+    times, breaks = controls_about_steps(np.arange(0.0, 5.0), np.array([[2.0, 2.01], [2.01, 2.02]]))
+    np.testing.assert_allclose(times, [0, 1, 2.0, 2.01, 2.02, 3, 4])
+    assert np.flatnonzero(breaks).tolist() == [3, 4] and np.all(np.diff(times) > 0)

@@ -252,7 +252,7 @@ def controls_about_steps(control_times_s: np.ndarray, steps_s: np.ndarray) -> tu
         return control_times_s, None
     near = np.any((control_times_s[:, None] > steps_s[:, 0] - STEP_CONTROL_APART_S)
                   & (control_times_s[:, None] < steps_s[:, 1] + STEP_CONTROL_APART_S), axis=1)
-    times = np.sort(np.r_[control_times_s[~near], steps_s.ravel()])
+    times = np.unique(np.r_[control_times_s[~near], steps_s.ravel()])  # two steps a sample apart share one
     return times, np.isin(times, steps_s[:, 1])
 
 
