@@ -5,6 +5,8 @@ The trajectory's common translation (and, with pose corrections, common rotation
 data cannot see: it is named unobservable, and the cloud is compared with truth once it is removed.
 """
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -279,7 +281,7 @@ def test_a_stretch_the_data_do_not_see_follows_its_neighbours_under_monnier(piec
             JUMP_HUBER * step - JUMP_HUBER ** 2 / 2, rel=1e-9)
 
 
-def test_corrections_step_where_the_ins_steps():
+def test_corrections_step_where_the_ins_steps(capsys):
     """An INS whose position steps (GNSS-like jumps of 5 cm per axis, seeded) over sim6_turn's piecewise error: the
     steps are found where the truth has them (the recorded error changes by more than 1 cm between two samples),
     a control stands on each side of each, and the corrections follow the INS's error at every control,
@@ -299,7 +301,13 @@ def test_corrections_step_where_the_ins_steps():
     result = graphcal.calibrate(recording, config, quiet=True)
     times = result.calibration.control_times_s
     assert set(recorded.time[stepped]) | set(recorded.time[stepped + 1]) <= set(times)
-    np.testing.assert_array_equal(result.ins_steps_s, position_steps(recorded))  # reported (graphcal calibrate prints)
+    np.testing.assert_array_equal(result.ins_steps_s, position_steps(recorded))
+    from types import SimpleNamespace
+
+    from graphcal.cli.main import _print_calibration
+
+    _print_calibration(SimpleNamespace(result=result, evaluation=None, folder=Path("run")))  # graphcal calibrate's
+    assert f"the recorded positions step {len(stepped)} times" in capsys.readouterr().out
     inside = (times >= recorded.span[0]) & (times <= recorded.span[1])
     error = (np.array([c.translation() for c in result.calibration.estimate.corrections])[inside]
              - (true.interpolate(times[inside])[0] - recorded.interpolate(times[inside])[0]))
