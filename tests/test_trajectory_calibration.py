@@ -307,7 +307,9 @@ def test_corrections_step_where_the_ins_steps(capsys):
     from graphcal.cli.main import _print_calibration
 
     _print_calibration(SimpleNamespace(result=result, evaluation=None, folder=Path("run")))  # graphcal calibrate's
-    assert f"the recorded positions step {len(stepped)} times" in capsys.readouterr().out
+    assert f"steps of the recorded positions: {len(stepped)} (a GNSS update's jump)" in capsys.readouterr().out
+    written = result.to_yaml_dict("test")["ins_steps_s"]  # calibration.yaml, which the report reads
+    np.testing.assert_array_equal(written, result.ins_steps_s)
     inside = (times >= recorded.span[0]) & (times <= recorded.span[1])
     error = (np.array([c.translation() for c in result.calibration.estimate.corrections])[inside]
              - (true.interpolate(times[inside])[0] - recorded.interpolate(times[inside])[0]))

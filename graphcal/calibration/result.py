@@ -260,6 +260,7 @@ class CalibrationResult:
         from graphcal import __version__
         return {"format": FORMAT, "sensor": {"model": cal.sensor_model, "reference_fibre": cal.reference_fibre},
                 "intrinsics": rows, "extrinsic": extrinsic, "trajectory_corrections": corrections,
+                "ins_steps_s": [[float(t) for t in pair] for pair in self.ins_steps_s],
                 "effects": list(self.effects), "unobservable": sorted(unobservable),
                 "unobservable_reasons": {name: cal.reasons[name] for name in sorted(cal.reasons)},
                 "verdict": self.verdict, **({} if cal.drive is None else {"drive": cal.drive}),

@@ -202,11 +202,10 @@ def _print_calibration(run) -> None:
     if smoothed.interval_s > 0:
         typer.echo(f"trajectory white noise {smoothed.position_m * 1000:.2g} mm, "
                    f"{math.degrees(smoothed.attitude_rad):.2g} deg a pose: smoothed out before the calibration")
-    steps = result.ins_steps_s
-    if len(steps):
-        typer.echo(f"the recorded positions step {len(steps)} times (a GNSS update's jump), at t = "
-                   + ", ".join(f"{t:.2f}" for t in steps[:5, 0]) + (", ..." if len(steps) > 5 else "")
-                   + " s: a trajectory control on each side of each")
+    if len(result.ins_steps_s):
+        from graphcal.report.html import steps_line
+
+        typer.echo(f"steps of the recorded positions: {steps_line(result.ins_steps_s)}")
     if result.verdict is not None:
         typer.echo(f"{result.verdict}; {len(result.unobservable)} names, each with its reason, in calibration.yaml "
                    "unobservable_reasons")

@@ -120,10 +120,19 @@ def _header(folder: Path, calibration: dict, manifest: dict, history: list[dict]
             ["stages", ", ".join(dict.fromkeys(row["mode"] for row in history))],
             ["outer iterations", str(len(history))],
             ["J before → after [cm²]", f"{energy.get('before', float('nan')):.4g} → {energy.get('after', float('nan')):.4g}"],
+            ["steps of the recorded positions", steps_line(calibration.get("ins_steps_s") or [])],
             ["what the drive could not observe",
              calibration.get("verdict") or "nothing beyond the drive's common motion"],
             ["unobservable", ", ".join(calibration.get("unobservable") or []) or "none"]]
     return f"<h1>graphcal calibration report: {html.escape(folder.name)}</h1>" + table(["", ""], rows)
+
+
+def steps_line(steps_s) -> str:
+    """The INS's steps ((S, 2) times [s], calibration.yaml's ins_steps_s) in one line: none, or how many and when."""
+    if len(steps_s) == 0:
+        return "none"
+    times = ", ".join(f"{before:.2f}" for before, _ in steps_s[:10]) + (", ..." if len(steps_s) > 10 else "")
+    return f"{len(steps_s)} (a GNSS update's jump), at t = {times} s: a trajectory control on each side of each"
 
 
 def _residuals(folder: Path) -> str:
