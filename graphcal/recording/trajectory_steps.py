@@ -85,8 +85,8 @@ def _a_step_not_a_manoeuvre(position_m: np.ndarray) -> bool:
     offsets = np.arange(len(position_m), dtype=np.float64) - half + 0.5
     quadratic = np.vander(offsets, 3, increasing=True)
     step = _least_squares_residual(np.column_stack([quadratic, offsets > 0]), position_m)
-    manoeuvre = min(_least_squares_residual(np.column_stack([quadratic, np.clip(offsets - at, 0, None) ** 2]), position_m)
-                    for at in offsets[1:-1])
+    manoeuvre = min(_least_squares_residual(np.column_stack([quadratic, np.clip(offsets - at, 0, None) ** 2]),
+                                            position_m) for at in offsets[1:-1])
     return step < manoeuvre
 
 
