@@ -174,6 +174,30 @@ def test_a_coarse_phase_on_knots_interrupted_resumes_to_the_uninterrupted_result
         assert a.equals(b, 1e-7)
 
 
+def test_a_checkpoint_with_other_controls_is_refused(three_second_error, tmp_path, monkeypatch):
+    """A checkpoint whose trajectory has another number of controls than the calibration resuming it (written by
+    a graphcal that placed its controls otherwise, here: one without the controls about a step of the INS) is
+    refused with a ConfigError naming the file, not resumed."""
+    import graphcal.calibration.returns as returns
+    from graphcal.calibration.checkpoint import Checkpoint
+    from graphcal.common.errors import ConfigError
+
+    path, save = tmp_path / "checkpoint.npz", Checkpoint.save
+
+    def stopping(self, state):
+        save(self, state)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Checkpoint, "save", stopping)
+    with pytest.raises(KeyboardInterrupt):
+        graphcal.calibrate(three_second_error, ON_THREE, quiet=True, checkpoint=path)
+    monkeypatch.setattr(Checkpoint, "save", save)
+    span = three_second_error.world.poses.span
+    monkeypatch.setattr(returns, "position_steps", lambda poses: np.array([[span[0] + 2.5, span[0] + 2.51]]))
+    with pytest.raises(ConfigError, match=f"{path.name}: a checkpoint of another calibration: 7 trajectory controls"):
+        graphcal.calibrate(three_second_error, ON_THREE, quiet=True, checkpoint=path)
+
+
 def test_the_assembled_levenberg_marquardt_takes_gtsams_steps(piecewise_error):
     """On a joint calibration graph with trajectory corrections (coarse pairs at the start, where the steps are
     large and lambda changes), LAPACK's solves of the assembled system take GTSAM's steps, iteration by
