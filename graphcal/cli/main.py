@@ -196,7 +196,8 @@ def _print_calibration(run) -> None:
     noise_m = result.config.weighting.range_noise_m
     if noise_m is not None:
         voxel_m = result.config.features.voxel_m
-        measured = f"{noise_m * 1000:.2g} mm" if noise_m >= 1e-6 else "none (below 1 micrometre)"
+        measured = ("unknown" if math.isnan(noise_m) else f"{noise_m * 1000:.2g} mm" if noise_m >= 1e-6
+                    else "none (below 1 micrometre)")
         typer.echo(f"range noise {measured}: pairs {result.config.weighting.pair_noise}, features from "
                    + (f"{voxel_m} m voxels" if voxel_m else "every return"))
     smoothed = result.trajectory_noise
