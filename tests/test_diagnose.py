@@ -31,10 +31,14 @@ CONCEALED_SCENARIO = load_scenario_builder("concealed")
 CONCEALED = CONCEALED_SCENARIO.__globals__["CONCEALED"]
 SIZE = 0.03
 # effects whose one-run spread at the per-effect tests' size is over 10 % of their size: their size is judged on
-# the mean over seeds (incidence_range_bias, 80 k returns: sigma 15-17 %; seeds 1-4 gave -29.4, +4.8, -5.3, +3.4 %;
+# the mean over seeds (incidence_range_bias, 160 k returns: sigma 13 %; seeds 1-4 gave -17, -6, -8, -9 %;
 # azimuth_eccentricity: sigma 9 %, but seeds 1-3 gave -23.4, +5.3, +4.6 %, a spread of 16 %; heading_drift: sigma
 # 11-13 %, seeds 1-2 gave +21.6, -6.7 %)
 MANY_SEEDS = {"incidence_range_bias": (1, 2, 3, 4), "azimuth_eccentricity": (1, 2, 3), "heading_drift": (1, 2)}
+# returns used per concealed effect (80 k unless here): on 80 k the incidence bias's subsample of seed 1 leaves its
+# estimate at 1.45 +- 0.42 cm (seeds 2-4: 2.53-2.59), not significant after multiplicity; on 160 k every seed names
+# it first (2.50, 2.81, 2.76, 2.73 cm for 3 cm)
+MAX_POINTS = {"incidence_range_bias": 160_000}
 VIEWER_POINTS = 5000
 
 
@@ -233,7 +237,7 @@ def test_each_concealed_effect_is_named_first_and_sized(effect, tmp_path_factory
     for seed in MANY_SEEDS.get(effect, (1,)):
         rec = graphcal.Recording.load(graphcal.simulate(CONCEALED_SCENARIO(size=0.04, seed=seed, effect=effect),
                                                         quiet=True).save(tmp_path_factory.mktemp("sim") / effect))
-        settings = CalibrationConfig(mode=CONCEALED[effect].mode, max_points=80_000, stopping={
+        settings = CalibrationConfig(mode=CONCEALED[effect].mode, max_points=MAX_POINTS.get(effect, 80_000), stopping={
             "max_outer_iterations": 6, "tolerance_m": 1e-4, "refuse_unconverged": False})
         diagnosis = graphcal.diagnose(rec, settings, max_effects=1, quiet=True)
         assert diagnosis.findings and diagnosis.findings[0]["effect"] == effect, diagnosis.summary()
