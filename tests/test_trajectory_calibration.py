@@ -194,7 +194,8 @@ def test_a_checkpoint_with_other_controls_is_refused(three_second_error, tmp_pat
     monkeypatch.setattr(Checkpoint, "save", save)
     span = three_second_error.world.poses.span
     monkeypatch.setattr(returns, "position_steps", lambda poses: np.array([[span[0] + 2.5, span[0] + 2.51]]))
-    with pytest.raises(ConfigError, match=f"{path.name}: a checkpoint of another calibration: 7 trajectory controls"):
+    with pytest.raises(ConfigError, match=f"{path.name}: a checkpoint of another calibration: "
+                                          r"trajectory controls 7 \(now 9\)"):
         graphcal.calibrate(three_second_error, ON_THREE, quiet=True, checkpoint=path)
 
 

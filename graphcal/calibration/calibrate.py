@@ -29,7 +29,7 @@ from graphcal.calibration.unseen_controls import unseen_controls
 from graphcal.calibration.verdict import RIGID_REASON, Motion, verdict
 from graphcal.calibration.weak_directions import WeakDirections
 from graphcal.common.cluster import IN_PROCESS, TaskMap, open_task_map
-from graphcal.common.errors import CalibrationError, ConfigError
+from graphcal.common.errors import CalibrationError
 from graphcal.common.progress import status
 from graphcal.recording.directory import Recording
 
@@ -99,9 +99,7 @@ class CalibrationPipeline:
         self.problem = self.timed("prepare", Problem.of, recording, config, task_map)
         controls = len(self.problem.full.control_times_s)
         if resumed is not None and len(resumed.estimate.corrections) != controls:  # placed by another graphcal
-            raise ConfigError(f"{checkpoint.path}: a checkpoint of another calibration: "
-                              f"{len(resumed.estimate.corrections)} trajectory controls (now {controls}); remove it "
-                              "(or run without --resume) to start again")
+            raise checkpoint.of_another([f"trajectory controls {len(resumed.estimate.corrections)} (now {controls})"])
         self.state = resumed or PipelineState(initial_estimate(recording, self.problem.full))
         self.timings |= {name: seconds for name, seconds in self.state.timings.items() if name != "prepare"}
         self.history = History(self.state.rows)

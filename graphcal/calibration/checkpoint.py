@@ -104,13 +104,17 @@ class Checkpoint:
         differs = [f"{name} {meta.get(name)!r} (now {value!r})" for name, value in self.owner.items()
                    if meta.get(name) != value]
         if differs:
-            raise ConfigError(f"{self.path}: a checkpoint of another calibration: {', '.join(differs)}; remove it "
-                              "(or run without --resume) to start again")
+            raise self.of_another(differs)
         inside = None if meta["inside"] is None else tuple(meta["inside"])
         features_at = _estimate(arrays, "features_at.") if "features_at.offsets" in arrays else None
         return PipelineState(_estimate(arrays), rows, meta["done"], inside, meta["used"], arrays.get("weak_basis"),
                              arrays.get("weak_eigenvalues"), meta["grown"], meta["seconds"], meta["timings"],
                              features_at)
+
+    def of_another(self, differences: list[str]) -> ConfigError:
+        """The error of a checkpoint written for another calibration: what differs ("<what> <then> (now <now>)")."""
+        return ConfigError(f"{self.path}: a checkpoint of another calibration: {', '.join(differences)}; remove it "
+                           "(or run without --resume) to start again")
 
     def remove(self) -> None:
         self.path.unlink(missing_ok=True)
