@@ -56,3 +56,18 @@ def test_a_subsampled_true_cloud_only_lengthens_the_distances(saved_drive, monke
     np.testing.assert_allclose(sub.common_offset_m, whole.common_offset_m)  # against each sampled return's own truth
     # the nearest of a subset is never nearer than the nearest of the whole cloud
     assert sub.cloud_after.median >= whole.cloud_after.median and sub.cloud_after.max >= whole.cloud_after.max
+
+
+def _evaluation(before_m: float, after_m: float, gauge_free_m: float) -> evaluation.Evaluation:
+    def stats(mean):
+        return evaluation.DistanceStats(mean, mean, mean, mean)
+
+    return evaluation.Evaluation(np.zeros(4), np.zeros(4), (0.0, 0.0), (0.0, 0.0), stats(before_m), stats(after_m),
+                                 (1.0, 1.0), np.zeros(3), stats(gauge_free_m))
+
+
+def test_the_cloud_line_leads_with_the_distance_once_the_gauge_is_fitted_out():
+    # a drive whose common translation slid 24 cm: as placed the cloud reads further from the truth than before
+    line = _evaluation(0.234, 0.248, 0.0062).cloud_line()
+    assert line.index("23.4 cm before") < line.index("0.62 cm after") < line.index("(24.8 cm as placed)")
+    assert _evaluation(0.234, 0.0062, 0.0061).cloud_line().endswith("23.4 cm before, 0.62 cm after")

@@ -41,7 +41,8 @@ def run_demo(out: Path, size: float = SIZE, max_points: int = MAX_POINTS, max_ou
     figures = {"returns": len(recording.points), "simulate_s": simulated - started, "calibrate_s": run.result.seconds,
                "total_s": finished - started, "energy_cm2": run.result.energy_cm2,
                "cloud_before": evaluation.cloud_before, "cloud_after": evaluation.cloud_after,
-               "cloud_after_gauge_free": evaluation.cloud_after_gauge_free, "folder": run.folder}
+               "cloud_after_gauge_free": evaluation.cloud_after_gauge_free, "folder": run.folder,
+               "evaluation": evaluation}
     if not quiet:
         _print(figures, config, run.result)
     return figures
@@ -54,9 +55,7 @@ def _print(figures: dict, config: CalibrationConfig, result) -> None:
           f"error, in {figures['simulate_s']:.1f} s -> {folder / 'recording'}")
     print(f"calibrated the trajectory (mode {config.mode}, {config.max_points:,} returns drawn, "
           f"{len(result.history)} outer iterations) in {figures['calibrate_s']:.1f} s: J {before:.3g} -> {after:.3g} cm^2")
-    print(f"cloud vs truth, cloud-to-cloud mean: {figures['cloud_before'].mean * 100:.2f} cm before, "
-          f"{figures['cloud_after'].mean * 100:.2f} cm after; {figures['cloud_after_gauge_free'].mean * 100:.3f} cm "
-          "once the common translation of the whole drive (which no self-calibration can see) is removed")
+    print(figures["evaluation"].cloud_line())
     print(f"done in {figures['total_s']:.0f} s. Open:")
     print(f"  {folder / 'report.html'}   (in a browser: J curve, residuals, parameters, errors, timings)")
     print(f"  graphcal view {folder}   (or: rerun {folder / 'run.rrd'}; no screen: graphcal view {folder} --web)")

@@ -212,9 +212,7 @@ def _print_calibration(run) -> None:
         typer.echo(f"{result.verdict}; {len(result.unobservable)} names, each with its reason, in calibration.yaml "
                    "unobservable_reasons")
     if evaluation is not None:
-        typer.echo(f"against truth, cloud-to-cloud mean {evaluation.cloud_before.mean * 100:.3g} -> "
-                   f"{evaluation.cloud_after.mean * 100:.3g} cm ({evaluation.cloud_after_gauge_free.mean * 100:.3g} cm "
-                   "once the unobservable common motion is removed)")
+        typer.echo(evaluation.cloud_line())
     typer.echo(f"wrote {run.folder}: calibration.yaml, report.html, run.rrd")
     typer.echo(f"open {run.folder / 'report.html'} in a browser; graphcal view {run.folder}")
 

@@ -188,9 +188,7 @@ def calibration_summary(recording: Recording, result: CalibrationResult, residua
               f"in the calibrated one ({len(residuals.after.row_p):,} pairs)"),
              f"- unobservable (held at nominal): {', '.join(result.unobservable) or 'none'}"]
     if evaluation is not None:
-        lines.append(f"- against truth, cloud-to-cloud mean: {evaluation.cloud_before.mean * 100:.3g} -> "
-                     f"{evaluation.cloud_after.mean * 100:.3g} cm ({evaluation.cloud_after_gauge_free.mean * 100:.3g}"
-                     " cm once the unobservable common motion is removed)")
+        lines.append(f"- {evaluation.cloud_line()}")
     lines += ["", "## Reading the views",
               ("- top: the cloud before (left) and after (right); tabs colour it by **residual**, by **fibre** "
               "(hover a point for its fibre) or by **time**"),
