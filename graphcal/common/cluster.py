@@ -3,7 +3,8 @@ stays on the driver.
 
 A TaskMap applies a top-level function to a list of jobs (plain arrays in, plain arrays out) and returns the
 results in the jobs' order, whichever worker ran each. Given the jobs' costs (any unit, e.g. their returns), a
-cluster spreads them so that its workers' loads are even (the largest first, each to the least loaded worker).
+cluster sends the costliest first and gives each worker the costliest job left whenever one of its jobs is done,
+so that the workers finish together even where the costs are only estimates.
 open_task_map(address) gives one:
 
 - None: in this process, one job after the other;
@@ -41,6 +42,9 @@ class InProcess:
         return [function(job) for job in jobs]
 
 
+IN_FLIGHT = 2  # a worker's jobs sent at once: one computing, the next one's arrays on their way
+
+
 class OnCluster:
     """Every job on a dask.distributed cluster (client), results gathered in the jobs' order."""
 
@@ -52,34 +56,33 @@ class OnCluster:
         return max(len(self.client.scheduler_info().get("workers", {})), 1)
 
     def __call__(self, function: Callable, jobs: Sequence, costs: Sequence[float] | None = None) -> list:
-        # each job's arrays go straight to its worker (scatter), not through the scheduler inside a task graph, to
-        # the worker balanced_loads gives it (round robin without costs), the costliest first; each job is
-        # submitted as soon as its arrays are there, so that workers compute while the next jobs' arrays travel,
-        # and its result is fetched as soon as it is done
+        # each job's arrays go straight to a worker (scatter), not through the scheduler inside a task graph, and
+        # the job is pinned there; the costliest first, IN_FLIGHT a worker at a time (it computes one while the
+        # next one's arrays travel), and each time one of its jobs is done the worker gets the costliest job left:
+        # the loads even out whatever the costs' errors; results are fetched as soon as they are done
         from dask.distributed import as_completed
 
-        addresses = sorted(self.client.scheduler_info().get("workers", {}))
-        costs = np.ones(len(jobs)) if costs is None else np.asarray(costs, dtype=float)
-        where = balanced_loads(costs, max(len(addresses), 1))
-        index_of = {}
-        for index in np.argsort(-costs, kind="stable").tolist():
-            worker = [addresses[where[index]]] if addresses else None
-            [held] = self.client.scatter([jobs[index]], workers=worker, hash=False)
-            index_of[self.client.submit(function, held, workers=worker, pure=False)] = index
+        addresses = sorted(self.client.scheduler_info().get("workers", {})) or [None]
+        order = iter(np.argsort(-(np.ones(len(jobs)) if costs is None else np.asarray(costs, float)), kind="stable"))
+        index_of, worker_of, done = {}, {}, as_completed(with_results=True)
+
+        def send(worker) -> None:
+            index = next(order, None)
+            if index is not None:
+                where = None if worker is None else [worker]
+                [held] = self.client.scatter([jobs[index]], workers=where, hash=False, direct=True)
+                future = self.client.submit(function, held, workers=where, pure=False)
+                index_of[future], worker_of[future] = int(index), worker
+                done.add(future)
+
+        for _ in range(IN_FLIGHT):
+            for worker in addresses:
+                send(worker)
         out = [None] * len(jobs)
-        for future, result in as_completed(index_of, with_results=True):
-            out[index_of[future]] = result
+        for future, result in done:
+            out[index_of.pop(future)] = result
+            send(worker_of.pop(future))
         return out
-
-
-def balanced_loads(costs: Sequence[float], workers: int) -> np.ndarray:
-    """The worker (0..workers-1) of each job: the costliest first, each to the least loaded worker so far
-    (longest processing time first: the largest load is at most 4/3 of the best possible)."""
-    load, where = np.zeros(workers), np.zeros(len(costs), np.int64)
-    for job in np.argsort(-np.asarray(costs, dtype=float), kind="stable"):
-        where[job] = int(np.argmin(load))
-        load[where[job]] += costs[job]
-    return where
 
 
 IN_PROCESS = InProcess()
