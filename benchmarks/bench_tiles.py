@@ -13,7 +13,8 @@ time spent in the task map's calls (the tiles' jobs, shipped out and gathered ba
 stage's driver side (splitting the cloud into tiles, merging their pairs); in process, each tile's job is timed
 too: their sum and the largest are the part a cluster can spread (two workers take at least the larger of half
 the sum and the largest job). Prints the figures and writes benchmarks/results/tiles.json. The speed-up target:
-two workers at least 1.7x one on the per-tile work.
+two workers at least 1.7x one on the per-tile work. --configurations runs some of them only (e.g. the two
+single-core ones, to compare two commits run one after the other), --out writes elsewhere.
 """
 
 from __future__ import annotations
@@ -101,6 +102,9 @@ def main() -> None:
     parser.add_argument("--max-points", type=int, default=1_000_000)
     parser.add_argument("--tile-m", type=float, default=50.0)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--configurations", nargs="*", default=[name for name, *_ in CONFIGURATIONS],
+                        choices=[name for name, *_ in CONFIGURATIONS], help="where the tiles run (default: everywhere)")
+    parser.add_argument("--out", type=Path, default=RESULTS / "tiles.json")
     args = parser.parse_args()
 
     import numpy as np
@@ -112,13 +116,15 @@ def main() -> None:
     from tools.foreign_sim import simulate
 
     figures = {"machine": machine(),
-               "date": datetime.date.today().isoformat(), "arguments": vars(args)}
+               "date": datetime.date.today().isoformat(), "arguments": {k: v for k, v in vars(args).items() if k != "out"}}
     with tempfile.TemporaryDirectory() as folder:
         simulate("relief_street", Path(folder) / "r", duration_s=args.duration, size=args.size, seed=2, mount="tilted")
         recording = Recording.load(Path(folder) / "r")
         config = CalibrationConfig(mode="joint", max_points=args.max_points, association={"tile_m": args.tile_m})
         figures["returns"] = len(recording.points)
         for name, address, single_core_workers in CONFIGURATIONS:
+            if name not in args.configurations:
+                continue
             with ExitStack() as stack:
                 if single_core_workers:
                     address = stack.enter_context(single_core_cluster(single_core_workers, Path(folder)))
@@ -147,13 +153,15 @@ def main() -> None:
                                               "largest tile job s": round(float(jobs.max()), 2)}
         for kind, one, two in (("LocalCluster", "local:1", "local:2"),
                                ("single-core workers", "one single-core worker", "two single-core workers")):
+            if one not in figures or two not in figures:
+                continue
             figures[f"speed-up, two workers over one ({kind})"] = round(
                 figures[one]["then s (median)"] / figures[two]["then s (median)"], 2)
             figures[f"speed-up of the per-tile work, two workers over one ({kind})"] = round(
                 figures[one]["per-tile work s (median)"] / figures[two]["per-tile work s (median)"], 2)
         figures["peak GiB (driver)"] = round(peak_gib(), 2)
-    RESULTS.mkdir(exist_ok=True)
-    report(figures, RESULTS / "tiles.json")
+    args.out.parent.mkdir(exist_ok=True)
+    report(figures, args.out)
 
 
 def wait_for_workers(address: str, workers: int) -> None:
