@@ -268,7 +268,7 @@ class CalibrationConfig(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
     mode: Mode = "auto"
-    max_points: int | None = Field(1_000_000, ge=1000)
+    max_points: int | None = Field(4_000_000, ge=1000)
     points_per_s: float | None = Field(None, gt=0)
     seed: int = 0
     association: AssociationSettings = AssociationSettings()
