@@ -25,7 +25,7 @@ from common import city_loop_arguments, city_loop_drive, machine, peak_gib, repo
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-def _case(folder: str, max_points: int, queue) -> None:
+def _case(folder: str, max_points: int, seed: int, queue) -> None:
     from dataclasses import replace
 
     import gtsam
@@ -38,7 +38,8 @@ def _case(folder: str, max_points: int, queue) -> None:
     from graphcal.simulation.starts import FAR_START_PRIORS
 
     recording = graphcal.Recording.load(folder)
-    problem = Problem.of(recording, graphcal.CalibrationConfig(max_points=max_points, priors=FAR_START_PRIORS))
+    config = graphcal.CalibrationConfig(max_points=max_points, seed=seed, priors=FAR_START_PRIORS)
+    problem = Problem.of(recording, config)
     times = problem.full.control_times_s  # the true trajectory corrections: the INS's error at the control times
     error_m = (to_world(recording.truth.trajectory, recording.crs).poses.interpolate(times)[0]
                - recording.world.poses.interpolate(times)[0])
@@ -72,11 +73,11 @@ def main() -> None:
     commit = subprocess.run(["git", "describe", "--always", "--dirty"], capture_output=True, text=True,
                             cwd=Path(__file__).parent).stdout.strip()
     figures = {"machine": machine(), "date": datetime.date.today().isoformat(), "commit": commit,
-               "size": args.size, "max_points": args.max_points, "drives": {}}
+               "size": args.size, "max_points": args.max_points, "seed": args.seed, "drives": {}}
     for minutes in args.minutes:
         with tempfile.TemporaryDirectory() as folder:
             drive, _ = city_loop_drive(args.keep or folder, minutes, args.size)
-            figures["drives"][f"{minutes:g} min"] = run_in_process(_case, str(drive), args.max_points)
+            figures["drives"][f"{minutes:g} min"] = run_in_process(_case, str(drive), args.max_points, args.seed)
         RESULTS.mkdir(exist_ok=True)
         report(figures, RESULTS / args.result)
 

@@ -58,7 +58,7 @@ def _trajectory_errors_cm(result, recording) -> dict:
             "revisited_after_rms_cm": rms_cm(left[revisited])}
 
 
-def _case(folder: str, max_points: int | None, queue) -> None:
+def _case(folder: str, max_points: int | None, seed: int, queue) -> None:
     import graphcal
     from graphcal.calibration.evaluate import evaluate
     from graphcal.simulation.starts import FAR_START_PRIORS
@@ -66,8 +66,8 @@ def _case(folder: str, max_points: int | None, queue) -> None:
     recording = graphcal.Recording.load(folder)
     started = time.perf_counter()
     try:
-        result = graphcal.calibrate(recording, graphcal.CalibrationConfig(max_points=max_points, priors=FAR_START_PRIORS),
-                                    quiet=True)
+        config = graphcal.CalibrationConfig(max_points=max_points, seed=seed, priors=FAR_START_PRIORS)
+        result = graphcal.calibrate(recording, config, quiet=True)
     except graphcal.CalibrationError as error:  # a refused result is a figure too
         queue.put({"returns": len(recording.points), "seconds": round(time.perf_counter() - started, 1),
                    "peak_gib": round(peak_gib(), 2), "refused": str(error).split(": ", 1)[-1]})
@@ -103,13 +103,13 @@ def main() -> None:
 
     figures = {"machine": machine(),
                "date": datetime.date.today().isoformat(), "size": args.size, "max_points": args.max_points,
-               "priors": FAR_START_PRIORS, "drives": {}}
+               "seed": args.seed, "priors": FAR_START_PRIORS, "drives": {}}
     for minutes in args.minutes:
         with tempfile.TemporaryDirectory() as folder:
             drive, simulated_s = city_loop_drive(args.keep or folder, minutes, args.size)
             figures["drives"][f"{minutes:g} min"] = {"simulated_s": simulated_s,
                                                      "load_average_1min": round(os.getloadavg()[0], 2),
-                                                     **run_in_process(_case, str(drive), args.max_points)}
+                                                     **run_in_process(_case, str(drive), args.max_points, args.seed)}
         RESULTS.mkdir(exist_ok=True)
         report(figures, RESULTS / args.result)
 

@@ -116,7 +116,8 @@ def main() -> None:
     from tools.foreign_sim import simulate
 
     figures = {"machine": machine(),
-               "date": datetime.date.today().isoformat(), "arguments": {k: v for k, v in vars(args).items() if k != "out"}}
+               "date": datetime.date.today().isoformat(),
+               "arguments": {k: v for k, v in vars(args).items() if k != "out"}}
     with tempfile.TemporaryDirectory() as folder:
         simulate("relief_street", Path(folder) / "r", duration_s=args.duration, size=args.size, seed=2, mount="tilted")
         recording = Recording.load(Path(folder) / "r")

@@ -47,6 +47,7 @@ def city_loop_arguments(description: str, minutes: list[float], size: float, res
     parser.add_argument("--minutes", type=float, nargs="+", default=minutes)
     parser.add_argument("--size", type=float, default=size, help="fraction of firings simulated")
     parser.add_argument("--max-points", type=int, default=4_000_000, help="returns calibrate uses (its default)")
+    parser.add_argument("--seed", type=int, default=0, help="the calibration's seed (its random draws)")
     parser.add_argument("--result", default=result, help="file name in benchmarks/results/")
     parser.add_argument("--keep", help="folder where the simulated drives are kept and found again (default: a "
                                        "temporary folder, simulated each run)")
