@@ -46,7 +46,7 @@ def _case(folder: str, case: str, queue) -> None:
     import graphcal
     import graphcal.recording.trajectory_noise as trajectory_noise
     from graphcal.calibration.evaluate import evaluate
-    from graphcal.calibration.returns import between_controls
+    from graphcal.calibration.returns import resampled
     from graphcal.recording.geodesy import to_world
     from graphcal.simulation.starts import FAR_START_PRIORS
 
@@ -59,10 +59,8 @@ def _case(folder: str, case: str, queue) -> None:
     times = np.asarray(result.calibration.control_times_s)
     poses, true = recording.world.poses, to_world(recording.truth.trajectory, recording.crs).poses
     inside = (poses.time >= times[0]) & (poses.time <= times[-1])
-    control, alpha = between_controls(poses.time[inside], times)
-    corrections = np.array([c.translation() for c in result.calibration.estimate.corrections])
-    final = (poses.position_m[inside] + (1 - alpha)[:, None] * corrections[control]
-             + alpha[:, None] * corrections[control + 1])
+    corrections = resampled(result.calibration.estimate.corrections, times, poses.time[inside])  # eq. 5.4
+    final = poses.position_m[inside] + np.array([c.translation() for c in corrections])
     error = final - true.interpolate(poses.time[inside])[0]
     error_cm = np.linalg.norm(error - error.mean(axis=0), axis=1) * 100
     evaluation = evaluate(result, recording)

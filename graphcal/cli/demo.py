@@ -41,21 +41,20 @@ def run_demo(out: Path, size: float = SIZE, max_points: int = MAX_POINTS, max_ou
     figures = {"returns": len(recording.points), "simulate_s": simulated - started, "calibrate_s": run.result.seconds,
                "total_s": finished - started, "energy_cm2": run.result.energy_cm2,
                "cloud_before": evaluation.cloud_before, "cloud_after": evaluation.cloud_after,
-               "cloud_after_gauge_free": evaluation.cloud_after_gauge_free, "folder": run.folder,
-               "evaluation": evaluation}
+               "cloud_after_gauge_free": evaluation.cloud_after_gauge_free, "folder": run.folder}
     if not quiet:
-        _print(figures, config, run.result)
+        _print(figures, config, run.result, evaluation)
     return figures
 
 
-def _print(figures: dict, config: CalibrationConfig, result) -> None:
+def _print(figures: dict, config: CalibrationConfig, result, evaluation) -> None:
     before, after = figures["energy_cm2"]
     folder = figures["folder"]
     print(f"simulated sim6_turn: {figures['returns']:,} returns, an INS with a 0.35 m piecewise-linear position "
           f"error, in {figures['simulate_s']:.1f} s -> {folder / 'recording'}")
     print(f"calibrated the trajectory (mode {config.mode}, {config.max_points:,} returns drawn, "
           f"{len(result.history)} outer iterations) in {figures['calibrate_s']:.1f} s: J {before:.3g} -> {after:.3g} cm^2")
-    print(figures["evaluation"].cloud_line())
+    print(evaluation.cloud_line())
     print(f"done in {figures['total_s']:.0f} s. Open:")
     print(f"  {folder / 'report.html'}   (in a browser: J curve, residuals, parameters, errors, timings)")
     print(f"  graphcal view {folder}   (or: rerun {folder / 'run.rrd'}; no screen: graphcal view {folder} --web)")
