@@ -321,7 +321,11 @@ class Problem:
         sigma, on every control's INS value, and pulls no stretch back. A difference over a time of g control
         intervals has g times a difference's variance (on knots, on_coarse_controls: the controls' successive
         differences between two knots, corrections linear between them; about a step of the INS: the shorter
-        intervals); none ties the two controls about a step (ReturnData.control_breaks). On knots each prior is
+        intervals); across a step of the INS the difference is minus the recorded step (ReturnData.control_steps_m:
+        the vehicle does not jump, the INS's error does), with the step's own sigma added, as loose as a difference
+        over one control interval at least (the INS's drift over the step's sample is not the random walk E_def
+        models: a velocity error of 0.3 m/s moves 3 mm in 10 ms, 2.4 sigmas of such a tie on sim6_turn's piecewise
+        error, whose sandwich sigmas then named the drive's last controls and held them). On knots each prior is
         that of the controls the knot stands for (knot_shares)."""
         trajectory, stopping = self.config.trajectory, self.config.stopping
         pose = trajectory.pose_corrections
@@ -330,7 +334,8 @@ class Problem:
         interval_s = trajectory.control_interval_s
         gaps = (np.r_[1.0, np.diff(self.data.control_times_s) / interval_s] if np.isfinite(interval_s)
                 else np.ones(len(estimate.corrections)))  # in control intervals
-        breaks = np.zeros(len(gaps), bool) if self.data.control_breaks is None else self.data.control_breaks
+        steps_m = np.zeros((len(gaps), 3)) if self.data.control_steps_m is None else self.data.control_steps_m
+        breaks = np.any(steps_m != 0, axis=1)
         monnier = trajectory.deformation == "monnier"
         anchor = self._anchor_sigma(sigma)
 
@@ -339,8 +344,15 @@ class Problem:
 
         anchors = [isotropic(anchor / np.sqrt(share)) for share in shares]
         huber = gtsam.noiseModel.mEstimator.Huber.Create  # a difference over n controls: sigma, threshold x sqrt(n)
-        differences = [gtsam.noiseModel.Robust.Create(huber(JUMP_HUBER * np.sqrt(gap)), isotropic(sigma * np.sqrt(gap)))
-                       for gap in gaps] if monnier else []
+
+        def difference(gap: float, stepped: bool):  # over gap control intervals; across a step as over one at least
+            translation_m = np.full(3, np.sqrt(sigma ** 2 * max(gap, 1.0) + self.data.step_sigma_m ** 2) if stepped
+                                    else sigma * np.sqrt(gap))
+            sigmas = np.r_[np.full(3, sigma * np.sqrt(gap)), translation_m] if pose else translation_m
+            return gtsam.noiseModel.Robust.Create(huber(JUMP_HUBER * (1.0 if stepped else np.sqrt(gap))),
+                                                  gtsam.noiseModel.Diagonal.Sigmas(sigmas))
+
+        differences = [difference(gap, stepped) for gap, stepped in zip(gaps, breaks)] if monnier else []
         step = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, np.radians(stopping.step_sigma_deg)),
                                                       np.full(3, stopping.step_sigma_m)] if pose
                                                 else np.full(3, stopping.step_sigma_m))
@@ -353,9 +365,10 @@ class Problem:
                 graph.add(gtsam.PriorFactorPose3(X(c), correction, step) if pose
                           else gtsam.PriorFactorPoint3(X(c), correction.translation(), step))
             graph.add(prior(c, anchors[c]))
-            if monnier and c > 0 and not breaks[c]:
-                graph.add(gtsam.BetweenFactorPose3(X(c - 1), X(c), gtsam.Pose3(), differences[c]) if pose
-                          else gtsam.BetweenFactorPoint3(X(c - 1), X(c), np.zeros(3), differences[c]))
+            if monnier and c > 0:
+                graph.add(gtsam.BetweenFactorPose3(X(c - 1), X(c), gtsam.Pose3(gtsam.Rot3(), -steps_m[c]),
+                                                   differences[c]) if pose
+                          else gtsam.BetweenFactorPoint3(X(c - 1), X(c), -steps_m[c], differences[c]))
             if held[c].any():
                 graph.add(prior(c, gtsam.noiseModel.Diagonal.Sigmas(np.where(held[c], HELD_SIGMA, 1e6))))
 

@@ -23,7 +23,7 @@ from graphcal.recording.directory import Recording
 from graphcal.recording.sensor import SensorModel
 from graphcal.recording.subset import subset_rows
 from graphcal.recording.trajectory_noise import PoseNoise
-from graphcal.recording.trajectory_steps import position_steps
+from graphcal.recording.trajectory_steps import position_steps, step_vectors_m
 
 STATIC_BELOW_M = 1.0  # a sensor whose positions span less than this sees from one viewpoint ...
 TURNED_DEG = 45.0  # ... and is static unless its heading spans this much [deg]: then it turned on the spot
@@ -39,9 +39,10 @@ class ReturnData:
     noise (trajectory_noise.PoseNoise), the nominal lever arm [m, body frame], which places the sensor
     on the vehicle, and the spans [s] (k, 2) of the drive the returns were drawn in (recording.subset; None:
     the whole drive); smoothing_error: the error smoothing left in the recorded poses, shared by the returns fired
-    within its interval_s (WorldTrajectory.smoothing_error); control_breaks (per control, None: none): True where
-    the recorded trajectory steps between the previous control and this one (controls_about_steps), so that E_def
-    does not tie their corrections."""
+    within its interval_s (WorldTrajectory.smoothing_error); control_steps_m ((C, 3) [m, world axes], None: no
+    step): what the recorded position steps by between the previous control and this one (zero where it does not:
+    controls_about_steps), so that E_def ties their corrections across the step by minus that, each component
+    to step_sigma_m [m]."""
 
     sensor: SensorModel
     rows: np.ndarray
@@ -60,7 +61,8 @@ class ReturnData:
     lever_arm_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
     spans_s: np.ndarray | None = None
     smoothing_error: PoseNoise = PoseNoise.none()
-    control_breaks: np.ndarray | None = None
+    control_steps_m: np.ndarray | None = None
+    step_sigma_m: float = 0.0
 
     @property
     def one_viewpoint(self) -> bool:
@@ -97,8 +99,13 @@ class ReturnData:
         between the knots about it."""
         control_times = self.control_times_s[knots]
         control, alpha = between_controls(self.time_s, control_times)
-        breaks = None if self.control_breaks is None else self.control_breaks[knots]
-        return replace(self, control=control, alpha=alpha, control_times_s=control_times, control_breaks=breaks)
+        steps = None if self.control_steps_m is None else self.control_steps_m[knots]
+        return replace(self, control=control, alpha=alpha, control_times_s=control_times, control_steps_m=steps)
+
+    @property
+    def control_breaks(self) -> np.ndarray | None:
+        """(C,) True at the controls the recorded position steps into (None: no step)."""
+        return None if self.control_steps_m is None else np.any(self.control_steps_m != 0, axis=1)
 
     @property
     def about_breaks(self) -> np.ndarray:
@@ -113,7 +120,8 @@ class ReturnData:
         return np.column_stack([self.control_times_s[after - 1], self.control_times_s[after]])
 
     def _after_breaks(self) -> np.ndarray:
-        return np.zeros(0, np.int64) if self.control_breaks is None else np.flatnonzero(self.control_breaks)
+        breaks = self.control_breaks
+        return np.zeros(0, np.int64) if breaks is None else np.flatnonzero(breaks)
 
     def returns(self, rows: np.ndarray) -> Returns:
         """The factor-side view of some rows."""
@@ -151,11 +159,13 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
     time = columns["time"]
     position, rotation = recording.world.poses.interpolate(time)
     origin = np.round(position.mean(axis=0))
-    breaks = None
+    steps_m, step_sigma_m = None, 0.0
     if control_times_s is None:
         poses = recording.world.poses
-        control_times, breaks = controls_about_steps(control_grid(poses.span[0], time[0], time[-1], control_interval_s),
-                                                     position_steps(poses))
+        steps_s = position_steps(poses)
+        step_m, step_sigma_m = step_vectors_m(poses, steps_s, recording.world.smoothing_error.position_m)
+        control_times, steps_m = controls_about_steps(control_grid(poses.span[0], time[0], time[-1],
+                                                                   control_interval_s), steps_s, step_m)
     else:
         control_times = np.asarray(control_times_s, dtype=np.float64)
     control, alpha = between_controls(time, control_times)
@@ -164,7 +174,7 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
                       time, rotation.as_matrix(), position - origin, control, alpha, control_times, origin, range_noise_m,
                       recording.world.pose_noise,
                       np.asarray(recording.extrinsic.lever_arm_m, dtype=np.float64), spans_s,
-                      recording.world.smoothing_error, breaks)
+                      recording.world.smoothing_error, steps_m, step_sigma_m)
 
 
 def heading_span_deg(R_world_body: np.ndarray) -> float:
@@ -240,20 +250,23 @@ def control_grid(anchor_s: float, first_s: float, last_s: float, interval_s: flo
     return anchor_s + interval_s * np.arange(k_first, k_last + 1)
 
 
-def controls_about_steps(control_times_s: np.ndarray, steps_s: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+def controls_about_steps(control_times_s: np.ndarray, steps_s: np.ndarray,
+                         steps_m: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
     """The control times [s] with a control at each side of each step of the recorded positions (steps_s (S, 2):
-    the samples' times either side, trajectory_steps.position_steps) inside their span, so that corrections
-    interpolated between controls can step with the INS; a control of the grid between the two or within a
-    millisecond of either is left out. Also the breaks (bool per control: True at the control after a step;
-    None without a step)."""
+    the samples' times either side, trajectory_steps.position_steps; steps_m (S, 3) [m]: what the position steps
+    by, trajectory_steps.step_vectors_m) inside their span, so that corrections interpolated between controls can
+    step with the INS; a control of the grid between the two or within a millisecond of either is left out. Also
+    (C, 3) [m] the step into each control (zero but at the control after a step; None without a step)."""
     inside = (steps_s[:, 0] > control_times_s[0]) & (steps_s[:, 1] < control_times_s[-1])
-    steps_s = steps_s[inside]
+    steps_s, steps_m = steps_s[inside], steps_m[inside]
     if not len(steps_s):
         return control_times_s, None
     near = np.any((control_times_s[:, None] > steps_s[:, 0] - STEP_CONTROL_APART_S)
                   & (control_times_s[:, None] < steps_s[:, 1] + STEP_CONTROL_APART_S), axis=1)
     times = np.unique(np.r_[control_times_s[~near], steps_s.ravel()])  # two steps a sample apart share one
-    return times, np.isin(times, steps_s[:, 1])
+    into = np.zeros((len(times), 3))
+    np.add.at(into, np.searchsorted(times, steps_s[:, 1]), steps_m)
+    return times, into
 
 
 def pose_of(extrinsic: Extrinsic) -> gtsam.Pose3:

@@ -4,7 +4,8 @@ A GNSS-aided INS that takes a GNSS fix into its solution moves its output positi
 position steps between two samples by centimetres, a jump no vehicle makes in 10 ms (7 cm in 10 ms is 7 m/s
 gained and lost in a sample). Trajectory corrections interpolated linearly between controls a second apart
 cannot follow a step: the returns of that interval keep up to half of it. A control on each side of the step
-(calibration/returns.py) lets the corrections step with the INS.
+(calibration/returns.py) lets the corrections step with the INS, and the step itself, measured here
+(step_vectors_m), says by how much: the vehicle does not jump, so the INS's error steps by what its position does.
 
 A step shows in the change of velocity at one sample against its neighbours: for the interval k between samples
 k and k+1, jump_k = (v_k - (v_(k-1) + v_(k+1)) / 2) dt_k [m] (v the velocity over each interval) is the step
@@ -32,24 +33,46 @@ MIN_STEP_M = 0.01  # ... and at least this [m]: a smaller step leaves at most ha
 MAX_ACCELERATION_M_S2 = 10.0  # ... and above what a vehicle's acceleration (1 g) gives over the interval
 STEP_WINDOW = 50  # samples of each side's quadratic under white noise (0.5 s at 100 Hz)
 STEP_SIGMAS = 8.0  # a step under white noise stands this many of its own sigmas out (3 axes: chi, 3 dof)
+SMOOTHED_END = 2.5  # a smoothing's error at an end (one side holds it) over its error within: 2.2-2.7 (24 drives)
 
 
 def position_steps(poses: PoseTrack) -> np.ndarray:
     """(S, 2) times [s] of the two samples between which the recorded position steps (module docstring): the
     intervals whose jump is above STEP_TIMES_MEDIAN x the drive's median jump and MIN_STEP_M, and the largest of
     the three about it, and above MAX_ACCELERATION_M_S2 dt^2; none on a track of fewer than five poses."""
-    time_s, position_m = poses.time, poses.position_m
+    time_s = poses.time
     if len(time_s) < 5:
         return np.zeros((0, 2))
     dt_s = np.diff(time_s)
-    velocity = np.diff(position_m, axis=0) / dt_s[:, None]
-    jump_m = np.linalg.norm((velocity[1:-1] - 0.5 * (velocity[:-2] + velocity[2:])) * dt_s[1:-1, None], axis=1)
+    jump_m = np.linalg.norm(_jumps_m(poses), axis=1)
     threshold_m = max(STEP_TIMES_MEDIAN * float(np.median(jump_m)), MIN_STEP_M)
     padded = np.r_[0.0, jump_m, 0.0]
     peak = ((jump_m > np.maximum(threshold_m, MAX_ACCELERATION_M_S2 * dt_s[1:-1] ** 2))
             & (jump_m >= padded[:-2]) & (jump_m >= padded[2:]))
     interval = np.flatnonzero(peak) + 1  # jump_m[i] is the interval i + 1's
     return np.column_stack([time_s[interval], time_s[interval + 1]])
+
+
+def step_vectors_m(poses: PoseTrack, steps_s: np.ndarray, smoothing_error_m: float = 0.0) -> tuple[np.ndarray, float]:
+    """(S, 3) [m, world axes] what the recorded position steps by at each of steps_s ((S, 2) the times of the
+    samples either side, position_steps): the interval's jump (module docstring), the vehicle's own motion taken
+    out; and the 1-sigma [m] of each of its components: the drive's median jump over sqrt(3) (the jump of an
+    interval without a step: the INS's random walk) and, on poses smoothed on either side of each step apart,
+    the error of the two smoothings' ends (SMOOTHED_END x smoothing_error_m, the error smoothing leaves within
+    the poses, per axis: trajectory_noise.smoothed_poses)."""
+    if not len(steps_s):
+        return np.zeros((0, 3)), 0.0
+    jumps_m = _jumps_m(poses)
+    interval = np.searchsorted(poses.time, steps_s[:, 0]) - 1  # jumps_m[i] is the interval i + 1's
+    median_m = float(np.median(np.linalg.norm(jumps_m, axis=1))) / np.sqrt(3.0)
+    return jumps_m[interval], float(np.sqrt(median_m ** 2 + 2.0 * (SMOOTHED_END * smoothing_error_m) ** 2))
+
+
+def _jumps_m(poses: PoseTrack) -> np.ndarray:
+    """(N - 3, 3) [m] jump_k (module docstring) of the intervals k = 1 .. N - 3 between the poses."""
+    dt_s = np.diff(poses.time)
+    velocity = np.diff(poses.position_m, axis=0) / dt_s[:, None]
+    return (velocity[1:-1] - 0.5 * (velocity[:-2] + velocity[2:])) * dt_s[1:-1, None]
 
 
 def noisy_steps(position_m: np.ndarray) -> np.ndarray:
