@@ -324,8 +324,7 @@ class Problem:
         intervals); across a step of the INS the difference is minus the recorded step (ReturnData.control_steps_m:
         the vehicle does not jump, the INS's error does), with the step's own sigma added, as loose as a difference
         over one control interval at least (the INS's drift over the step's sample is not the random walk E_def
-        models: a velocity error of 0.3 m/s moves 3 mm in 10 ms, 2.4 sigmas of such a tie on sim6_turn's piecewise
-        error, whose sandwich sigmas then named the drive's last controls and held them). On knots each prior is
+        models: a velocity error of 0.3 m/s moves 3 mm in 10 ms). On knots each prior is
         that of the controls the knot stands for (knot_shares)."""
         trajectory, stopping = self.config.trajectory, self.config.stopping
         pose = trajectory.pose_corrections
@@ -346,10 +345,10 @@ class Problem:
         huber = gtsam.noiseModel.mEstimator.Huber.Create  # a difference over n controls: sigma, threshold x sqrt(n)
 
         def difference(gap: float, stepped: bool):  # over gap control intervals; across a step as over one at least
-            translation_m = np.full(3, np.sqrt(sigma ** 2 * max(gap, 1.0) + self.data.step_sigma_m ** 2) if stepped
-                                    else sigma * np.sqrt(gap))
+            gap = max(gap, 1.0) if stepped else gap
+            translation_m = np.full(3, np.sqrt(sigma ** 2 * gap + (self.data.step_sigma_m ** 2 if stepped else 0.0)))
             sigmas = np.r_[np.full(3, sigma * np.sqrt(gap)), translation_m] if pose else translation_m
-            return gtsam.noiseModel.Robust.Create(huber(JUMP_HUBER * (1.0 if stepped else np.sqrt(gap))),
+            return gtsam.noiseModel.Robust.Create(huber(JUMP_HUBER * np.sqrt(gap)),
                                                   gtsam.noiseModel.Diagonal.Sigmas(sigmas))
 
         differences = [difference(gap, stepped) for gap, stepped in zip(gaps, breaks)] if monnier else []
