@@ -324,7 +324,10 @@ class Problem:
         intervals); across a step of the INS the difference is minus the recorded step (ReturnData.control_steps_m:
         the vehicle does not jump, the INS's error does), with the step's own sigma added, as loose as a difference
         over one control interval at least (the INS's drift over the step's sample is not the random walk E_def
-        models: a velocity error of 0.3 m/s moves 3 mm in 10 ms). On knots each prior is
+        models: a velocity error of 0.3 m/s moves 3 mm in 10 ms), and with no Huber loss: the step is measured,
+        not a jump to let through, and in its linear tail a stretch between two steps could slide along a street the
+        coarse pairs see weakly (an hour at 4 M returns: 1.3 m at the coarse phase's end, 55 cm after the fine
+        one). On knots each prior is
         that of the controls the knot stands for (knot_shares)."""
         trajectory, stopping = self.config.trajectory, self.config.stopping
         pose = trajectory.pose_corrections
@@ -347,9 +350,9 @@ class Problem:
         def difference(gap: float, stepped: bool):  # over gap control intervals; across a step as over one at least
             gap = max(gap, 1.0) if stepped else gap
             translation_m = np.full(3, np.sqrt(sigma ** 2 * gap + (self.data.step_sigma_m ** 2 if stepped else 0.0)))
-            sigmas = np.r_[np.full(3, sigma * np.sqrt(gap)), translation_m] if pose else translation_m
-            return gtsam.noiseModel.Robust.Create(huber(JUMP_HUBER * np.sqrt(gap)),
-                                                  gtsam.noiseModel.Diagonal.Sigmas(sigmas))
+            gaussian = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, sigma * np.sqrt(gap)), translation_m] if pose
+                                                        else translation_m)
+            return gaussian if stepped else gtsam.noiseModel.Robust.Create(huber(JUMP_HUBER * np.sqrt(gap)), gaussian)
 
         differences = [difference(gap, stepped) for gap, stepped in zip(gaps, breaks)] if monnier else []
         step = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, np.radians(stopping.step_sigma_deg)),
