@@ -306,6 +306,42 @@ def test_a_stretch_the_data_do_not_see_follows_its_neighbours_under_monnier(piec
             JUMP_HUBER * step - JUMP_HUBER ** 2 / 2, rel=1e-9)
 
 
+def test_e_def_ties_the_controls_about_a_step_by_minus_the_step(piecewise_error):
+    """Between the two controls about a step of the INS (ReturnData.control_steps_m), E_def's difference is minus
+    the recorded step: no cost when the corrections step by that; a mismatch costs the square, over the step's
+    sigma and E_def's over one control interval together (no Huber loss: 30 cm is far beyond its threshold)."""
+    from dataclasses import replace
+
+    import gtsam
+
+    from graphcal.calibration.keys import X
+    from graphcal.calibration.problem import JUMP_HUBER, Problem, control_prior_sigma
+    from graphcal.calibration.returns import initial_estimate
+
+    problem = Problem.of(piecewise_error, graphcal.CalibrationConfig(mode="trajectory"))
+    step_m, step_sigma_m = np.array([0.02, -0.03, 0.01]), 0.002
+    into = np.zeros((len(problem.full.control_times_s), 3))
+    into[4] = step_m
+    problem = replace(problem, data=replace(problem.data, control_steps_m=into, step_sigma_m=step_sigma_m))
+    estimate = initial_estimate(piecewise_error, problem.full)
+    sigma = control_prior_sigma(problem.config, 1e5)
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    problem._add_trajectory(graph, values, estimate, False, sigma)
+    across = [graph.at(i) for i in range(graph.size()) if isinstance(graph.at(i), gtsam.BetweenFactorPoint3)
+              and list(graph.at(i).keys()) == [X(3), X(4)]]
+    assert len(across) == 1
+    stepped = gtsam.Values()
+    for c in range(len(into)):
+        stepped.insert(X(c), -step_m if c >= 4 else np.zeros(3))
+    assert across[0].error(stepped) == pytest.approx(0.0, abs=1e-12)
+    off = gtsam.Values()
+    for c in range(len(into)):
+        off.insert(X(c), np.array([0.3, 0.0, 0.0]) - step_m if c >= 4 else np.zeros(3))
+    tie_sigma = np.sqrt(sigma ** 2 + step_sigma_m ** 2)
+    assert 0.3 / tie_sigma > JUMP_HUBER
+    assert across[0].error(off) == pytest.approx(0.5 * (0.3 / tie_sigma) ** 2, rel=1e-9)
+
+
 def test_corrections_step_where_the_ins_steps(capsys):
     """An INS whose position steps (GNSS-like jumps of 5 cm per axis, seeded) over sim6_turn's piecewise error: the
     steps are found where the truth has them (the recorded error changes by more than 1 cm between two samples),
