@@ -163,9 +163,9 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
     if control_times_s is None:
         poses = recording.world.poses
         steps_s = position_steps(poses)
-        step_m, step_sigma_m = step_vectors_m(poses, steps_s, recording.world.smoothing_error.position_m)
+        found_m, step_sigma_m = step_vectors_m(poses, steps_s, recording.world.smoothing_error.position_m)
         control_times, steps_m = controls_about_steps(control_grid(poses.span[0], time[0], time[-1],
-                                                                   control_interval_s), steps_s, step_m)
+                                                                   control_interval_s), steps_s, found_m)
     else:
         control_times = np.asarray(control_times_s, dtype=np.float64)
     control, alpha = between_controls(time, control_times)
