@@ -1,6 +1,6 @@
-"""The outer loop: its stopping rule on a J curve that has stopped falling (on_plateau), the step that
-switches phases and stops it (step_size), and its Levenberg-Marquardt on a badly scaled graph
-(levenberg_marquardt)."""
+"""The outer loop: its stopping rule on a J curve that has stopped falling (on_plateau; a fine phase run again goes
+on from its J curve), the step that switches phases and stops it (step_size), and its Levenberg-Marquardt on a
+badly scaled graph (levenberg_marquardt)."""
 
 import gtsam
 import numpy as np
@@ -168,3 +168,29 @@ def test_the_coarse_phase_sample_keeps_each_return_whole():
         np.testing.assert_array_equal(getattr(sample, name), getattr(data, name)[k])
     assert sample.control_times_s is data.control_times_s and sample.sensor is data.sensor
     assert data.sample(n, np.random.default_rng(0)) is data
+
+
+def test_the_fine_phase_run_again_goes_on_from_its_j_curve(foreign_box_street):
+    """The fine phase run again from where it converged (as the end does once it holds more): given the first run's J
+    curve it stops at its first outer iteration, whose step is below fine_below_m; started afresh, the plateau test
+    needs plateau_iterations + 1 energies of its own, and only a step below tolerance_m stops it sooner."""
+    from graphcal.calibration.config import CalibrationConfig
+    from graphcal.calibration.problem import History, Problem
+    from graphcal.calibration.returns import initial_estimate
+    from graphcal.recording.directory import Recording
+
+    recording = Recording.load(foreign_box_street)
+    problem = Problem.of(recording, CalibrationConfig(mode="joint", seed=0))
+    stage = problem.stages[-1]
+    problem, stopping = problem.in_stage(stage), problem.settings.stopping
+    first = History()
+    converged = problem.fit(initial_estimate(recording, problem.full), first, stage)
+    energies = tuple(row["energy_cm2"] for row in first.rows if row["phase"] == "fine")
+    assert first.rows[-1]["stop"] == "converged" and len(energies) > stopping.plateau_iterations
+    again = History()
+    problem.fit(converged, again, stage, ("fine",), plateau_from=energies)
+    assert len(again.rows) == 1 and again.rows[0]["stop"] == "converged"
+    assert again.rows[0]["max_step"] < stopping.fine_below_m
+    afresh = History()
+    problem.fit(converged, afresh, stage, ("fine",), max_iterations=2)
+    assert afresh.rows[0]["stop"] == "" or afresh.rows[0]["max_step"] < stopping.tolerance_m

@@ -186,14 +186,22 @@ class CalibrationPipeline:
         self.weak = found
 
     def solve_again_if_more_are_weak(self) -> None:
+        """The last stage's fine phase again, the weak directions the end added held too: it goes on from the fine
+        phase's J curve (Problem.fit's plateau_from)."""
         if self.state.grown:
-            self.solve(last=("fine",), first=len(self.problem.stages) - 1, label=", weak directions held")
+            stage = self.problem.stages[-1]
+            energies = tuple(row["energy_cm2"] for row in self.history.rows
+                             if row["mode"] == stage and row["phase"] == "fine")
+            self.solve(last=("fine",), first=len(self.problem.stages) - 1, label=", weak directions held",
+                       plateau_from=energies)
 
     @resumable
-    def solve(self, last: tuple[Phase, ...], first: int = 0, label: str = "") -> None:
+    def solve(self, last: tuple[Phase, ...], first: int = 0, label: str = "",
+              plateau_from: tuple[float, ...] = ()) -> None:
         """The stages from `first` one by one (successive modes stay successive), the last one's phases `last`
-        only, the weak directions set back to and held at nominal. Resumed (state.inside): from the stage and
-        outer iteration the checkpoint stopped at."""
+        only, the weak directions set back to and held at nominal; plateau_from: the last stage's J curve this
+        solve goes on from (Problem.fit). Resumed (state.inside): from the stage and outer iteration the checkpoint
+        stopped at."""
         self.estimate = self.back_to_nominal(self.estimate)
         stages, cap, used = self.problem.stages, self.problem.settings.stopping.max_outer_iterations, self.state.used
         start, done = self.state.inside or (first, 0)
@@ -216,7 +224,8 @@ class CalibrationPipeline:
             self.estimate = self.timed(f"solve {stage}{label} ({', '.join(planned)})",
                                        problem.fit, self.estimate, self.history, stage + label, planned, left,
                                        self.quiet, saved_each_iteration if self.checkpoint else None, ran,
-                                       self.state.features_at if ran else None, spinner=False)
+                                       self.state.features_at if ran else None,
+                                       plateau_from if k == len(stages) - 1 else (), spinner=False)
             used[stage] = len(self.history.rows) - before
 
     def back_to_nominal(self, estimate: Estimate) -> Estimate:

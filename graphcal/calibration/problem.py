@@ -424,7 +424,7 @@ class Problem:
     def fit(self, estimate: Estimate, history: History, label: str, phases: tuple[Phase, ...] = PHASES,
             max_iterations: int | None = None, quiet: bool = True,
             after_each: Callable[[Estimate, Estimate | None], None] | None = None, ran: int = 0,
-            features_at: Estimate | None = None) -> Estimate:
+            features_at: Estimate | None = None, plateau_from: tuple[float, ...] = ()) -> Estimate:
         """Outer iterations of one stage from this problem: the coarse phase (its subsample, the gate opening
         by gate_growth) until its step (step_size) falls below stopping.fine_below_m, then the fine phase until it
         falls below stopping.tolerance_m, J plateaus, or n_max (max_iterations, else stopping.max_outer_iterations,
@@ -433,7 +433,10 @@ class Problem:
         iterations, when the cloud has moved. after_each(estimate, features_at): called after each outer iteration,
         once its history row is complete, with the estimate its features were computed at (None: not known). ran:
         the outer iterations of this fit an interrupted calibration had run (the last rows of history, estimate
-        their end, features_at what after_each last gave): it goes on from them as it would have."""
+        their end, features_at what after_each last gave): it goes on from them as it would have. plateau_from: the
+        J curve [cm^2] of a fine phase this one goes on from (the same stage's, run again with more held): the plateau
+        test continues it, once a step is below stopping.fine_below_m (the fine phase run again otherwise restarts
+        the test and makes plateau_iterations + 1 outer iterations whatever it moves)."""
         stopping, refresh_every = self.settings.stopping, self.settings.features.refresh_every
         n_max = stopping.max_outer_iterations if max_iterations is None else max_iterations
         done = history.rows[len(history.rows) - ran:]
@@ -448,7 +451,7 @@ class Problem:
         if done and not fine:
             gate = min(done[-1]["gate_m"] * problem.gates.gate_growth, problem.gates.gate_max_m)
         features, refreshed, points, since_refresh = None, False, None, refresh_every
-        fine_energies = [row["energy_cm2"] for row in done if row["phase"] == "fine"]
+        fine_energies = list(plateau_from) + [row["energy_cm2"] for row in done if row["phase"] == "fine"]
         rows = None if problem.fixed_pairs is None else problem.fixed_pairs.rows()  # fixed pairs: only their returns
         in_phase = [row for row in done if row["phase"] == problem.phase]
         if in_phase and features_at is not None and problem.fixed_pairs is None:  # as they were when interrupted
@@ -475,8 +478,9 @@ class Problem:
             estimate, refreshed = updated, False
             if problem.phase == "fine":
                 fine_energies.append(before)
-                if step < stopping.tolerance_m or on_plateau(fine_energies, stopping.plateau_iterations,
-                                                             stopping.plateau_improvement):
+                settled = not plateau_from or step < stopping.fine_below_m
+                if step < stopping.tolerance_m or (settled and on_plateau(fine_energies, stopping.plateau_iterations,
+                                                                          stopping.plateau_improvement)):
                     history.rows[-1]["stop"] = "converged"
             elif step < stopping.fine_below_m:
                 if "fine" not in phases:
