@@ -1,6 +1,6 @@
-"""The outer loop: its stopping rule on a J curve that has stopped falling (on_plateau; a fine phase run again goes
-on from its J curve), the step that switches phases and stops it (step_size), and its Levenberg-Marquardt on a
-badly scaled graph (levenberg_marquardt)."""
+"""The outer loop: its stopping rule on a J curve that has stopped falling (on_plateau; the mean of the plateau's
+iterates; a fine phase run again goes on from its J curve), the step that switches phases and stops it (step_size),
+and its Levenberg-Marquardt on a badly scaled graph (levenberg_marquardt)."""
 
 import gtsam
 import numpy as np
@@ -170,10 +170,11 @@ def test_the_coarse_phase_sample_keeps_each_return_whole():
     assert data.sample(n, np.random.default_rng(0)) is data
 
 
-def test_the_fine_phase_run_again_goes_on_from_its_j_curve(foreign_box_street):
-    """The fine phase run again from where it converged (as the end does once it holds more): given the first run's J
-    curve it stops at its first outer iteration, whose step is below fine_below_m; started afresh, the plateau test
-    needs plateau_iterations + 1 energies of its own, and only a step below tolerance_m stops it sooner."""
+def test_the_fine_phase_averages_its_plateau_and_run_again_goes_on_from_its_j_curve(foreign_box_street):
+    """A converged fine phase returns the mean of its last plateau_iterations outer iterations' estimates. Run again
+    from there (as the end does once it holds more): given the first run's J curve it stops at its first outer
+    iteration, whose step is below fine_below_m; started afresh, the plateau test needs plateau_iterations + 1
+    energies of its own, and only a step below tolerance_m stops it sooner."""
     from graphcal.calibration.config import CalibrationConfig
     from graphcal.calibration.problem import History, Problem
     from graphcal.calibration.returns import initial_estimate
@@ -183,10 +184,20 @@ def test_the_fine_phase_run_again_goes_on_from_its_j_curve(foreign_box_street):
     problem = Problem.of(recording, CalibrationConfig(mode="joint", seed=0))
     stage = problem.stages[-1]
     problem, stopping = problem.in_stage(stage), problem.settings.stopping
-    first = History()
-    converged = problem.fit(initial_estimate(recording, problem.full), first, stage)
+    first, seen = History(), []
+    converged = problem.fit(initial_estimate(recording, problem.full), first, stage,
+                            after_each=lambda estimate, _, window: seen.append((estimate, window)))
     energies = tuple(row["energy_cm2"] for row in first.rows if row["phase"] == "fine")
     assert first.rows[-1]["stop"] == "converged" and len(energies) > stopping.plateau_iterations
+    # converged: the mean of the last plateau_iterations fine iterations' estimates, the last one's in the window only
+    window = seen[-1][1]
+    assert len(window) == stopping.plateau_iterations
+    assert all(a is b for a, (b, _) in zip(window[:-1], seen[-stopping.plateau_iterations:-1]))
+    np.testing.assert_allclose(converged.offsets, np.mean([e.offsets for e in window], axis=0), rtol=0, atol=1e-15)
+    turns = [window[-1].extrinsic.localCoordinates(e.extrinsic) for e in window]
+    np.testing.assert_allclose(window[-1].extrinsic.localCoordinates(converged.extrinsic), np.mean(turns, axis=0),
+                               rtol=1e-9, atol=1e-15)
+    assert seen[-1][0] is converged or np.array_equal(seen[-1][0].offsets, converged.offsets)
     again = History()
     problem.fit(converged, again, stage, ("fine",), plateau_from=energies)
     assert len(again.rows) == 1 and again.rows[0]["stop"] == "converged"

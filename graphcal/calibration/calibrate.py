@@ -81,7 +81,7 @@ def resumable(step):
         if self.entered <= self.state.done:
             return
         step(self, *args, **kwargs)
-        self.state.done, self.state.inside, self.state.features_at = self.entered, None, None
+        self.state.done, self.state.inside, self.state.features_at, self.state.window = self.entered, None, None, ()
         self.save()
 
     return run_unless_done
@@ -215,9 +215,10 @@ class CalibrationPipeline:
                 used[stage] = ran
                 continue
 
-            def saved_each_iteration(estimate: Estimate, features_at: Estimate | None, k=k, before=before) -> None:
+            def saved_each_iteration(estimate: Estimate, features_at: Estimate | None, window: tuple, k=k,
+                                     before=before) -> None:
                 self.estimate, self.state.inside = estimate, (k, len(self.history.rows) - before)
-                self.state.features_at = features_at
+                self.state.features_at, self.state.window = features_at, window
                 self.save()
 
             problem = self.problem.in_stage(stage).locking(self.weak)
@@ -225,7 +226,8 @@ class CalibrationPipeline:
                                        problem.fit, self.estimate, self.history, stage + label, planned, left,
                                        self.quiet, saved_each_iteration if self.checkpoint else None, ran,
                                        self.state.features_at if ran else None,
-                                       plateau_from if k == len(stages) - 1 else (), spinner=False)
+                                       plateau_from if k == len(stages) - 1 else (), self.state.window if ran else (),
+                                       spinner=False)
             used[stage] = len(self.history.rows) - before
 
     def back_to_nominal(self, estimate: Estimate) -> Estimate:

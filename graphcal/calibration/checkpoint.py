@@ -8,7 +8,8 @@ One .npz file, written atomically (graphcal.common.atomic) after every outer ite
     history     JSON: the history's rows (graphcal.calibration.problem.History)
     offsets     (n_fibres, 4) in (m, rad, rad, m); extrinsic (4, 4) T_body_lidar; corrections (n, 4, 4) at the
                 control times; effect.<name>; the same prefixed features_at. for the estimate the features in
-                use were computed at; weak_basis, weak_eigenvalues (weak_directions.WeakDirections)
+                use were computed at, and prefixed window.<k>. for the fine phase's last outer iterations'
+                estimates (Problem.fit averages them); weak_basis, weak_eigenvalues (weak_directions.WeakDirections)
 
 A checkpoint written for another recording, other settings or another version of graphcal is refused with a
 ConfigError naming what differs: resuming from it would mix two calibrations.
@@ -50,7 +51,8 @@ class PipelineState:
     run() done (done), inside the next one (a solve) the stage being solved and the outer iterations of it run
     (inside: None between steps), the outer iterations each stage has run (used), the weak directions held
     ((P, k) basis and eigenvalues), whether the end's analysis added some (grown), the seconds spent (in all and
-    per step) and, inside a solve, the estimate its features were computed at (features_at)."""
+    per step) and, inside a solve, the estimate its features were computed at (features_at) and the fine phase's last
+    outer iterations' estimates (window: Problem.fit)."""
 
     estimate: Estimate
     rows: list = field(default_factory=list)
@@ -63,6 +65,7 @@ class PipelineState:
     seconds: float = 0.0
     timings: dict = field(default_factory=dict)
     features_at: Estimate | None = None
+    window: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -83,6 +86,8 @@ class Checkpoint:
         arrays = _arrays(state.estimate) | {"weak_basis": state.weak_basis, "weak_eigenvalues": state.weak_eigenvalues}
         if state.features_at is not None:
             arrays |= _arrays(state.features_at, "features_at.")
+        for k, estimate in enumerate(state.window):
+            arrays |= _arrays(estimate, f"window.{k}.")
         with atomic_path(self.path) as tmp, open(tmp, "wb") as file:
             np.savez(file, meta=np.array(json.dumps(meta)), history=np.array(json.dumps(state.rows, default=plain)),
                      **{name: value for name, value in arrays.items() if value is not None})
@@ -107,9 +112,11 @@ class Checkpoint:
             raise self.of_another(differs)
         inside = None if meta["inside"] is None else tuple(meta["inside"])
         features_at = _estimate(arrays, "features_at.") if "features_at.offsets" in arrays else None
+        window = tuple(_estimate(arrays, f"window.{k}.") for k in range(len(arrays))
+                       if f"window.{k}.offsets" in arrays)
         return PipelineState(_estimate(arrays), rows, meta["done"], inside, meta["used"], arrays.get("weak_basis"),
                              arrays.get("weak_eigenvalues"), meta["grown"], meta["seconds"], meta["timings"],
-                             features_at)
+                             features_at, window)
 
     def of_another(self, differences: list[str]) -> ConfigError:
         """The error of a checkpoint written for another calibration: what differs ("<what> <then> (now <now>)")."""

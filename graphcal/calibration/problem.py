@@ -38,8 +38,8 @@ from graphcal.calibration.observability import (
 from graphcal.calibration.pairing import Association, FeatureCache
 from graphcal.calibration.levenberg_marquardt import levenberg_marquardt
 from graphcal.calibration.priors import HELD_SIGMA, Priors, control_prior_sigma
-from graphcal.calibration.returns import (Estimate, ReturnData, knot_shares, knots_every, pose_of, prepare, resampled,
-                                         revisits, sight_at, world_at)
+from graphcal.calibration.returns import (Estimate, ReturnData, knot_shares, knots_every, mean_estimate, pose_of,
+                                         prepare, resampled, revisits, sight_at, world_at)
 from graphcal.calibration import cluster_robust
 from graphcal.calibration.shared_returns import Linearised, shared_returns_covariance
 from graphcal.calibration.tiles import Tiling
@@ -423,17 +423,22 @@ class Problem:
     # --- the outer loop ------------------------------------------------------------------------------
     def fit(self, estimate: Estimate, history: History, label: str, phases: tuple[Phase, ...] = PHASES,
             max_iterations: int | None = None, quiet: bool = True,
-            after_each: Callable[[Estimate, Estimate | None], None] | None = None, ran: int = 0,
-            features_at: Estimate | None = None, plateau_from: tuple[float, ...] = ()) -> Estimate:
+            after_each: Callable[[Estimate, Estimate | None, tuple], None] | None = None, ran: int = 0,
+            features_at: Estimate | None = None, plateau_from: tuple[float, ...] = (),
+            window: tuple[Estimate, ...] = ()) -> Estimate:
         """Outer iterations of one stage from this problem: the coarse phase (its subsample, the gate opening
         by gate_growth) until its step (step_size) falls below stopping.fine_below_m, then the fine phase until it
         falls below stopping.tolerance_m, J plateaus, or n_max (max_iterations, else stopping.max_outer_iterations,
         both phases together). phases: the phases to run (("coarse",): stop at the switch; ("fine",): start
         there). On fixed pairs, the fine phase only. Features are refreshed every features.refresh_every outer
-        iterations, when the cloud has moved. after_each(estimate, features_at): called after each outer iteration,
-        once its history row is complete, with the estimate its features were computed at (None: not known). ran:
-        the outer iterations of this fit an interrupted calibration had run (the last rows of history, estimate
-        their end, features_at what after_each last gave): it goes on from them as it would have. plateau_from: the
+        iterations, when the cloud has moved. A fine phase that converges returns the mean (mean_estimate) of its
+        last stopping.plateau_iterations outer iterations' estimates (window): once J is flat, each outer
+        iteration's pairs and features made again move the weakest parameters by about their sigmas, and the mean
+        damps that (Polyak-Ruppert averaging). after_each(estimate, features_at, window): called after each outer
+        iteration, once its history row is complete, with the estimate its features were computed at (None: not
+        known) and the fine iterations' window. ran: the outer iterations of this fit an interrupted calibration had
+        run (the last rows of history, estimate their end, features_at and window what after_each last gave): it
+        goes on from them as it would have. plateau_from: the
         J curve [cm^2] of a fine phase this one goes on from (the same stage's, run again with more held): the plateau
         test continues it, once a step is below stopping.fine_below_m (the fine phase run again otherwise restarts
         the test and makes plateau_iterations + 1 outer iterations whatever it moves)."""
@@ -478,10 +483,12 @@ class Problem:
             estimate, refreshed = updated, False
             if problem.phase == "fine":
                 fine_energies.append(before)
+                window = (*window, estimate)[-stopping.plateau_iterations:]
                 settled = not plateau_from or step < stopping.fine_below_m
                 if step < stopping.tolerance_m or (settled and on_plateau(fine_energies, stopping.plateau_iterations,
                                                                           stopping.plateau_improvement)):
                     history.rows[-1]["stop"] = "converged"
+                    estimate = mean_estimate(window)
             elif step < stopping.fine_below_m:
                 if "fine" not in phases:
                     history.rows[-1]["stop"] = "coarse done"
@@ -493,7 +500,7 @@ class Problem:
                 gate = min(gate * problem.gates.gate_growth, problem.gates.gate_max_m)
             if after_each is not None:
                 after_each(problem.at_every_control(estimate),
-                           None if features is None else problem.at_every_control(problem.cache.estimate))
+                           None if features is None else problem.at_every_control(problem.cache.estimate), window)
             if history.rows[-1]["stop"]:
                 break
         else:

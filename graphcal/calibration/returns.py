@@ -141,6 +141,19 @@ class Estimate:
     effects: dict = field(default_factory=dict)
 
 
+def mean_estimate(estimates) -> Estimate:
+    """The mean of estimates close to one another (the fine phase's last outer iterations): offsets and effects
+    averaged, the extrinsic and each control's correction averaged in the tangent space of the last one's."""
+    last = estimates[-1]
+
+    def mean_pose(poses) -> gtsam.Pose3:
+        return poses[-1].retract(np.mean([poses[-1].localCoordinates(pose) for pose in poses], axis=0))
+
+    return Estimate(np.mean([e.offsets for e in estimates], axis=0), mean_pose([e.extrinsic for e in estimates]),
+                    tuple(mean_pose(poses) for poses in zip(*(e.corrections for e in estimates))),
+                    {name: np.mean([np.asarray(e.effects[name]) for e in estimates], axis=0) for name in last.effects})
+
+
 def prepare(recording: Recording, control_interval_s: float, max_points: int | None = None,
             rng: np.random.Generator | None = None, control_times_s: np.ndarray | None = None,
             range_noise_m: float | None = None, points_per_s: float | None = None) -> ReturnData:
