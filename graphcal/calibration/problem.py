@@ -438,10 +438,10 @@ class Problem:
         iteration, once its history row is complete, with the estimate its features were computed at (None: not
         known) and the fine iterations' window. ran: the outer iterations of this fit an interrupted calibration had
         run (the last rows of history, estimate their end, features_at and window what after_each last gave): it
-        goes on from them as it would have. plateau_from: the
-        J curve [cm^2] of a fine phase this one goes on from (the same stage's, run again with more held): the plateau
-        test continues it, once a step is below stopping.fine_below_m (the fine phase run again otherwise restarts
-        the test and makes plateau_iterations + 1 outer iterations whatever it moves)."""
+        goes on from them as it would have. plateau_from: the J curve [cm^2] of a fine phase this one goes on from
+        (the same stage's, run again with more held): the plateau test continues it, once a step is below
+        stopping.fine_below_m (the fine phase run again otherwise restarts the test and makes plateau_iterations + 1
+        outer iterations whatever it moves)."""
         stopping, refresh_every = self.settings.stopping, self.settings.features.refresh_every
         n_max = stopping.max_outer_iterations if max_iterations is None else max_iterations
         done = history.rows[len(history.rows) - ran:]
