@@ -431,10 +431,11 @@ class Problem:
         falls below stopping.tolerance_m, J plateaus, or n_max (max_iterations, else stopping.max_outer_iterations,
         both phases together). phases: the phases to run (("coarse",): stop at the switch; ("fine",): start
         there). On fixed pairs, the fine phase only. Features are refreshed every features.refresh_every outer
-        iterations, when the cloud has moved. A fine phase that converges returns the mean (mean_estimate) of its
-        last stopping.plateau_iterations outer iterations' estimates (window): once J is flat, each outer
+        iterations, when the cloud has moved. A fine phase that stops on J's plateau returns the mean (mean_estimate)
+        of its last stopping.plateau_iterations outer iterations' estimates (window): once J is flat, each outer
         iteration's pairs and features made again move the weakest parameters by about their sigmas, and the mean
-        damps that (Polyak-Ruppert averaging). after_each(estimate, features_at, window): called after each outer
+        damps that (Polyak-Ruppert averaging); one whose step fell below stopping.tolerance_m, or on fixed pairs,
+        returns its last. after_each(estimate, features_at, window): called after each outer
         iteration, once its history row is complete, with the estimate its features were computed at (None: not
         known) and the fine iterations' window. ran: the outer iterations of this fit an interrupted calibration had
         run (the last rows of history, estimate their end, features_at and window what after_each last gave): it
@@ -485,9 +486,10 @@ class Problem:
                 fine_energies.append(before)
                 window = (*window, estimate)[-stopping.plateau_iterations:]
                 settled = not plateau_from or step < stopping.fine_below_m
-                if step < stopping.tolerance_m or (settled and on_plateau(fine_energies, stopping.plateau_iterations,
-                                                                          stopping.plateau_improvement)):
+                flat = settled and on_plateau(fine_energies, stopping.plateau_iterations, stopping.plateau_improvement)
+                if step < stopping.tolerance_m or flat:
                     history.rows[-1]["stop"] = "converged"
+                if flat and step >= stopping.tolerance_m and problem.fixed_pairs is None:
                     estimate = mean_estimate(window)
             elif step < stopping.fine_below_m:
                 if "fine" not in phases:
