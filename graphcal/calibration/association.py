@@ -110,23 +110,27 @@ class Sight:
 
 def _shift_to_neighbours(range_m: np.ndarray, azimuth_rad: np.ndarray, around_range_m: np.ndarray,
                          around_azimuth_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Shift [m] from each return's range (N,) to its stand-in range, the line through its neighbours' ranges
-    (N, 2k: k fired before it, then k after) against their encoder azimuths, taken at its own azimuth: exact for
-    a ring of constant range (the ground under a level head) and for a range that changes linearly as the head
-    turns, at the neighbours' spacing whatever it is (a subsample's neighbours lie unevenly on either side). Not
-    found (shift 0: the return stands for itself) where its azimuth is not between its neighbours', where a
-    neighbour lies further than PROXY_REACH_M from the line (an edge, a gap) or the shift itself is further."""
+    """Shift [m] from each return's range (N,) to its stand-in range, the parabola through its neighbours' ranges
+    (N, 2k: k fired before it, then k after) against their encoder azimuths (least squares; the line through
+    them when k = 1), taken at its own azimuth: exact for a ring of constant range (the ground under a level
+    head) and for a range that curves as the head turns (a tilted head's ground ring, whose range a line through
+    neighbours degrees apart would miss by millimetres, with one sign along the ring), at the neighbours' spacing
+    whatever it is (a subsample's neighbours lie unevenly on either side). Not found (shift 0: the return stands
+    for itself) where its azimuth is not between its neighbours', where a neighbour lies further than
+    PROXY_REACH_M from the curve (an edge, a gap) or the shift itself is further."""
     k = around_range_m.shape[1] // 2
     x = np.angle(np.exp(1j * (around_azimuth_rad - azimuth_rad[:, None])))  # wrapped to (-pi, pi]
-    x_mean, y_mean = x.mean(axis=1), around_range_m.mean(axis=1)
-    dx, dy = x - x_mean[:, None], around_range_m - y_mean[:, None]
-    spread = np.einsum("nk,nk->n", dx, dx)
-    between = (x[:, k - 1] * x[:, k] < 0) & (spread > 0)  # either way the head turns
-    slope = np.einsum("nk,nk->n", dx, dy) / np.where(between, spread, 1.0)
-    stand_in = y_mean - slope * x_mean
-    off_line = np.abs(dy - slope[:, None] * dx).max(axis=1)
-    shift = stand_in - range_m
-    found = between & (off_line <= PROXY_REACH_M) & (np.abs(shift) <= PROXY_REACH_M)
+    reach = np.abs(x).max(axis=1)
+    between = (x[:, k - 1] * x[:, k] < 0) & (reach > 0)  # either way the head turns
+    u = x / np.where(between, reach, 1.0)[:, None]  # in [-1, 1]: a well-conditioned fit at any spacing
+    design = u[:, :, None] ** np.arange(min(3, 2 * k))  # 1, u (, u^2)
+    normal = np.einsum("nki,nkj->nij", design, design)
+    solvable = between & (np.abs(np.linalg.det(normal)) > 1e-9)
+    normal[~solvable] = np.eye(normal.shape[1])
+    coefficients = np.linalg.solve(normal, np.einsum("nki,nk->ni", design, around_range_m)[..., None])[..., 0]
+    off_curve = np.abs(around_range_m - np.einsum("nki,ni->nk", design, coefficients)).max(axis=1)
+    shift = coefficients[:, 0] - range_m
+    found = solvable & (off_curve <= PROXY_REACH_M) & (np.abs(shift) <= PROXY_REACH_M)
     return np.where(found, shift, 0.0), found
 
 
