@@ -114,7 +114,7 @@ def _shift_to_neighbours(range_m: np.ndarray, azimuth_rad: np.ndarray, around_ra
     (N, 2k: k fired before it, then k after) against their encoder azimuths (least squares; the line through
     them when k = 1), taken at its own azimuth: exact for a ring of constant range (the ground under a level
     head) and for a range that curves as the head turns (a tilted head's ground ring, whose range a line through
-    neighbours degrees apart would miss by millimetres, with one sign along the ring), at the neighbours' spacing
+    neighbours degrees apart misses by about a millimetre, with one sign along the ring), at the neighbours' spacing
     whatever it is (a subsample's neighbours lie unevenly on either side). Not found (shift 0: the return stands
     for itself) where its azimuth is not between its neighbours', where a neighbour lies further than
     PROXY_REACH_M from the curve (an edge, a gap) or the shift itself is further."""
@@ -123,15 +123,31 @@ def _shift_to_neighbours(range_m: np.ndarray, azimuth_rad: np.ndarray, around_ra
     reach = np.abs(x).max(axis=1)
     between = (x[:, k - 1] * x[:, k] < 0) & (reach > 0)  # either way the head turns
     u = x / np.where(between, reach, 1.0)[:, None]  # in [-1, 1]: a well-conditioned fit at any spacing
-    design = u[:, :, None] ** np.arange(min(3, 2 * k))  # 1, u (, u^2)
-    normal = np.einsum("nki,nkj->nij", design, design)
-    solvable = between & (np.abs(np.linalg.det(normal)) > 1e-9)
-    normal[~solvable] = np.eye(normal.shape[1])
-    coefficients = np.linalg.solve(normal, np.einsum("nki,nk->ni", design, around_range_m)[..., None])[..., 0]
-    off_curve = np.abs(around_range_m - np.einsum("nki,ni->nk", design, coefficients)).max(axis=1)
-    shift = coefficients[:, 0] - range_m
+    terms = min(3, 2 * k)  # 1, u (, u^2)
+    powers = [np.ones_like(u), u]
+    while len(powers) < 2 * terms - 1:
+        powers.append(powers[-1] * u)
+    sums = [p.sum(axis=1) for p in powers]  # the normal equations' entries, sum u^(i+j)
+    normal = [sums[i:i + terms] for i in range(terms)]
+    right = [(p * around_range_m).sum(axis=1) for p in powers[:terms]]
+    determinant = _determinant(normal)
+    solvable = between & (np.abs(determinant) > 1e-9)
+    determinant = np.where(solvable, determinant, 1.0)
+    coefficients = [_determinant([row[:j] + [r] + row[j + 1:] for row, r in zip(normal, right)]) / determinant
+                    for j in range(terms)]  # Cramer's rule, row by row at once
+    curve = sum(c[:, None] * p for c, p in zip(coefficients, powers))
+    off_curve = np.abs(around_range_m - curve).max(axis=1)
+    shift = coefficients[0] - range_m
     found = solvable & (off_curve <= PROXY_REACH_M) & (np.abs(shift) <= PROXY_REACH_M)
     return np.where(found, shift, 0.0), found
+
+
+def _determinant(matrix: list[list[np.ndarray]]) -> np.ndarray:
+    """The determinants (N,) of N 2x2 or 3x3 matrices given entry by entry (matrix[i][j]: (N,))."""
+    if len(matrix) == 2:
+        return matrix[0][0] * matrix[1][1] - matrix[0][1] * matrix[1][0]
+    (a, b, c), (d, e, f), (g, h, i) = matrix
+    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
 
 
 def rows_by_fibre(fibre: np.ndarray) -> dict[int, np.ndarray]:
