@@ -11,7 +11,8 @@ calibration at the truth (sensor.yaml and extrinsic.yaml set to the true values,
 offsets): the fit must stay within its sigmas. --far draws the truth within the widest errors a factory
 model is expected to have (5 cm and 0.5 deg per fibre, the extrinsic within 10 cm and 1 deg). --reference-error
 puts the nominal model's reference fibre off the truth in range and elevation (the simulator draws it exact; a
-real head's factory model is off on it as on the others, while the calibration's gauge holds it). Writes
+real head's factory model is off on it as on the others, while the calibration's gauge holds it). --range-noise-m
+and --ins-noise set the noises (to tell which one an error comes from). Writes
 benchmarks/results/foreign.json (foreign_from_truth.json, foreign_far.json; or --out).
 """
 
@@ -39,7 +40,7 @@ MOUNTS = ("level", "tilted")
 
 
 def _case(family: str, mount: str, size: float, duration_s: float, seed: int, from_truth: bool, far: bool,
-          settings: dict, reference_error: tuple[float, float] | None, queue) -> None:
+          settings: dict, reference_error: tuple[float, float] | None, noise: dict, queue) -> None:
     import graphcal
     from graphcal.calibration.evaluate import scorecard
     from graphcal.common.errors import CalibrationError
@@ -48,7 +49,7 @@ def _case(family: str, mount: str, size: float, duration_s: float, seed: int, fr
 
     with tempfile.TemporaryDirectory() as folder:
         directory = simulate(family, Path(folder) / "rec", duration_s=duration_s, size=size, seed=seed, mount=mount,
-                             **(WIDEST_FACTORY_ERRORS if far else {}))
+                             **noise, **(WIDEST_FACTORY_ERRORS if far else {}))
         if from_truth:
             directory = truth_as_nominal(Path(directory), Path(folder) / "at_truth")
         if reference_error is not None:
@@ -91,8 +92,12 @@ def main() -> None:
                         help="the nominal model's reference fibre off the truth by these (the gauge holds it exact)")
     parser.add_argument("--reference-fibre", choices=("fixed", "range_elevation"), default=None,
                         help="priors.reference_fibre (default: calibrate's)")
+    parser.add_argument("--range-noise-m", type=float, default=0.01, help="the head's range noise [m]")
+    parser.add_argument("--ins-noise", type=float, nargs=2, default=(0.005, 0.005), metavar=("M", "DEG"),
+                        help="the INS's white noise per sample: position [m] and attitude [deg]")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
+    noise = {"range_noise_m": args.range_noise_m, "ins_noise_m": args.ins_noise[0], "ins_noise_deg": args.ins_noise[1]}
     settings = {} if args.mode is None else {"mode": args.mode}
     if args.reference_fibre is not None:
         settings["priors"] = {"reference_fibre": args.reference_fibre}
@@ -101,7 +106,7 @@ def main() -> None:
         for mount in args.mounts:
             for seed in range(args.seeds):
                 row = run_in_process(_case, family, mount, args.size, args.duration, seed, args.from_truth, args.far,
-                                     settings, args.reference_error)
+                                     settings, args.reference_error, noise)
                 rows.append(row)
                 if "refused" in row:
                     print(f"{family}/{mount} seed {seed}: refused ({row['calibrate_s']:.0f} s): {row['refused']}",
@@ -121,7 +126,7 @@ def main() -> None:
         tmp.write_text(json.dumps({"machine": platform.platform(), "processor": platform.processor(),
                                    "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
                                    "size": args.size, "duration_s": args.duration, "settings": settings,
-                                   "true_error_bounds": bounds, "reference_error": args.reference_error,
+                                   "true_error_bounds": bounds, "reference_error": args.reference_error, "noise": noise,
                                    "cases": rows}, indent=2))
     print(f"wrote {out}")
 
