@@ -97,6 +97,8 @@ def main() -> None:
                         help="the INS's white noise per sample: position [m] and attitude [deg]")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
+    if args.range_noise_m < 0 or min(args.ins_noise) < 0:
+        parser.error(f"expected --range-noise-m and --ins-noise >= 0 (got {args.range_noise_m}, {args.ins_noise})")
     noise = {"range_noise_m": args.range_noise_m, "ins_noise_m": args.ins_noise[0], "ins_noise_deg": args.ins_noise[1]}
     settings = {} if args.mode is None else {"mode": args.mode}
     if args.reference_fibre is not None:
