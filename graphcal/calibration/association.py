@@ -110,34 +110,35 @@ class Sight:
 
 def _shift_to_neighbours(range_m: np.ndarray, azimuth_rad: np.ndarray, around_range_m: np.ndarray,
                          around_azimuth_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Shift [m] from each return's range (N,) to its stand-in range, the parabola through its neighbours' ranges
-    (N, 2k: k fired before it, then k after) against their encoder azimuths (least squares; the line through
-    them when k = 1), taken at its own azimuth: exact for a ring of constant range (the ground under a level
-    head) and for a range that curves as the head turns (a tilted head's ground ring, whose range a line through
-    neighbours degrees apart misses by about a millimetre, with one sign along the ring), at the neighbours' spacing
-    whatever it is (a subsample's neighbours lie unevenly on either side). Not found (shift 0: the return stands
-    for itself) where its azimuth is not between its neighbours', where a neighbour lies further than
-    PROXY_REACH_M from the curve (an edge, a gap) or the shift itself is further."""
+    """Shift [m] from each return's range (N,) to its stand-in range: its neighbours' ranges (N, 2k: k fired before
+    it, then k after) against their encoder azimuths, taken at its own azimuth through the curve a plane gives a
+    fibre's cone of rays, 1/range = a + b sin x + c (1 - cos x) with x the azimuth offset (the plane n.X = d:
+    1/range = n.ray(azimuth) / d), least squares; the line a + b sin x when k = 1. Exact on any plane whatever the
+    head's tilt (a level head's ground ring at constant range; a tilted head's, whose range curves as the head turns
+    and which a line through neighbours degrees apart misses by about a millimetre, with one sign along the ring;
+    a wall), at the neighbours' spacing whatever it is (a subsample's neighbours lie unevenly on either side). Not
+    found (shift 0: the return stands for itself) where its azimuth is not between its neighbours', where a
+    neighbour lies further than PROXY_REACH_M from the curve (an edge, a gap) or the shift itself is further."""
     k = around_range_m.shape[1] // 2
-    x = np.angle(np.exp(1j * (around_azimuth_rad - azimuth_rad[:, None])))  # wrapped to (-pi, pi]
-    reach = np.abs(x).max(axis=1)
-    between = (x[:, k - 1] * x[:, k] < 0) & (reach > 0)  # either way the head turns
-    u = x / np.where(between, reach, 1.0)[:, None]  # in [-1, 1]: a well-conditioned fit at any spacing
-    terms = min(3, 2 * k)  # 1, u (, u^2)
-    powers = [np.ones_like(u), u]
-    while len(powers) < 2 * terms - 1:
-        powers.append(powers[-1] * u)
-    sums = [p.sum(axis=1) for p in powers]  # the normal equations' entries, sum u^(i+j)
-    normal = [sums[i:i + terms] for i in range(terms)]
-    right = [(p * around_range_m).sum(axis=1) for p in powers[:terms]]
+    turn = np.exp(1j * (around_azimuth_rad - azimuth_rad[:, None]))  # cos x + i sin x
+    sine, versine = turn.imag, 1.0 - turn.real
+    sine_reach, versine_reach = np.abs(sine).max(axis=1), versine.max(axis=1)
+    between = (sine[:, k - 1] * sine[:, k] < 0) & (versine_reach > 0)  # either way the head turns
+    # the basis scaled to [-1, 1]: well-conditioned normal equations at any spacing
+    basis = [np.ones_like(sine), sine / np.where(between, sine_reach, 1.0)[:, None],
+             versine / np.where(between, versine_reach, 1.0)[:, None]][:min(3, 2 * k)]
+    inverse_range = 1.0 / np.maximum(around_range_m, 1e-6)
+    normal = [[(f * g).sum(axis=1) for g in basis] for f in basis]
+    right = [(f * inverse_range).sum(axis=1) for f in basis]
     determinant = _determinant(normal)
     solvable = between & (np.abs(determinant) > 1e-9)
     determinant = np.where(solvable, determinant, 1.0)
     coefficients = [_determinant([row[:j] + [r] + row[j + 1:] for row, r in zip(normal, right)]) / determinant
-                    for j in range(terms)]  # Cramer's rule, row by row at once
-    curve = sum(c[:, None] * p for c, p in zip(coefficients, powers))
-    off_curve = np.abs(around_range_m - curve).max(axis=1)
-    shift = coefficients[0] - range_m
+                    for j in range(len(basis))]  # Cramer's rule, row by row at once
+    solvable &= coefficients[0] > 0
+    fitted = sum(c[:, None] * f for c, f in zip(coefficients, basis))  # 1/range at the neighbours
+    off_curve = np.abs(around_range_m - 1.0 / np.where(fitted > 0, fitted, np.inf)).max(axis=1)
+    shift = 1.0 / np.where(solvable, coefficients[0], 1.0) - range_m
     found = solvable & (off_curve <= PROXY_REACH_M) & (np.abs(shift) <= PROXY_REACH_M)
     return np.where(found, shift, 0.0), found
 
@@ -192,7 +193,7 @@ def neighbour_fibres(elevation_deg: np.ndarray, n_steps: int) -> dict[int, list[
 
 LINE_CANDIDATES = 16  # stand-ins of fibre j nearest p's among which m is the one whose line of sight passes nearest it
 PROXY_FIRINGS = 2  # firings on each side of a return whose ranges give its stand-in (then one, past an edge)
-PROXY_REACH_M = 0.2  # a return whose neighbours' ranges lie further than this from their line stands for itself
+PROXY_REACH_M = 0.2  # a return whose neighbours' ranges lie further than this from their curve stands for itself
 
 
 @dataclass(frozen=True)
