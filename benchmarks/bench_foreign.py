@@ -6,7 +6,8 @@ intrinsic offsets within 3 cm and 0.3 deg (the factory's nominal model) and an e
 0.5 deg is simulated by the independent simulator and calibrated with graphcal.calibrate's defaults.
 Figures per case (graphcal.calibration.evaluate.scorecard): RMS error over the intrinsic parameters not
 named unobservable (cm, deg, deg, cm), the fraction of their errors within 3 reported sigmas, the
-fraction named unobservable, the extrinsic errors, J, seconds and peak memory. --from-truth starts each
+fraction named unobservable, how each phase stopped and the verdict, the extrinsic errors, J, seconds and
+peak memory. --from-truth starts each
 calibration at the truth (sensor.yaml and extrinsic.yaml set to the true values, the truth then zero
 offsets): the fit must stay within its sigmas. --far draws the truth within the widest errors a factory
 model is expected to have (5 cm and 0.5 deg per fibre, the extrinsic within 10 cm and 1 deg). --reference-error
@@ -70,6 +71,7 @@ def _case(family: str, mount: str, size: float, duration_s: float, seed: int, fr
     queue.put(row | {"mode": result.config.mode, "calibrate_s": seconds, "peak_gib": peak_gib(),
                      "timings_s": {stage: round(t, 2) for stage, t in result.timings_s.items()},
                      "outer_iterations": len(result.history), **card.to_dict(),
+                     "stops": [row["stop"] for row in result.history if row["stop"]], "verdict": result.verdict,
                      "unobservable": list(result.unobservable),
                      "lever_arm_error_m": list(evaluation.lever_arm_error_m),
                      "rotation_error_deg": list(evaluation.rotation_error_deg),

@@ -205,3 +205,50 @@ def test_the_fine_phase_averages_its_plateau_and_run_again_goes_on_from_its_j_cu
     afresh = History()
     problem.fit(converged, afresh, stage, ("fine",), max_iterations=2)
     assert afresh.rows[0]["stop"] == "" or afresh.rows[0]["max_step"] < stopping.tolerance_m
+
+
+def test_the_plateau_waits_for_the_window_to_stop_drifting(foreign_box_street):
+    """calibration_sigmas against GTSAM's marginals on the pairs' factors and the priors (mode joint: no trajectory
+    to marginalise); drifting: a window whose first and last estimates differ, for one kind of parameter, by a median
+    above stopping.trend_sigmas of the sigmas drifts, whatever the signs; one that moved by less does not."""
+    from dataclasses import replace
+
+    from graphcal.calibration.config import CalibrationConfig
+    from graphcal.calibration.keys import E, I
+    from graphcal.calibration.problem import Problem
+    from graphcal.calibration.returns import initial_estimate
+    from graphcal.recording.directory import Recording
+
+    recording = Recording.load(foreign_box_street)
+    problem = Problem.of(recording, CalibrationConfig(mode="joint", seed=0))
+    problem = problem.in_stage(problem.stages[-1]).in_phase("fine")
+    estimate = initial_estimate(recording, problem.full)
+    pairs = problem.associate(estimate)
+    sigma = problem.calibration_sigmas(estimate, pairs)
+
+    layout = problem.layout()
+    graph, values = problem._pairs_graph(estimate, pairs)
+    for f in layout.fibres:
+        graph.add(gtsam.PriorFactorVector(I(f), estimate.offsets[f], gtsam.noiseModel.Diagonal.Sigmas(
+            problem.priors.intrinsic[f])))
+    graph.add(gtsam.PriorFactorPose3(E(0), estimate.extrinsic, problem.priors.extrinsic_noise(
+        problem.nominal.rotation().matrix())))
+    marginals = gtsam.Marginals(graph, values)
+    expected = np.concatenate([np.sqrt(np.diag(marginals.marginalCovariance(key)))
+                               for key in problem.calibration_keys()])
+    np.testing.assert_allclose(sigma, expected, rtol=1e-6)
+
+    trend = problem.settings.stopping.trend_sigmas
+    fibres = list(layout.fibres)
+    signs = np.where(np.arange(len(fibres)) % 2, 1.0, -1.0)
+
+    def moved(elevation_sigmas=0.0, lever_arm_sigmas=0.0):
+        offsets = estimate.offsets.copy()
+        offsets[fibres, 2] += elevation_sigmas * signs * sigma[:4 * len(fibres)].reshape(-1, 4)[:, 2]
+        lever_arm = lever_arm_sigmas * sigma[-3:]
+        return replace(estimate, offsets=offsets, extrinsic=estimate.extrinsic.retract(np.r_[np.zeros(3), lever_arm]))
+
+    assert problem.drifting((estimate, moved(elevation_sigmas=1.2 * trend)), sigma)
+    assert problem.drifting((estimate, moved(lever_arm_sigmas=1.2 * trend)), sigma)
+    assert not problem.drifting((estimate, moved(elevation_sigmas=0.8 * trend, lever_arm_sigmas=0.8 * trend)), sigma)
+    assert not problem.drifting((estimate, estimate), sigma)

@@ -182,7 +182,9 @@ class StoppingSettings(BaseModel):
     """The outer loop: at most max_outer_iterations per stage (both phases); the fine phase from a coarse
     step below fine_below_m (the largest over the intrinsics and the extrinsic, the median over the trajectory's
     controls: problem.step_size); converged when the largest step (m, or rad x 1 m) falls below tolerance_m or J
-    makes no new low (by plateau_improvement) in plateau_iterations; each outer step damped by a prior at the
+    makes no new low (by plateau_improvement) in plateau_iterations and its last plateau_iterations estimates no
+    longer drift (problem.drifting: per kind of parameter, the median move across them below trend_sigmas of the
+    parameters' sigmas; J is flat along a weak direction a fit still converges along); each outer step damped by a prior at the
     current estimate (step_sigma_m, step_sigma_deg); lm_iterations Levenberg-Marquardt iterations per outer
     iteration (None: 2 when the pairs are re-made, 5 on fixed pairs); refuse_unconverged: a run that stops on
     the cap, or whose J ends far above what the measured noise predicts, ends in CalibrationError (exit 3)
@@ -196,6 +198,7 @@ class StoppingSettings(BaseModel):
     fine_below_m: float = Field(0.01, gt=0)
     plateau_iterations: int = Field(6, ge=2)
     plateau_improvement: float = Field(0.01, ge=0, lt=1)
+    trend_sigmas: float = Field(2.0, gt=0)
     step_sigma_m: float = Field(0.02, gt=0)
     step_sigma_deg: float = Field(0.5, gt=0)
     lm_iterations: int | None = Field(None, ge=1)
