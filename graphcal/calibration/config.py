@@ -184,9 +184,9 @@ class StoppingSettings(BaseModel):
     controls: problem.step_size); converged when the largest step (m, or rad x 1 m) falls below tolerance_m or J
     makes no new low (by plateau_improvement) in plateau_iterations and its last plateau_iterations estimates no
     longer drift (problem.drifting: per kind of parameter, the median move across them below trend_sigmas of the
-    parameters' sigmas; J is flat along a weak direction a fit still converges along); each outer step damped by a prior at the
-    current estimate (step_sigma_m, step_sigma_deg); lm_iterations Levenberg-Marquardt iterations per outer
-    iteration (None: 2 when the pairs are re-made, 5 on fixed pairs); refuse_unconverged: a run that stops on
+    parameters' sigmas; J is flat along a weak direction a fit still converges along); each outer step damped by
+    a prior at the current estimate (step_sigma_m, step_sigma_deg); lm_iterations Levenberg-Marquardt iterations
+    per outer iteration (None: 2 when the pairs are re-made, 5 on fixed pairs); refuse_unconverged: a run that stops on
     the cap, or whose J ends far above what the measured noise predicts, ends in CalibrationError (exit 3)
     (False: the estimate is returned unchecked on both counts, for a quick look); refuse_outside_priors: so does
     one that leaves a parameter far outside the nominal model's stated uncertainty (False: graphcal.diagnose's
