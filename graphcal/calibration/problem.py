@@ -490,12 +490,13 @@ class Problem:
                 window = (*window, estimate)[-stopping.plateau_iterations:]
                 settled = not plateau_from or step < stopping.fine_below_m
                 flat = settled and on_plateau(fine_energies, stopping.plateau_iterations, stopping.plateau_improvement)
-                if flat and problem.fixed_pairs is None and step >= stopping.tolerance_m:
+                averaged = flat and step >= stopping.tolerance_m and problem.fixed_pairs is None
+                if averaged:
                     sigma = problem.calibration_sigmas(estimate, pairs) if sigma is None else sigma
-                    flat = not problem.drifting(window, sigma)
+                    flat = averaged = not problem.drifting(window, sigma)
                 if step < stopping.tolerance_m or flat:
                     history.rows[-1]["stop"] = "converged"
-                if flat and step >= stopping.tolerance_m and problem.fixed_pairs is None:
+                if averaged:
                     estimate = mean_estimate(window)
             elif step < stopping.fine_below_m:
                 if "fine" not in phases:
