@@ -140,8 +140,7 @@ def main() -> None:
                     started = time.perf_counter()
                     features = problem.tiling.features(points, problem.settings.features)
                     pairs = problem.association().pairs(points, problem.data.fibre, features,
-                                                        problem.gates.gate_start_m, problem.sight(pipeline.estimate,
-                                                                                                   points))
+                                                        problem.gates.gate_start_m, problem.sight(pipeline.estimate))
                     seconds.append(time.perf_counter() - started)
                     mapped.append(sum(timed.calls))
                 figures[name] = {

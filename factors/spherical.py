@@ -119,8 +119,15 @@ def beam_rays(azimuth_rad, factory: FactoryTerms, offsets) -> tuple[np.ndarray, 
     azimuth_rad = np.asarray(azimuth_rad, dtype=np.float64)
     offsets = np.broadcast_to(np.asarray(offsets, dtype=np.float64), azimuth_rad.shape + (4,))
     range_at_origin = factory.beam_origin_m - (offsets[..., 0] + factory.range_offset_m)  # raw range giving r = 0
-    origin = to_xyz(range_at_origin, azimuth_rad, factory, offsets)
-    return origin, to_xyz(range_at_origin + 1.0, azimuth_rad, factory, offsets) - origin
+    return to_xyz(range_at_origin, azimuth_rad, factory, offsets), beam_directions(azimuth_rad, factory, offsets)
+
+
+def beam_directions(azimuth_rad, factory: FactoryTerms, offsets) -> np.ndarray:
+    """Unit direction (..., 3) of each beam in the sensor frame, d xyz / d r of eq. 4.2 (eq. 4.3, p'_2): the same at
+    every range, so no point is placed for it."""
+    a, e, _ = _angles(0.0, np.asarray(azimuth_rad, dtype=np.float64), factory, np.asarray(offsets, dtype=np.float64))
+    ce = np.cos(e)
+    return np.stack(np.broadcast_arrays(ce * np.cos(a), -ce * np.sin(a), np.sin(e)), axis=-1)
 
 
 def from_xyz(xyz, factory: FactoryTerms, offsets) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -43,7 +43,7 @@ def test_the_range_regressor_does_not_carry_the_returns_own_noise(clean):
     fit, _ = baseline(clean, CalibrationConfig(mode="joint", max_points=60_000,
                                                stopping={"max_outer_iterations": 1, "refuse_unconverged": False}))
     data = fit.data
-    sight = sight_at(data, fit.estimate, fit.points_m)
+    sight = sight_at(data, fit.estimate)
     stood_in = sight.shift_m != 0
     truth = clean.truth
     position, rotation = to_world(truth.trajectory, clean.crs).poses.interpolate(data.time_s)

@@ -50,7 +50,7 @@ def test_features_and_pairs_tile_by_tile_equal_those_of_the_whole_cloud():
 
 def test_a_tile_that_pairs_nothing_leaves_the_others_pairs_unchanged():
     """A lone return 500 m away makes a tile of its own with no pair; with lines of sight (Sight) as well."""
-    from graphcal.calibration.association import Sight
+    from graphcal.calibration.association import Sight, stand_in_shifts
 
     points, fibre = _street(np.random.default_rng(1))
     lone_points, lone_fibre = np.vstack([points, [[500.0, 500.0, 0.0]]]), np.r_[fibre, 0]
@@ -60,7 +60,7 @@ def test_a_tile_that_pairs_nothing_leaves_the_others_pairs_unchanged():
     pairs = []
     for xyz, fibres in ((points, fibre), (lone_points, lone_fibre)):
         range_m = np.linalg.norm(xyz, axis=1)
-        sight = Sight.of(xyz, xyz / range_m[:, None], fibres, range_m, np.arctan2(-xyz[:, 1], xyz[:, 0]))
+        sight = Sight(xyz / range_m[:, None], stand_in_shifts(fibres, range_m, np.arctan2(-xyz[:, 1], xyz[:, 0])))
         cloud = PairCloud(xyz, fibres, tiling.features(xyz, settings), sight)
         pairs.append(tiling.associate(cloud, neighbours, gates, 0, np.arange(0, len(xyz), 7)))
     np.testing.assert_array_equal(pairs[1].index_p, pairs[0].index_p)

@@ -75,7 +75,7 @@ class Sight:
     """Per return: its unit line of sight rays (N,3) in the points' axes, and the shift_m (N,) [m] along that
     line from the return to its stand-in, the point of the line at the range the PROXY_FIRINGS returns its fibre
     fired before it and after it give at its azimuth (its own range left out; itself at an edge or a gap,
-    _shift_to_neighbours): the stand-in of its range is range + shift (stand_ins). Range noise moves a return
+    stand_in_shifts): the stand-in of its range is range + shift (stand_ins). Range noise moves a return
     along its line of sight, so its stand-in does not depend on its own noise."""
 
     rays: np.ndarray
@@ -90,22 +90,21 @@ class Sight:
         """The lines of sight of the returns at rows (indices or a boolean mask)."""
         return rows_of(self, rows)
 
-    @classmethod
-    def of(cls, points_m: np.ndarray, rays: np.ndarray, fibre: np.ndarray, range_m: np.ndarray,
-           azimuth_rad: np.ndarray) -> Sight:
-        """From the points [m], their rays, fibres, measured ranges [m] and encoder azimuths [rad] (rows of a fibre
-        in firing order)."""
-        shift, found = np.zeros(len(points_m)), np.zeros(len(points_m), bool)
-        by_fibre = rows_by_fibre(fibre).values()
-        for k in range(PROXY_FIRINGS, 0, -1):  # the most neighbours first; fewer where they reach past an edge
-            for rows in by_fibre:
-                centre = np.flatnonzero(~found[rows[k:len(rows) - k]]) + k  # positions in rows still without one
-                if len(centre):
-                    inner = rows[centre]
-                    around = rows[centre[:, None] + np.r_[np.arange(-k, 0), np.arange(1, k + 1)]]
-                    shift[inner], found[inner] = _shift_to_neighbours(range_m[inner], azimuth_rad[inner],
-                                                                      range_m[around], azimuth_rad[around])
-        return cls(rays, shift)
+
+def stand_in_shifts(fibre: np.ndarray, range_m: np.ndarray, azimuth_rad: np.ndarray) -> np.ndarray:
+    """Sight.shift_m (N,) [m] of returns from their fibres, measured ranges [m] and encoder azimuths [rad] (rows of a
+    fibre in firing order): raw data only, so the same at every estimate."""
+    shift, found = np.zeros(len(range_m)), np.zeros(len(range_m), bool)
+    by_fibre = rows_by_fibre(fibre).values()
+    for k in range(PROXY_FIRINGS, 0, -1):  # the most neighbours first; fewer where they reach past an edge
+        for rows in by_fibre:
+            centre = np.flatnonzero(~found[rows[k:len(rows) - k]]) + k  # positions in rows still without one
+            if len(centre):
+                inner = rows[centre]
+                around = rows[centre[:, None] + np.r_[np.arange(-k, 0), np.arange(1, k + 1)]]
+                shift[inner], found[inner] = _shift_to_neighbours(range_m[inner], azimuth_rad[inner],
+                                                                  range_m[around], azimuth_rad[around])
+    return shift
 
 
 def _shift_to_neighbours(range_m: np.ndarray, azimuth_rad: np.ndarray, around_range_m: np.ndarray,
@@ -173,13 +172,28 @@ def local_features(points_m: np.ndarray, radius_m: float = 0.5, max_nn: int = 20
         sampled = np.asarray(cloud.voxel_down_sample(voxel_m).points)
         nearest = cKDTree(sampled).query(points_m, workers=-1)[1]
         return local_features(sampled, radius_m, max_nn).take(nearest)
-    cloud.estimate_covariances(o3d.geometry.KDTreeSearchParamHybrid(radius=radius_m, max_nn=max_nn))
-    eigenvalues, eigenvectors = np.linalg.eigh(np.asarray(cloud.covariances))  # ascending
-    s = np.sqrt(np.clip(eigenvalues, 0.0, None))[:, ::-1]  # s1 >= s2 >= s3
+    search = o3d.geometry.KDTreeSearchParamHybrid(radius=radius_m, max_nn=max_nn)
+    cloud.estimate_covariances(search)
+    cloud.estimate_normals(search)  # from the covariances just computed (no second search): their least axis
+    normal, covariance = np.asarray(cloud.normals), np.asarray(cloud.covariances)
+    s = np.sqrt(np.clip(_eigenvalues_about(covariance, normal), 0.0, None))  # s1 >= s2 >= s3
     s1 = np.where(s[:, 0] > 0, s[:, 0], 1.0)
     valid = s[:, 1] > 0
-    return Features(normal=eigenvectors[:, :, 0], planarity=np.where(valid, (s[:, 1] - s[:, 2]) / s1, 0.0),
-                    out_of_plane_m=s[:, 2])
+    return Features(normal=normal, planarity=np.where(valid, (s[:, 1] - s[:, 2]) / s1, 0.0), out_of_plane_m=s[:, 2])
+
+
+def _eigenvalues_about(covariance: np.ndarray, least_axis: np.ndarray) -> np.ndarray:
+    """The eigenvalues (N, 3), largest first, of symmetric 3x3 matrices (N,3,3) whose least eigenvector is known
+    (N,3): that one is the matrix's quadratic form along it, and the other two the roots of the characteristic
+    polynomial left (their sum the trace less it, their product the principal minors' sum less it times that
+    sum). A batched eigen-decomposition of every return's covariance costs four times the whole of this."""
+    c = covariance
+    least = np.einsum("ni,nij,nj->n", least_axis, c, least_axis)
+    total = c[:, 0, 0] + c[:, 1, 1] + c[:, 2, 2] - least
+    minors = (c[:, 0, 0] * c[:, 1, 1] - c[:, 0, 1] ** 2 + c[:, 0, 0] * c[:, 2, 2] - c[:, 0, 2] ** 2
+              + c[:, 1, 1] * c[:, 2, 2] - c[:, 1, 2] ** 2)
+    half_gap = 0.5 * np.sqrt(np.clip(total ** 2 - 4.0 * (minors - least * total), 0.0, None))
+    return np.column_stack([0.5 * total + half_gap, 0.5 * total - half_gap, least])
 
 
 def neighbour_fibres(elevation_deg: np.ndarray, n_steps: int) -> dict[int, list[int]]:
@@ -235,7 +249,7 @@ def associate(cloud: PairCloud, neighbours: dict[int, list[int]], gates: PairGat
               rng: np.random.Generator | None = None, candidates: np.ndarray | None = None) -> Correspondences:
     """A return m of fibre j for every candidate return p of fibre i (j a neighbour of i).
 
-    m is the return of fibre j nearest to p; with sight (Sight.of the points), every return is
+    m is the return of fibre j nearest to p; with sight (returns.sight_at), every return is
     represented by its stand-in, and m is, of the LINE_CANDIDATES stand-ins of fibre j nearest p's,
     the one whose line of sight passes nearest p's stand-in. Range noise moves a return along its
     own line of sight, so neither p's nor m's own noise moves the choice; with the measured points

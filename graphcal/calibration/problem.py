@@ -233,11 +233,11 @@ class Problem:
         points[rows] = placed
         return points
 
-    def sight(self, estimate: Estimate, points_m: np.ndarray) -> Sight | None:
+    def sight(self, estimate: Estimate) -> Sight | None:
         """What the association chooses m by: stand-ins (sight_at) in the fine phase; plain nearest returns in
         the coarse phase, which only has to reach the basin (and whose subsample leaves most returns without
         firing neighbours near enough for a stand-in)."""
-        return sight_at(self.data, estimate, points_m) if self.phase == "fine" else None
+        return sight_at(self.data, estimate) if self.phase == "fine" else None
 
     def association(self) -> Association:
         """The phase's association; in the fine phase, near the solution, it rejects the pairs seen on moving
@@ -256,7 +256,7 @@ class Problem:
         points_m = self.points(estimate) if points_m is None else points_m
         features = self.cache.at(points_m, estimate)[0] if features is None else features
         return self.cache.pairs(self.association(), points_m, self.data.fibre, features, self.gates.gate_start_m,
-                                lambda: self.sight(estimate, points_m))
+                                lambda: self.sight(estimate))
 
     # --- the factor graph ----------------------------------------------------------------------------
     def blocks(self, estimate: Estimate, pairs: Correspondences) -> list:
@@ -475,7 +475,7 @@ class Problem:
                 since_refresh = 0 if refreshed else since_refresh
             since_refresh += 1
             pairs = problem.fixed_pairs if problem.fixed_pairs is not None else problem.cache.pairs(
-                association, points, problem.data.fibre, features, gate, lambda: problem.sight(estimate, points))
+                association, points, problem.data.fibre, features, gate, lambda: problem.sight(estimate))
             before, weight_sum = energy_cm2(points[pairs.index_p], points[pairs.index_m], pairs)
             updated = problem.step(estimate, pairs)
             step = step_size(estimate, updated, problem.phase)

@@ -8,14 +8,15 @@ with weight alpha (eq. 5.4).
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import gtsam
 import numpy as np
 from scipy.spatial import cKDTree
 
-from factors.spherical import beam_rays
+from factors.spherical import beam_directions
 from factors.world_point import Corrections, Returns, world_points
-from graphcal.calibration.association import Sight
+from graphcal.calibration.association import Sight, stand_in_shifts
 from graphcal.recording.extrinsic import Extrinsic
 from graphcal.recording.poses import PoseTrack
 from graphcal.recording.range_noise import measured_range_noise_m, noisy
@@ -123,10 +124,17 @@ class ReturnData:
         breaks = self.control_breaks
         return np.zeros(0, np.int64) if breaks is None else np.flatnonzero(breaks)
 
-    def returns(self, rows: np.ndarray) -> Returns:
-        """The factor-side view of some rows."""
+    def returns(self, rows: np.ndarray | None = None) -> Returns:
+        """The factor-side view of some rows (None: every row, the arrays themselves, not copies)."""
+        rows = slice(None) if rows is None else rows
         return Returns(self.range_m[rows], self.azimuth_rad[rows], self.sensor.factory_terms(self.fibre[rows]),
                        self.R_nav[rows], self.X_nav[rows], self.alpha[rows])
+
+    @cached_property
+    def stand_in_shift_m(self) -> np.ndarray:
+        """(N,) [m] each return's shift along its line of sight to its stand-in (association.stand_in_shifts): from the
+        measured ranges and encoder azimuths alone, computed once."""
+        return stand_in_shifts(self.fibre, self.range_m, self.azimuth_rad)
 
 
 @dataclass(frozen=True)
@@ -306,10 +314,10 @@ def corrections_at(estimate: Estimate, control: np.ndarray, pose: bool) -> Corre
 
 def world_at(data: ReturnData, estimate: Estimate, pose: bool, rows: np.ndarray | None = None) -> np.ndarray:
     """World points minus the local origin [m] of the given rows (all if None) at an estimate."""
-    rows = np.arange(len(data.time_s)) if rows is None else rows
     R_E, t_E = estimate.extrinsic.rotation().matrix(), estimate.extrinsic.translation()
-    p, _ = world_points(data.returns(rows), estimate.offsets[data.fibre[rows]], R_E, t_E,
-                        corrections_at(estimate, data.control[rows], pose), jacobians=False)
+    at = slice(None) if rows is None else rows
+    p, _ = world_points(data.returns(rows), estimate.offsets[data.fibre[at]], R_E, t_E,
+                        corrections_at(estimate, data.control[at], pose), jacobians=False)
     return p
 
 
@@ -318,17 +326,16 @@ def rays_at(data: ReturnData, estimate: Estimate, rows: np.ndarray | None = None
     (eq. 4.2's d xyz / d rho turned by the extrinsic and the INS attitude; a trajectory rotation
     correction, a fraction of a degree, is left out: the association and the noise model only
     compare these lines with surfaces)."""
-    rows = np.arange(len(data.time_s)) if rows is None else rows
+    rows = slice(None) if rows is None else rows
     fibre = data.fibre[rows]
-    _, direction_lidar = beam_rays(data.azimuth_rad[rows], data.sensor.factory_terms(fibre), estimate.offsets[fibre])
+    direction_lidar = beam_directions(data.azimuth_rad[rows], data.sensor.factory_terms(fibre), estimate.offsets[fibre])
     return np.einsum("nij,nj->ni", data.R_nav[rows], direction_lidar @ estimate.extrinsic.rotation().matrix().T)
 
 
-def sight_at(data: ReturnData, estimate: Estimate, points_m: np.ndarray) -> Sight | None:
-    """The lines of sight and stand-ins (association.Sight) of the returns at an estimate, points_m
-    their world points minus the origin [m] there (rows of a fibre are in firing order: time order);
-    None when the head's range noise is known to be below range_noise.NOISY_ABOVE_M: the measured
-    points are then their own best stand-ins (docs/reference/math.md "Which m")."""
+def sight_at(data: ReturnData, estimate: Estimate) -> Sight | None:
+    """The lines of sight and stand-ins (association.Sight) of the returns at an estimate (rows of a fibre are in
+    firing order: time order); None when the head's range noise is known to be below range_noise.NOISY_ABOVE_M:
+    the measured points are then their own best stand-ins (docs/reference/math.md "Which m")."""
     if not noisy(data.range_noise_m):
         return None
-    return Sight.of(points_m, rays_at(data, estimate), data.fibre, data.range_m, data.azimuth_rad)
+    return Sight(rays_at(data, estimate), data.stand_in_shift_m)

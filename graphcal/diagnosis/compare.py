@@ -71,7 +71,7 @@ def compare(recording: Recording, simulation: Recording, max_points: int | None 
     sim_tree = cKDTree(sim_points)
     rows, nearest, normal = _paired(points, sim_tree, features)
     context = ReturnContext.of(data, recording.world.poses, points, Features(normal, *(np.zeros(len(points)),) * 2),
-                               estimate.extrinsic.translation(), sight_at(data, with_controls(estimate, data), points))
+                               estimate.extrinsic.translation(), sight_at(data, with_controls(estimate, data)))
     names = list(candidates or CANDIDATES)
     estimate = with_controls(estimate, data)
     r, J, columns = _linear_system(data, estimate, context, names, rows, normal[rows], sim_points[nearest[rows]])

@@ -89,7 +89,7 @@ def _associated(recording: Recording, problem: Problem, estimate: Estimate, mode
     pairs = problem.associate(estimate, points, features)
     if model is None:
         context = ReturnContext.of(problem.full, recording.world.poses, points, features, estimate.extrinsic.translation(),
-                                   sight_at(problem.full, estimate, points), recorded_intensity(recording, problem.full.rows))
+                                   sight_at(problem.full, estimate), recorded_intensity(recording, problem.full.rows))
         model = EffectModel((), {}, context)
     return Fit(recording, replace(problem, effects=None), estimate, model, points, features, pairs)
 

@@ -63,7 +63,7 @@ def truncated_cost(fit: Fit) -> tuple[np.ndarray, np.ndarray, int]:
     problem = fit.problem.in_phase("fine")
     gates, association = problem.gates, problem.association()
     candidates, fibre = association.candidates, fit.data.fibre
-    cloud = PairCloud(fit.points_m, fibre, fit.features, problem.sight(fit.estimate, fit.points_m))
+    cloud = PairCloud(fit.points_m, fibre, fit.features, problem.sight(fit.estimate))
     pairs = associate(cloud, association.neighbours, PairGates.of(gates, gates.gate_start_m, capped=False),
                       candidates=candidates)
     clip_m = gates.max_plane_distance_m
