@@ -234,11 +234,10 @@ class Problem:
         return points
 
     def sight(self, estimate: Estimate) -> Sight | None:
-        """What the association chooses m by: stand-ins (sight_at), in both phases (the coarse phase's subsample with
-        the whole drive's, ReturnData.sample). With plain nearest returns the coarse phase's pairs carry the range
-        noise (associate) and slide along the weak directions: a tilted head's minute over an open road, elevations
-        0.78 deg RMS off at the switch and 29 outer iterations, against 0.08 deg and 14 with stand-ins."""
-        return sight_at(self.data, estimate)
+        """What the association chooses m by: stand-ins (sight_at) in the fine phase; plain nearest returns in
+        the coarse phase, which only has to reach the basin (and whose subsample leaves most returns without
+        firing neighbours near enough for a stand-in)."""
+        return sight_at(self.data, estimate) if self.phase == "fine" else None
 
     def association(self) -> Association:
         """The phase's association; in the fine phase, near the solution, it rejects the pairs seen on moving
