@@ -124,8 +124,8 @@ class ReturnData:
         breaks = self.control_breaks
         return np.zeros(0, np.int64) if breaks is None else np.flatnonzero(breaks)
 
-    def returns(self, rows: np.ndarray | None = None) -> Returns:
-        """The factor-side view of some rows (None: every row, the arrays themselves, not copies)."""
+    def returns(self, rows: np.ndarray | slice | None = None) -> Returns:
+        """The factor-side view of some rows (None or a slice: views of the arrays, not copies)."""
         rows = slice(None) if rows is None else rows
         return Returns(self.range_m[rows], self.azimuth_rad[rows], self.sensor.factory_terms(self.fibre[rows]),
                        self.R_nav[rows], self.X_nav[rows], self.alpha[rows])
@@ -315,9 +315,9 @@ def corrections_at(estimate: Estimate, control: np.ndarray, pose: bool) -> Corre
 def world_at(data: ReturnData, estimate: Estimate, pose: bool, rows: np.ndarray | None = None) -> np.ndarray:
     """World points minus the local origin [m] of the given rows (all if None) at an estimate."""
     R_E, t_E = estimate.extrinsic.rotation().matrix(), estimate.extrinsic.translation()
-    at = slice(None) if rows is None else rows
-    p, _ = world_points(data.returns(rows), estimate.offsets[data.fibre[at]], R_E, t_E,
-                        corrections_at(estimate, data.control[at], pose), jacobians=False)
+    rows = slice(None) if rows is None else rows
+    p, _ = world_points(data.returns(rows), estimate.offsets[data.fibre[rows]], R_E, t_E,
+                        corrections_at(estimate, data.control[rows], pose), jacobians=False)
     return p
 
 
