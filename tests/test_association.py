@@ -207,7 +207,7 @@ def test_line_of_sight_choice_is_not_biased_by_range_noise():
     step = np.radians(0.16)
     azimuth = np.arange(-0.5, 0.5, step)
     per_ring = len(azimuth)
-    elevation = np.radians(np.repeat([-10.0, -9.0], per_ring * sweeps))
+    elevation = np.radians(np.repeat([-10.0, -9.8], per_ring * sweeps))  # rings 0.23 m apart
     azimuth = np.concatenate([np.tile(azimuth, sweeps) + np.repeat(rng.uniform(0, step, sweeps), per_ring)
                               for _ in range(2)])  # each fibre's returns in firing order, sweep by sweep
     origin = np.zeros((len(azimuth), 3))
@@ -224,14 +224,32 @@ def test_line_of_sight_choice_is_not_biased_by_range_noise():
         r = points[pairs.index_p, 2] - points[pairs.index_m, 2]
         return r.mean(), r.std() / np.sqrt(len(r))
 
-    nearest = associate(PairCloud(points, fibre, features), {0: [1]}, PairGates(2.0))
+    nearest = associate(PairCloud(points, fibre, features), {0: [1]}, PairGates(0.3))
     sight = Sight(rays, stand_in_shifts(fibre, range_m, azimuth))
-    line_of_sight = associate(PairCloud(points, fibre, features, sight), {0: [1]}, PairGates(2.0))
+    line_of_sight = associate(PairCloud(points, fibre, features, sight), {0: [1]}, PairGates(0.3))
     assert len(line_of_sight) > 0.9 * len(nearest) > 0.9 * per_ring * sweeps * 0.9
     biased, error = mean_and_error(nearest)
     assert biased < -10 * error  # m lifted
     unbiased, error = mean_and_error(line_of_sight)
     assert abs(unbiased) < 3 * error
+
+
+@pytest.mark.parametrize("behind_m, chosen", [(0.9, "beside"), (0.28, "behind")])
+def test_the_line_of_sight_choice_reaches_only_as_far_as_the_fine_gate(behind_m, chosen):
+    """p and two returns of the next fibre within a coarse gate of 1 m: one 0.25 m beside p, seen from the head at the
+    origin (its line of sight misses p by 0.25 m), one behind_m further along a line of sight through p (a surface
+    behind p, seen past it from elsewhere).
+    Beyond LINE_REACH_M the one behind is no candidate, whatever its line: the one beside is m; within the reach
+    the line of sight decides."""
+    p = np.array([5.0, 0.0, -2.0])
+    through_p = np.array([0.6, 0.0, -0.8])
+    beside, behind = p + [0.0, 0.25, 0.0], p + behind_m * through_p
+    rays = np.array([p / np.linalg.norm(p), beside / np.linalg.norm(beside), through_p])
+    points = np.array([p, beside, behind])
+    features = Features(np.tile([0.0, 0.0, 1.0], (3, 1)), np.ones(3), np.zeros(3))
+    cloud = PairCloud(points, np.array([0, 1, 1]), features, Sight(rays, np.zeros(3)))
+    pairs = associate(cloud, {0: [1]}, PairGates(1.0), candidates=np.array([0]))
+    assert list(pairs.index_p) == [0] and list(pairs.index_m) == [1 if chosen == "beside" else 2]
 
 
 @pytest.mark.parametrize("surface", ["ground", "wall"])

@@ -206,6 +206,9 @@ def neighbour_fibres(elevation_deg: np.ndarray, n_steps: int) -> dict[int, list[
 
 
 LINE_CANDIDATES = 16  # stand-ins of fibre j nearest p's among which m is the one whose line of sight passes nearest it
+# ... among those within this of p's (the fine gate; none: the nearest stand-in): further, in a coarse gate on a sparse
+# subsample, the line of sight alone prefers a surface seen behind p along a line through it
+LINE_REACH_M = 0.3
 PROXY_FIRINGS = 2  # firings on each side of a return whose ranges give its stand-in (then one, past an edge)
 PROXY_REACH_M = 0.2  # a return whose neighbours' ranges lie further than this from their curve stands for itself
 
@@ -251,10 +254,11 @@ def associate(cloud: PairCloud, neighbours: dict[int, list[int]], gates: PairGat
 
     m is the return of fibre j nearest to p; with sight (returns.sight_at), every return is
     represented by its stand-in, and m is, of the LINE_CANDIDATES stand-ins of fibre j nearest p's,
-    the one whose line of sight passes nearest p's stand-in. Range noise moves a return along its
-    own line of sight, so neither p's nor m's own noise moves the choice; with the measured points
-    it does: on the ground, seen at a grazing angle, noise moves returns mostly along the ground,
-    the nearest of the many returns of the next ring is the one whose noise brought it closest, and
+    the one whose line of sight passes nearest p's stand-in (among those within LINE_REACH_M of it).
+    Range noise moves a return along its own line of sight, so neither p's nor m's own noise moves
+    the choice; with the measured points it does: on the ground, seen at a grazing angle, noise moves
+    returns mostly along the ground, the nearest of the many returns of the next ring is the one whose
+    noise brought it closest, and
     the same noise lifted or lowered it (measured on sim2_street with 1 cm range noise: the range
     offsets 3x their Cramér-Rao bound, worse with denser clouds); and which m a noisy p finds ties
     m's range, which weighs its fibre's offsets in the pair's Jacobian, to p's noise.
@@ -298,7 +302,8 @@ def associate(cloud: PairCloud, neighbours: dict[int, list[int]], gates: PairGat
 def _nearest(p: np.ndarray, j_rows: np.ndarray, tree: cKDTree, cloud: PairCloud, gate_m: float) -> tuple[np.ndarray, np.ndarray]:
     """(found mask over p, m rows of the found): each p's nearest return of fibre j within gate_m (tree),
     or with a sight, of the LINE_CANDIDATES stand-ins nearest p's stand-in, the one whose line of sight
-    passes nearest p's stand-in: neither p's nor m's own range noise moves the choice."""
+    passes nearest p's stand-in among those within LINE_REACH_M of it (the nearest when none is): neither p's
+    nor m's own range noise moves the choice."""
     if cloud.sight is None:
         distance, nearest = tree.query(cloud.points_m[p], k=1, distance_upper_bound=gate_m)
         found = np.isfinite(distance)
@@ -308,7 +313,7 @@ def _nearest(p: np.ndarray, j_rows: np.ndarray, tree: cKDTree, cloud: PairCloud,
     distance, nearest = tree.query(stand_ins[p], k=k, distance_upper_bound=gate_m)
     distance, nearest = distance.reshape(len(p), k), nearest.reshape(len(p), k)
     found = np.isfinite(distance[:, 0])
-    inside = np.isfinite(distance[found])
+    inside = np.isfinite(distance[found]) & ((distance[found] <= LINE_REACH_M) | (np.arange(k) == 0))
     m = j_rows[np.where(inside, nearest[found], 0)]  # (n, k); candidates beyond the gate masked below
     offset = stand_ins[p[found]][:, None, :] - cloud.points_m[m]
     along = np.einsum("nki,nki->nk", offset, rays[m])

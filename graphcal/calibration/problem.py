@@ -234,10 +234,11 @@ class Problem:
         return points
 
     def sight(self, estimate: Estimate) -> Sight | None:
-        """What the association chooses m by: stand-ins (sight_at) in the fine phase; plain nearest returns in
-        the coarse phase, which only has to reach the basin (and whose subsample leaves most returns without
-        firing neighbours near enough for a stand-in)."""
-        return sight_at(self.data, estimate) if self.phase == "fine" else None
+        """What the association chooses m by: stand-ins (sight_at), in both phases (the coarse phase's subsample with
+        the whole drive's, ReturnData.sample). With plain nearest returns the coarse phase's pairs carry the range
+        noise (associate) and slide along the weak directions: a tilted head's minute over an open road took 29 outer
+        iterations (elevations 0.78 deg RMS off at the switch), 10 with stand-ins."""
+        return sight_at(self.data, estimate)
 
     def association(self) -> Association:
         """The phase's association; in the fine phase, near the solution, it rejects the pairs seen on moving

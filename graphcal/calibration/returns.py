@@ -43,7 +43,8 @@ class ReturnData:
     within its interval_s (WorldTrajectory.smoothing_error); control_steps_m ((C, 3) [m, world axes], None: no
     step): what the recorded position steps by between the previous control and this one (zero where it does not:
     controls_about_steps), so that E_def ties their corrections across the step by minus that, each component
-    to step_sigma_m [m]."""
+    to step_sigma_m [m]; shift_m: the stand-ins' shifts (stand_in_shift_m) when known beforehand (a subset keeps
+    those of the whole drive, whose firing neighbours it has lost: sample), None: computed from these rows."""
 
     sensor: SensorModel
     rows: np.ndarray
@@ -64,6 +65,7 @@ class ReturnData:
     smoothing_error: PoseNoise = PoseNoise.none()
     control_steps_m: np.ndarray | None = None
     step_sigma_m: float = 0.0
+    shift_m: np.ndarray | None = None
 
     @property
     def one_viewpoint(self) -> bool:
@@ -87,12 +89,14 @@ class ReturnData:
         return self.one_viewpoint and not self.turned
 
     def sample(self, n: int, rng: np.random.Generator) -> ReturnData:
-        """A random subset of n of the returns (all of them when there are no more), same control times."""
+        """A random subset of n of the returns (all of them when there are no more), same control times; a noisy
+        head's with the stand-ins' shifts of the whole drive (its returns' firing neighbours are not in the subset)."""
         if len(self.rows) <= n:
             return self
         keep = np.sort(rng.choice(len(self.rows), n, replace=False))
         per_return = ("rows", "fibre", "range_m", "azimuth_rad", "time_s", "R_nav", "X_nav", "control", "alpha")
-        return replace(self, **{name: getattr(self, name)[keep] for name in per_return})
+        shift_m = self.stand_in_shift_m[keep] if noisy(self.range_noise_m) else None
+        return replace(self, **{name: getattr(self, name)[keep] for name in per_return}, shift_m=shift_m)
 
     def on_knots(self, knots: np.ndarray) -> ReturnData:
         """The same returns between the controls `knots` (indices into control_times_s, increasing, the first and
@@ -133,8 +137,8 @@ class ReturnData:
     @cached_property
     def stand_in_shift_m(self) -> np.ndarray:
         """(N,) [m] each return's shift along its line of sight to its stand-in (association.stand_in_shifts): from the
-        measured ranges and encoder azimuths alone, computed once."""
-        return stand_in_shifts(self.fibre, self.range_m, self.azimuth_rad)
+        measured ranges and encoder azimuths alone, computed once (shift_m when given)."""
+        return stand_in_shifts(self.fibre, self.range_m, self.azimuth_rad) if self.shift_m is None else self.shift_m
 
 
 @dataclass(frozen=True)
