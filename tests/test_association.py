@@ -238,9 +238,8 @@ def test_line_of_sight_choice_is_not_biased_by_range_noise():
 def test_the_line_of_sight_choice_reaches_only_as_far_as_the_fine_gate(behind_m, chosen):
     """p and two returns of the next fibre within a coarse gate of 1 m: one 0.25 m beside p, seen from the head at the
     origin (its line of sight misses p by 0.25 m), one behind_m further along a line of sight through p (a surface
-    behind p, seen past it from elsewhere).
-    Beyond LINE_REACH_M the one behind is no candidate, whatever its line: the one beside is m; within the reach
-    the line of sight decides."""
+    behind p, seen past it from elsewhere). Beyond LINE_REACH_M the one behind is no candidate, whatever its line:
+    the one beside is m; within the reach the line of sight decides."""
     p = np.array([5.0, 0.0, -2.0])
     through_p = np.array([0.6, 0.0, -0.8])
     beside, behind = p + [0.0, 0.25, 0.0], p + behind_m * through_p

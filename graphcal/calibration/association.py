@@ -206,8 +206,8 @@ def neighbour_fibres(elevation_deg: np.ndarray, n_steps: int) -> dict[int, list[
 
 
 LINE_CANDIDATES = 16  # stand-ins of fibre j nearest p's among which m is the one whose line of sight passes nearest it
-# ... among those within this of p's (the fine gate; none: the nearest stand-in): further, in a coarse gate on a sparse
-# subsample, the line of sight alone prefers a surface seen behind p along a line through it
+# the stand-ins among which the line of sight chooses m lie within this of p's (the fine gate; none does: the nearest
+# one): further, in a coarse gate on a sparse subsample, the line of sight alone prefers a surface seen behind p
 LINE_REACH_M = 0.3
 PROXY_FIRINGS = 2  # firings on each side of a return whose ranges give its stand-in (then one, past an edge)
 PROXY_REACH_M = 0.2  # a return whose neighbours' ranges lie further than this from their curve stands for itself
@@ -258,10 +258,9 @@ def associate(cloud: PairCloud, neighbours: dict[int, list[int]], gates: PairGat
     Range noise moves a return along its own line of sight, so neither p's nor m's own noise moves
     the choice; with the measured points it does: on the ground, seen at a grazing angle, noise moves
     returns mostly along the ground, the nearest of the many returns of the next ring is the one whose
-    noise brought it closest, and
-    the same noise lifted or lowered it (measured on sim2_street with 1 cm range noise: the range
-    offsets 3x their Cramér-Rao bound, worse with denser clouds); and which m a noisy p finds ties
-    m's range, which weighs its fibre's offsets in the pair's Jacobian, to p's noise.
+    noise brought it closest, and the same noise lifted or lowered it (measured on sim2_street with 1 cm
+    range noise: the range offsets 3x their Cramér-Rao bound, worse with denser clouds); and which m a
+    noisy p finds ties m's range, which weighs its fibre's offsets in the pair's Jacobian, to p's noise.
 
     A pair is kept when |p - m| < gates.gate_m, both p and m are planar enough (planarity >=
     gates.min_planarity) and lie on the same surface (|n_p . n_m| >= gates.min_normal_cos, and m within
