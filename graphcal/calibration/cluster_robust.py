@@ -16,7 +16,8 @@ MIN_BLOCKS blocks leave the sandwich undetermined (None).
 
 A bias common to a whole class of surfaces (the ground's departures from the plane model, say) pushes every time
 block the same way: the clusters cannot see it. Where the classes disagree, it shows. With S_k = A_k^T r_k the
-score of surface class k at the estimate (ground, walls, the rest: `surface_classes`), and E_k its covariance
+score of class k at the estimate (ground, walls, the rest, each split into its near and far pairs:
+`surface_classes`), and E_k its covariance
 were no class biased (S_k moves with its own noise and with the estimate's step, S_k = S_k0 - H_k H^-1 sum_j S_j0),
 each calibration parameter's variance gains the excess of the classes' pushes over what their noise explains,
 
@@ -57,11 +58,20 @@ def cluster_robust_covariance(linearised: Linearised, time_s: np.ndarray, surfac
     return covariance.widened(between_classes_variance(linearised, block_of, surface, keys))
 
 
-def surface_classes(normal_world: np.ndarray) -> np.ndarray:
-    """(K,) each pair's surface class from its world normal (K, 3): 0 ground, 1 wall, 2 the rest."""
+def surface_classes(normal_world: np.ndarray, separation_m: np.ndarray) -> np.ndarray:
+    """(K,) each pair's class from its world normal (K, 3) and the distance between its p and m [m] (K,): its surface
+    (ground, wall, the rest) times two, plus one for the pairs further apart than the median of their surface's.
+    A plane model's departures from the surface (a crease between p and m, a curvature) grow with that distance, so
+    where they bias the fit the near and the far half of a surface disagree; and each half holds about half of its
+    surface's information, where a whole ground class would hold most of the lowest fibres' (module docstring)."""
     vertical = np.abs(np.asarray(normal_world)[:, 2])
-    return np.where(vertical >= np.cos(np.radians(CLASS_WITHIN_DEG)), 0,
-                    np.where(vertical <= np.sin(np.radians(CLASS_WITHIN_DEG)), 1, 2))
+    surface = np.where(vertical >= np.cos(np.radians(CLASS_WITHIN_DEG)), 0,
+                       np.where(vertical <= np.sin(np.radians(CLASS_WITHIN_DEG)), 1, 2))
+    far = np.zeros(len(surface), dtype=int)
+    for k in np.unique(surface):
+        rows = surface == k
+        far[rows] = separation_m[rows] > np.median(separation_m[rows])
+    return 2 * surface + far
 
 
 def between_classes_variance(linearised: Linearised, block_of: np.ndarray, surface: np.ndarray,

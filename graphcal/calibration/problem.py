@@ -611,7 +611,8 @@ class Problem:
         problem = replace(self.in_phase("fine"), lock=None)
         pairs = problem.associate(estimate) if pairs is None else pairs
         points = problem.points(estimate)
-        residual = np.einsum("ni,ni->n", pairs.normal, points[pairs.index_p] - points[pairs.index_m])
+        apart_m = points[pairs.index_p] - points[pairs.index_m]
+        residual = np.einsum("ni,ni->n", pairs.normal, apart_m)
         blocks = problem.blocks(estimate, pairs)
         graph, values = problem.graph(estimate, pairs, damped=False, blocks=blocks)
         control_sigma = control_prior_sigma(problem.config, float(pairs.weight.sum()))
@@ -630,9 +631,9 @@ class Problem:
             sigma = np.concatenate([np.broadcast_to(block.sigma0_m, len(block.weight)) for _, block in blocks])
             expected = float((weight * sigma ** 2).sum() / weight.sum() * 1e4)
         if with_robust:
+            classes = cluster_robust.surface_classes(pairs.normal, np.linalg.norm(apart_m, axis=1))
             robust = problem.uncertainty(cluster_robust.cluster_robust_covariance(
-                linearised, time_s, cluster_robust.surface_classes(pairs.normal), problem.calibration_keys()),
-                estimate, control_sigma)
+                linearised, time_s, classes, problem.calibration_keys()), estimate, control_sigma)
         # the sandwiches' bread is this graph's information, factorised: the model's marginals too
         model = Marginals(graph, values) if linearised is None else linearised.bread
         return FinalFit(pairs, residual, problem.uncertainty(model, estimate, control_sigma), shared, robust, expected)
