@@ -312,8 +312,9 @@ def _nearest(p: np.ndarray, j_rows: np.ndarray, tree: cKDTree, cloud: PairCloud,
     distance, nearest = tree.query(stand_ins[p], k=k, distance_upper_bound=gate_m)
     distance, nearest = distance.reshape(len(p), k), nearest.reshape(len(p), k)
     found = np.isfinite(distance[:, 0])
-    inside = np.isfinite(distance[found]) & ((distance[found] <= LINE_REACH_M) | (np.arange(k) == 0))
-    m = j_rows[np.where(inside, nearest[found], 0)]  # (n, k); candidates beyond the gate masked below
+    distance = distance[found]
+    inside = np.isfinite(distance) & ((distance <= LINE_REACH_M) | (np.arange(k) == 0))
+    m = j_rows[np.where(inside, nearest[found], 0)]  # (n, k); candidates beyond the gate or the reach masked below
     offset = stand_ins[p[found]][:, None, :] - cloud.points_m[m]
     along = np.einsum("nki,nki->nk", offset, rays[m])
     off_line = np.where(inside, np.einsum("nki,nki->nk", offset, offset) - along * along, np.inf)
