@@ -79,7 +79,6 @@ def test_beam_rays_start_at_the_beam_origin():
                                atol=1e-9)
 
 
-
 def test_beam_directions_are_the_unit_derivative_along_the_range():
     """With every factory term and offset set: the direction is to_xyz's change per metre of range (eq. 4.2 is
     linear in the range), of unit length."""
@@ -89,6 +88,7 @@ def test_beam_directions_are_the_unit_derivative_along_the_range():
     numeric = to_xyz(range_m + 1.0, azimuth, factory, offsets) - to_xyz(range_m, azimuth, factory, offsets)
     np.testing.assert_allclose(direction, numeric, atol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(direction, axis=1), 1.0, atol=1e-12)
+
 
 def _ouster_like(beam_origin_m=0.015806) -> SensorModel:
     n = 8
