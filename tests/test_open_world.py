@@ -160,14 +160,17 @@ def test_a_range_walk_with_intensity_is_discovered_with_its_shape():
     assert _shape_error(curve["y"], UNLISTED["range_walk"].curve(curve["x"]), 1.0 / curve["sigma"] ** 2) <= 0.35
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # 210-230 s
 def test_a_thermal_range_drift_is_discovered_with_its_size_and_its_mean_in_the_range_offsets():
     """The range offset warms up by 2 cm (1 - exp(-t / 2 s)) over the drive: discovered first on the range against
     the time, held-out J lower, the curve the truth's up to a constant (weighted by its band); the drift's mean over
     the drive, a range error common to every fibre, taken by the fibres' range offsets (the reference fibre's
     range is estimated by default, so no constant is solved beside the curve): their mean shift within 20 % of the
-    truth's mean over the curve's span (measured: -11 %)."""
-    recording, diagnosis = _diagnosed("thermal_range_drift", 0.05, 120_000)
+    truth's mean over the curve's span (measured: +7.5 %). That common offset is seen only through the fibres'
+    differences of incidence on one plane, weakly: on 120 k returns of the size-0.05 courtyard it came out -11 %,
+    -21 % or -18 % (after 3 outer iterations, with the coarse phase pairing otherwise, run to convergence), so the
+    test draws 300 k returns of the size-0.1 one."""
+    recording, diagnosis = _diagnosed("thermal_range_drift", 0.1, 300_000)
     first = diagnosis.findings[0]
     assert (first["effect"], first["channel"], first["regressor"]) == ("discovered", "range", "time")
     assert first["energy_cm2"]["held_out_after"] < first["energy_cm2"]["held_out_before"]
