@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from graphcal.calibration.checks import check_energy_fell, check_fibres_apart
-from graphcal.calibration.config import CalibrationConfig, held_names
+from graphcal.calibration.config import COARSE_PLANE_DISTANCE_M, CalibrationConfig, held_names
 from graphcal.common.errors import CalibrationError, ConfigError
 from graphcal.recording.sensor import sensor_from_catalog
 from graphcal.simulation.scenario import draw_offsets
@@ -138,3 +138,21 @@ def test_auto_estimates_the_trajectory_only_where_the_drive_comes_back():
     assert spun.mode == "joint" and not spun.association.fixed and spun.static.hold == auto.for_sensor(True).static.hold
     assert spun.static.hold_soft and spun.static.check_halves and spun.features.voxel_m == 0.1
     assert CalibrationConfig(mode="extrinsic").for_sensor(False, 0.01, revisits=True).mode == "extrinsic"
+
+
+def test_the_coarse_plane_distance_gate_is_lifted_where_the_trajectory_is_estimated():
+    """Trajectory corrections pair across an INS's steps (tests/test_trajectory_calibration.py: a 33 cm step is left
+    uncorrected within 0.2 or 0.5 m of the plane), so the coarse phase's default gate holds only with the trajectory
+    held; a gate the user sets is kept whatever the mode."""
+    auto = CalibrationConfig()
+    assert auto.association.coarse.max_plane_distance_m is None
+    coarse = {mode: CalibrationConfig(mode=mode).for_sensor(False, 0.01).association.coarse.max_plane_distance_m
+              for mode in ("joint", "intrinsic", "extrinsic_then_intrinsic", "trajectory", "joint_trajectory")}
+    assert coarse == {"joint": COARSE_PLANE_DISTANCE_M, "intrinsic": COARSE_PLANE_DISTANCE_M,
+                      "extrinsic_then_intrinsic": COARSE_PLANE_DISTANCE_M, "trajectory": np.inf,
+                      "joint_trajectory": np.inf}
+    assert auto.for_sensor(False, 0.01, revisits=True).association.coarse.max_plane_distance_m == np.inf
+    set_by_user = CalibrationConfig(mode="joint_trajectory", association={"coarse": {"max_plane_distance_m": 0.4}})
+    resolved = set_by_user.for_sensor(False, 0.01).association
+    assert resolved.coarse.max_plane_distance_m == 0.4 and resolved.coarse.gate_max_m == 1.0
+    assert resolved.fine.max_plane_distance_m == 0.05

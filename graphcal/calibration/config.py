@@ -41,7 +41,8 @@ _SECTION = ConfigDict(frozen=True, extra="forbid")
 
 class PhaseGates(BaseModel):
     """What a pair of one phase must pass, and how many are drawn: p and m both at least min_planarity
-    planar, their normals within max_normal_angle_deg, m within max_plane_distance_m of the plane at p and
+    planar, their normals within max_normal_angle_deg, m within max_plane_distance_m of the plane at p (None, the
+    coarse phase's default: COARSE_PLANE_DISTANCE_M with the trajectory held, none with it estimated) and
     within the gate of p (opening from gate_start_m by gate_growth per outer iteration up to gate_max_m);
     pairs_per_fibre_pair drawn per (i, j) fibre pair; the phase's returns, a random subset of max_points
     of the calibration's (None: all)."""
@@ -49,7 +50,7 @@ class PhaseGates(BaseModel):
     model_config = _SECTION
     min_planarity: float = Field(ge=0, le=1)
     max_normal_angle_deg: float = Field(gt=0, le=90)
-    max_plane_distance_m: float = Field(gt=0)
+    max_plane_distance_m: float | None = Field(gt=0)
     gate_start_m: float = Field(gt=0)
     gate_max_m: float = Field(gt=0)
     gate_growth: float = Field(ge=1)
@@ -57,7 +58,12 @@ class PhaseGates(BaseModel):
     max_points: int | None = Field(None, ge=1000)
 
 
-COARSE = PhaseGates(min_planarity=0.3, max_normal_angle_deg=30.0, max_plane_distance_m=np.inf, gate_start_m=0.3,
+# with the trajectory held, the coarse gate opens to find partners further along a surface, not across one: m within
+# this of the plane at p [m] (without it, J of a level head's 15 s on a street with relief rose from 5.6 to 19.9 cm² as
+# the gate opened to 1 m, pairs between a facade and the balconies before it, and the fine phase started from J
+# 1.28 cm² instead of 0.79); trajectory corrections must pair across an INS's steps, tens of centimetres, so none then
+COARSE_PLANE_DISTANCE_M = 0.2
+COARSE = PhaseGates(min_planarity=0.3, max_normal_angle_deg=30.0, max_plane_distance_m=None, gate_start_m=0.3,
                     gate_max_m=1.0, gate_growth=1.2, pairs_per_fibre_pair=1000, max_points=250_000)
 FINE = PhaseGates(min_planarity=0.7, max_normal_angle_deg=10.0, max_plane_distance_m=0.05, gate_start_m=0.3,
                   gate_max_m=0.3, gate_growth=1.0, pairs_per_fibre_pair=4000)
@@ -305,7 +311,8 @@ class CalibrationConfig(BaseModel):
         place, static or turning on the spot (returns.ReturnData.one_viewpoint); with no parallax its intrinsics
         take a static sensor's settings (held, checked, voxel features) while the mode and the fixed pairs follow
         static: a sensor turning on the spot estimates its extrinsic too, on pairs made again as it moves (pairs
-        made once at a boresight 0.3 deg off left its roll 0.19 deg off, made again 0.02 deg)."""
+        made once at a boresight 0.3 deg off left its roll 0.19 deg off, made again 0.02 deg). The coarse phase's
+        plane-distance gate left None: COARSE_PLANE_DISTANCE_M unless the mode estimates the trajectory."""
         one_viewpoint = static if one_viewpoint is None else one_viewpoint
         mode = self.mode
         if mode == "auto":
@@ -317,8 +324,13 @@ class CalibrationConfig(BaseModel):
             voxel_m = FEATURE_VOXEL_M if one_viewpoint or noisy_head else 0.0
         fixed = static if self.association.fixed is None else self.association.fixed
         lm = (5 if fixed else 2) if self.stopping.lm_iterations is None else self.stopping.lm_iterations
+        plane_m = self.association.coarse.max_plane_distance_m
+        if plane_m is None:
+            plane_m = np.inf if mode in ESTIMATES and ESTIMATES[mode][2] else COARSE_PLANE_DISTANCE_M
         return self.model_copy(update={"mode": mode}).with_settings(
-            association={"fixed": fixed}, features={"voxel_m": voxel_m},
+            association={"fixed": fixed, "coarse": {**self.association.coarse.model_dump(),
+                                                    "max_plane_distance_m": plane_m}},
+            features={"voxel_m": voxel_m},
             weighting={"range_noise_m": noise_m,
                        "pair_noise": self.weighting.pair_noise or ("incidence" if noisy_head else "uniform")},
             stopping={"lm_iterations": lm},
