@@ -156,3 +156,5 @@ def test_the_coarse_plane_distance_gate_is_lifted_where_the_trajectory_is_estima
     resolved = set_by_user.for_sensor(False, 0.01).association
     assert resolved.coarse.max_plane_distance_m == 0.4 and resolved.coarse.gate_max_m == 1.0
     assert resolved.fine.max_plane_distance_m == 0.05
+    with pytest.raises(ValueError, match="association.fine.max_plane_distance_m: expected a distance in m"):
+        CalibrationConfig(association={"fine": {"max_plane_distance_m": None}})

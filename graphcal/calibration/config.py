@@ -102,6 +102,13 @@ class AssociationSettings(BaseModel):
                     data[phase] = {**default.model_dump(), **data[phase]}
         return data
 
+    @model_validator(mode="after")
+    def _fine_plane_distance_given(self):
+        if self.fine.max_plane_distance_m is None:
+            raise ValueError("association.fine.max_plane_distance_m: expected a distance in m (null, chosen by the "
+                             "mode, is the coarse phase's only)")
+        return self
+
 
 class FeatureSettings(BaseModel):
     """Normals and planarity from the neighbours (at most `neighbours` within radius_m) of each return, or
