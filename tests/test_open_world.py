@@ -167,9 +167,9 @@ def test_a_thermal_range_drift_is_discovered_with_its_size_and_its_mean_in_the_r
     the drive, a range error common to every fibre, taken by the fibres' range offsets (the reference fibre's
     range is estimated by default, so no constant is solved beside the curve): their mean shift within 20 % of the
     truth's mean over the curve's span (measured: +7.5 %). That common offset is seen only through the fibres'
-    differences of incidence on one plane, weakly: on 120 k returns of the size-0.05 courtyard it came out -11 %,
-    -21 % or -18 % (after 3 outer iterations, with the coarse phase pairing otherwise, run to convergence), so the
-    test draws 300 k returns of the size-0.1 one."""
+    differences of incidence on one plane, weakly: on 120 k returns of the size-0.05 courtyard it came out -11 %
+    (the coarse phase pairing plain nearest returns), -21 % (by stand-ins) and -18 % (by stand-ins, run to
+    convergence), so the test draws 300 k returns of the size-0.1 one."""
     recording, diagnosis = _diagnosed("thermal_range_drift", 0.1, 300_000)
     first = diagnosis.findings[0]
     assert (first["effect"], first["channel"], first["regressor"]) == ("discovered", "range", "time")
