@@ -29,6 +29,13 @@ ESTIMATES = {"intrinsic": (True, False, False), "extrinsic": (False, True, False
              "joint_trajectory": (True, True, True)}
 STAGES = {"extrinsic_then_intrinsic": ("extrinsic", "intrinsic"),
           "intrinsic_then_extrinsic": ("intrinsic", "extrinsic")}
+
+
+def estimated_by(mode: str) -> tuple[bool, bool, bool]:
+    """(intrinsics, extrinsic, trajectory): what a mode other than auto estimates over its stages."""
+    return tuple(any(ESTIMATES[stage][k] for stage in STAGES.get(mode, (mode,))) for k in range(3))
+
+
 FEATURE_VOXEL_M = 0.1  # static sensors and noisy heads; spans the HDL-32E's rings on walls within ~10 m
 # a static sensor's fibres can all slide onto one cone, where every pair's distance vanishes; its range and
 # azimuth offsets fit the surfaces between the rings, not the sensor, and a ring's height cannot be told from
@@ -333,7 +340,7 @@ class CalibrationConfig(BaseModel):
         lm = (5 if fixed else 2) if self.stopping.lm_iterations is None else self.stopping.lm_iterations
         plane_m = self.association.coarse.max_plane_distance_m
         if plane_m is None:
-            plane_m = np.inf if mode in ESTIMATES and ESTIMATES[mode][2] else COARSE_PLANE_DISTANCE_M
+            plane_m = np.inf if estimated_by(mode)[2] else COARSE_PLANE_DISTANCE_M
         return self.model_copy(update={"mode": mode}).with_settings(
             association={"fixed": fixed, "coarse": {**self.association.coarse.model_dump(),
                                                     "max_plane_distance_m": plane_m}},

@@ -21,7 +21,8 @@ import numpy as np
 from graphcal.calibration.association import Correspondences, Features, Sight
 from factors.point_to_plane import Block, make_factor
 from graphcal.calibration.blocks import make_blocks
-from graphcal.calibration.config import ESTIMATES, STAGES, CalibrationConfig, Phase, PhaseGates, held_names
+from graphcal.calibration.config import (ESTIMATES, STAGES, CalibrationConfig, Phase, PhaseGates, estimated_by,
+                                         held_names)
 from graphcal.calibration.keys import E, I, X
 from graphcal.calibration.observability import (
     POSE_TO_FILE_UNITS,
@@ -149,8 +150,7 @@ class Problem:
         except ConfigError as error:
             raise ConfigError(f"{recording.path or recording.name}: hold: {error} (sensor {data.sensor.model}, "
                               f"{data.sensor.n_fibres} fibres, reference fibre {data.sensor.reference_fibre})") from None
-        stages = STAGES.get(config.mode, (config.mode,))
-        estimated = tuple(any(ESTIMATES[stage][k] for stage in stages) for k in range(3))
+        estimated = estimated_by(config.mode)
         if estimated[2] and data.spans_s is not None:
             raise ConfigError(f"{recording.path or recording.name}: mode {config.mode} corrects the trajectory over "
                               f"the whole drive, but points_per_s {config.points_per_s:g} draws the {config.max_points} "
