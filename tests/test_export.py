@@ -157,9 +157,9 @@ def test_a_real_file_with_offsets_decodes_as_the_model_moves(name, tmp_path):
 
 
 # --- (c) the command on a run folder ------------------------------------------------------------------
-def _write_run(run: Path, recording: Path, sensor, offsets: np.ndarray, held=(), unobservable=()) -> Path:
+def _write_run(run: Path, recording: Path, sensor, offsets: np.ndarray, held=(), unobservable=(), imprecise=()) -> Path:
     """A calibration run folder written directly: calibration.yaml with these offsets (h_z null for the
-    fibres in held) and run.yaml naming the recording."""
+    fibres in held), the names unobservable and imprecise, and run.yaml naming the recording."""
     rows = [{"fibre": fibre, "d_range_m": float(d_range), "d_azimuth_deg": math.degrees(d_azimuth),
              "d_elevation_deg": math.degrees(d_elevation), "h_z_m": None if fibre in held else float(h_z),
              "sigma": None} for fibre, (d_range, d_azimuth, d_elevation, h_z) in enumerate(offsets)]
@@ -167,7 +167,8 @@ def _write_run(run: Path, recording: Path, sensor, offsets: np.ndarray, held=(),
     (run / "calibration.yaml").write_text(yaml.safe_dump({
         "format": "graphcal-calibration/1", "sensor": {"model": sensor.model, "reference_fibre": sensor.reference_fibre},
         "intrinsics": rows, "extrinsic": {"lever_arm_m": [0.8, 0.0, 1.9], "boresight_deg": [0.0, 0.0, 90.0]},
-        "trajectory_corrections": [], "effects": [], "unobservable": list(unobservable)}))
+        "trajectory_corrections": [], "effects": [], "unobservable": list(unobservable),
+        "imprecise": {name: "imprecise: determined to ..." for name in imprecise}}))
     (run / "run.yaml").write_text(yaml.safe_dump({"format": "graphcal-run/1", "recording": str(recording.resolve())}))
     return run
 
@@ -175,7 +176,7 @@ def _write_run(run: Path, recording: Path, sensor, offsets: np.ndarray, held=(),
 @pytest.fixture(scope="module")
 def run_folder(tmp_path_factory):
     """A simulated HDL-32E recording and a calibration run folder of it: known offsets, fibre 3's h_z held
-    (null) and fibre 5's d_range named unobservable."""
+    (null), fibre 5's d_range named unobservable and fibre 7's elevation imprecise (fitted: exported as it is)."""
     from graphcal.simulation.script import load_scenario_builder
 
     root = tmp_path_factory.mktemp("export")
@@ -184,9 +185,10 @@ def run_folder(tmp_path_factory):
     sensor = recording.sensor
     offsets = _offsets(sensor.n_fibres, seed=5)
     offsets[sensor.reference_fibre] = 0.0
-    run = _write_run(root / "run", rec, sensor, offsets, held=(3,), unobservable=("fibre_3.h_z_m", "fibre_5.d_range_m"))
+    run = _write_run(root / "run", rec, sensor, offsets, held=(3,), imprecise=("fibre_7.d_elevation_deg",),
+                     unobservable=("fibre_3.h_z_m", "fibre_5.d_range_m"))
     expected = offsets.copy()
-    expected[3, 3] = expected[5, 0] = 0.0  # held and unobservable: nominal
+    expected[3, 3] = expected[5, 0] = 0.0  # held and unobservable: nominal; fibre 7's elevation as fitted
     return run, sensor, expected
 
 

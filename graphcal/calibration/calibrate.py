@@ -10,6 +10,7 @@ from pathlib import Path
 
 from threadpoolctl import threadpool_limits
 
+from graphcal.calibration.accuracy import imprecise
 from graphcal.calibration.checkpoint import Checkpoint, PipelineState
 from graphcal.calibration.checks import (
     check_converged,
@@ -250,6 +251,9 @@ class CalibrationPipeline:
                                        problem.config.trajectory.deformation, problem.config.weighting.sigma0_m)
         unobservable = named_held + [name for name in reasons if name not in held]
         self.check(final, unobservable)
+        coarse = imprecise(final.sigmas.intrinsics, config.accuracy, {*unobservable, *held, *gauges}) \
+            if estimated[0] else {}
+        reasons |= coarse
         if estimated[2]:
             unobservable += list(TRAJECTORY_GAUGE[:2 if config.trajectory.pose_corrections else 1])
         if data.static:  # whatever the mode: the whole cloud moves rigidly with the extrinsic and the trajectory
@@ -258,14 +262,15 @@ class CalibrationPipeline:
             held += rigid
             reasons |= {name: RIGID_REASON for name in rigid}
         calibration = Calibration(data.sensor.model, data.sensor.reference_fibre, estimate, data.control_times_s,
-                                  tuple(unobservable), tuple(held), reasons, drive_of(self.recording))
+                                  tuple(unobservable), tuple(held), reasons, drive_of(self.recording), tuple(coarse))
         return CalibrationResult(calibration, final.uncertainty, estimated, self.history.rows,
                                  data.rows[final.pairs.index_p], final.residual_m, final.pairs.weight, config,
                                  self.state.seconds + time.perf_counter() - self.started, self.timings,
                                  halves=None if self.halves is None else self.halves.to_yaml_dict(),
                                  shared_returns_uncertainty=final.shared_returns,
                                  cluster_robust_uncertainty=final.cluster_robust,
-                                 verdict=verdict(unobservable, reasons, Motion.of(data.R_nav, data.X_nav)),
+                                 verdict=verdict(unobservable, reasons, Motion.of(data.R_nav, data.X_nav),
+                                                 tuple(coarse)),
                                  trajectory_noise=self.recording.world.white_noise,
                                  ins_steps_s=data.steps_s if estimated[2] else data.steps_s[:0])
 

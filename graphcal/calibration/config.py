@@ -176,6 +176,22 @@ class PriorSettings(BaseModel):
                                                            f"fibre_{reference_fibre}.h_z_m"]
 
 
+class AccuracySettings(BaseModel):
+    """The 1-sigma each intrinsic parameter must reach to count as determined (a mapping team's figures: 0.5 cm
+    in range and height, 0.01 deg in azimuth and elevation). One the drive determines only more coarsely is named
+    in `unobservable` as imprecise, with its sigma in the reason; unlike the weak directions it keeps its fitted
+    value, which is exported (the data and the prior both bear on it). None: no such naming for that kind."""
+
+    model_config = _SECTION
+    intrinsic_range_m: float | None = Field(0.005, gt=0, description="d_range and Hz")
+    intrinsic_angle_deg: float | None = Field(0.01, gt=0, description="d_azimuth and d_elevation")
+
+    def required(self) -> np.ndarray:
+        """(4,) the required 1-sigma per intrinsic kind in file units (m, deg, deg, m); inf where None."""
+        range_m, angle_deg = (np.inf if v is None else v for v in (self.intrinsic_range_m, self.intrinsic_angle_deg))
+        return np.array([range_m, angle_deg, angle_deg, range_m])
+
+
 class TrajectorySettings(BaseModel):
     """Trajectory corrections at control times control_interval_s apart (seed 001: about 1 s), Point3 or
     Pose3 (pose_corrections), held by E_def (eq. 5.4: lambda_rigid against the normalised energy J, both m^2):
@@ -298,6 +314,7 @@ class CalibrationConfig(BaseModel):
     features: FeatureSettings = FeatureSettings()
     weighting: WeightingSettings = WeightingSettings()
     priors: PriorSettings = PriorSettings()
+    accuracy: AccuracySettings = AccuracySettings()
     trajectory: TrajectorySettings = TrajectorySettings()
     stopping: StoppingSettings = StoppingSettings()
     static: StaticSettings = StaticSettings()

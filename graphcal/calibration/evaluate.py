@@ -138,17 +138,24 @@ class Scorecard:
     per type (cm, deg, deg, cm; NaN where every one of a type is named), the fraction of their errors
     within 3 of the reported 1-sigmas, and the fraction of all intrinsic parameters named; the extrinsic's
     error over its reported sigma per estimated axis (roll, pitch, yaw, lever arm x, y, z about body axes)
-    that is not named unobservable."""
+    that is not named unobservable; the same RMS and fraction within 3 sigmas over the determined ones (named
+    neither unobservable nor imprecise: calibration/accuracy.py), and the fraction of all named imprecise."""
 
     rms_observable: np.ndarray
     within_3_sigma: float
     named_fraction: float
     extrinsic_z: dict
+    rms_determined: np.ndarray
+    within_3_sigma_determined: float
+    imprecise_fraction: float
 
     def to_dict(self) -> dict:
         return {"rms_observable": dict(zip(DISPLAY_NAMES, map(float, self.rms_observable))),
                 "within_3_sigma": self.within_3_sigma, "named_fraction": self.named_fraction,
-                "extrinsic_z": self.extrinsic_z}
+                "extrinsic_z": self.extrinsic_z,
+                "rms_determined": dict(zip(DISPLAY_NAMES, map(float, self.rms_determined))),
+                "within_3_sigma_determined": self.within_3_sigma_determined,
+                "imprecise_fraction": self.imprecise_fraction}
 
 
 def scorecard(result: CalibrationResult, recording: Recording) -> Scorecard:
@@ -157,11 +164,18 @@ def scorecard(result: CalibrationResult, recording: Recording) -> Scorecard:
     sensor = recording.sensor
     unobservable = set(result.unobservable)
     named = intrinsic_mask(unobservable, sensor.n_fibres)
+    imprecise = intrinsic_mask(set(result.calibration.imprecise), sensor.n_fibres)
     sigma = result.sigmas.intrinsics
     free = np.isfinite(sigma) & ~named
     error = offsets_to_file_units(result.calibration.estimate.offsets - recording.truth.intrinsics)
-    rms = np.array([np.sqrt(np.mean(error[free[:, k], k] ** 2)) if free[:, k].any() else np.nan for k in range(4)])
-    within = float(np.mean(np.abs(error[free]) <= 3 * sigma[free])) if free.any() else np.nan
+
+    def rms_within(over: np.ndarray) -> tuple[np.ndarray, float]:
+        rms = [np.sqrt(np.mean(error[over[:, k], k] ** 2)) if over[:, k].any() else np.nan for k in range(4)]
+        within = float(np.mean(np.abs(error[over]) <= 3 * sigma[over])) if over.any() else np.nan
+        return np.array(rms) * DISPLAY_FROM_FILE_UNITS, within
+
+    rms, within = rms_within(free)
+    rms_determined, within_determined = rms_within(free & ~imprecise)
     total = int((free | named).sum())
     extrinsic_z = {}
     if result.sigmas.extrinsic is not None:
@@ -172,7 +186,8 @@ def scorecard(result: CalibrationResult, recording: Recording) -> Scorecard:
         extrinsic_z = {name: float(e / s) for name, e, s in zip(EXTRINSIC_NAMES, error, result.sigmas.extrinsic)
                        if f"extrinsic.{name}" not in unobservable}
     named_fraction = float((total - free.sum()) / total) if total else np.nan
-    return Scorecard(rms * DISPLAY_FROM_FILE_UNITS, within, named_fraction, extrinsic_z)
+    imprecise_fraction = float((free & imprecise).sum() / total) if total else np.nan
+    return Scorecard(rms, within, named_fraction, extrinsic_z, rms_determined, within_determined, imprecise_fraction)
 
 
 def intrinsic_rms(offsets: np.ndarray, truth: np.ndarray, reference_fibre: int) -> np.ndarray:

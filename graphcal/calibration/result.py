@@ -77,8 +77,10 @@ class Calibration:
     data cannot observe (unobservable), of those held at their nominal value (held: calibration.yaml
     writes them null), and why each unobservable one is (reasons: {name: plain words}). An unobservable
     parameter that is not held keeps the value the fit gave it along what the data see of it in
-    combination with others (weak_directions.py): its sigma is then close to its prior's. drive: the recording
-    it was made on (drive_of; None: not known), which its trajectory corrections belong to."""
+    combination with others (weak_directions.py): its sigma is then close to its prior's. imprecise: the
+    intrinsic parameters the data do determine, more coarsely than required (accuracy.py), their reasons in
+    reasons too: fitted, exported as fitted. drive: the recording it was made on (drive_of; None: not known),
+    which its trajectory corrections belong to."""
 
     sensor_model: str
     reference_fibre: int
@@ -88,6 +90,7 @@ class Calibration:
     held: tuple[str, ...] = ()
     reasons: dict = field(default_factory=dict)
     drive: dict | None = None
+    imprecise: tuple[str, ...] = ()
 
     def extrinsic(self) -> Extrinsic:
         pose = self.estimate.extrinsic
@@ -146,8 +149,9 @@ class Calibration:
                                  expected=f"{', '.join(DRIVE_KEYS)} of the recording it was made on")
         return cls(model, sensor.reference_fibre,
                    Estimate(offsets_from_file_units(offsets), pose_of(extrinsic), tuple(corrections)), np.asarray(times),
-                   tuple(data.get("unobservable") or ()), tuple(held), dict(data.get("unobservable_reasons") or {}),
-                   drive)
+                   tuple(data.get("unobservable") or ()), tuple(held),
+                   dict(data.get("unobservable_reasons") or {}) | dict(data.get("imprecise") or {}), drive,
+                   tuple(data.get("imprecise") or ()))
 
 
 SIGMA_MARGINALS = "gtsam.Marginals at the final pairs, sigma0 the noise of one pair"
@@ -262,7 +266,9 @@ class CalibrationResult:
                 "intrinsics": rows, "extrinsic": extrinsic, "trajectory_corrections": corrections,
                 "ins_steps_s": [[float(t) for t in pair] for pair in self.ins_steps_s],
                 "effects": list(self.effects), "unobservable": sorted(unobservable),
-                "unobservable_reasons": {name: cal.reasons[name] for name in sorted(cal.reasons)},
+                "unobservable_reasons": {name: cal.reasons[name] for name in sorted(cal.reasons)
+                                         if name not in cal.imprecise},
+                "imprecise": {name: cal.reasons[name] for name in sorted(cal.imprecise)},
                 "verdict": self.verdict, **({} if cal.drive is None else {"drive": cal.drive}),
                 "energy_cm2": {"before": float(before), "after": float(after)},
                 "provenance": {"sigma": (SIGMA_MARGINALS if self.shared_returns_uncertainty is None else SIGMA_SHARED)
@@ -302,10 +308,11 @@ def read_calibration_yaml(path: Path) -> dict:
         if not isinstance(effects, list) or name not in KNOWN_EFFECTS:
             raise RecordingError(path, f"effect {name!r}", field=f"effects[{index}].effect",
                                  expected=f"one of {', '.join(sorted(KNOWN_EFFECTS))}")
-    reasons = data.get("unobservable_reasons") or {}
-    if not isinstance(reasons, dict) or not all(isinstance(v, str) for v in reasons.values()):
-        raise RecordingError(path, f"unobservable_reasons is {reasons!r}", field="unobservable_reasons",
-                             expected="a mapping of parameter name to plain words")
+    for key in ("unobservable_reasons", "imprecise"):
+        reasons = data.get(key) or {}
+        if not isinstance(reasons, dict) or not all(isinstance(v, str) for v in reasons.values()):
+            raise RecordingError(path, f"{key} is {reasons!r}", field=key,
+                                 expected="a mapping of parameter name to plain words")
     if not isinstance(data.get("verdict"), str | None):
         raise RecordingError(path, f"verdict is {data['verdict']!r}", field="verdict",
                              expected="one line of plain words, or nothing")

@@ -65,14 +65,26 @@ class Motion:
         return MANOEUVRE_WORDS[missing[0]] if missing else EXTRINSIC_SCENE
 
 
-def verdict(unobservable: tuple[str, ...] | list[str], reasons: dict[str, str], motion: Motion) -> str | None:
+def verdict(unobservable: tuple[str, ...] | list[str], reasons: dict[str, str], motion: Motion,
+            imprecise: tuple[str, ...] | list[str] = ()) -> str | None:
     """The line for a calibration of a drive that made `motion` and names `unobservable` with `reasons`
-    ({name: why}), None when it names nothing beyond the drive's common motion (which no self-calibration sees)."""
+    ({name: why}) and `imprecise` (determined more coarsely than required: accuracy.py); None when it names
+    nothing beyond the drive's common motion (which no self-calibration sees)."""
     names = [name for name in unobservable if name not in TRAJECTORY_GAUGE]
+    coarse = ""
+    if imprecise:
+        coarse = (f"determines {_counted(imprecise)} more coarsely than required ({_intrinsic_remedy(motion)} would "
+                  f"sharpen them): their fitted values kept")
+    if not names:
+        return f"this drive {coarse}" if coarse else None
+    seen = _cannot_observe(names, reasons, motion)
+    return f"{seen}; it {coarse}" if coarse else seen
+
+
+def _cannot_observe(names: list[str], reasons: dict[str, str], motion: Motion) -> str:
+    """What the drive cannot observe of `names` (at least one), and what would show it."""
     intrinsic = [name for name in names if name.startswith("fibre_")]
     extrinsic = [name.removeprefix("extrinsic.") for name in names if name.startswith("extrinsic.")]
-    if not names:
-        return None
     if any(reasons.get(name) == RIGID_REASON for name in names):
         return (f"static sensor: the extrinsic and the trajectory are unobservable; {len(intrinsic)} intrinsic "
                 f"parameters held (a drive with turns past facades would show them)")
@@ -83,14 +95,7 @@ def verdict(unobservable: tuple[str, ...] | list[str], reasons: dict[str, str], 
     for remedy, axes in by_remedy.items():
         parts.append(f"the {_listed(axes)} ({remedy} would show {'it' if len(axes) == 1 else 'them'})")
     if intrinsic:
-        kinds = {}
-        for name in intrinsic:
-            kind = name.partition(".")[2]
-            kinds[kind] = kinds.get(kind, 0) + 1
-        counted = _listed([f"{count} fibre {INTRINSIC_WORDS.get(kind, kind)}{'s' if count > 1 else ''}"
-                           for kind, count in kinds.items()])
-        remedy = f"fibres that see {INTRINSIC_SCENE}" if motion.travelled else INTRINSIC_DRIVE
-        parts.append(f"{counted} ({remedy} would show them)")
+        parts.append(f"{_counted(intrinsic)} ({_intrinsic_remedy(motion)} would show them)")
     controls = sorted({int(name.partition(".")[0].removeprefix("control_")) for name in names
                        if name.startswith("control_")})
     if controls:
@@ -100,6 +105,20 @@ def verdict(unobservable: tuple[str, ...] | list[str], reasons: dict[str, str], 
     if other:
         parts.append(_listed(other))
     return "this drive cannot observe " + "; ".join(parts) + ": held at nominal or bound by the prior"
+
+
+def _counted(intrinsic: list[str] | tuple[str, ...]) -> str:
+    """Intrinsic parameter names counted by kind: '3 fibre elevations and 1 fibre height'."""
+    kinds: dict[str, int] = {}
+    for name in intrinsic:
+        kind = name.partition(".")[2]
+        kinds[kind] = kinds.get(kind, 0) + 1
+    return _listed([f"{count} fibre {INTRINSIC_WORDS.get(kind, kind)}{'s' if count > 1 else ''}"
+                    for kind, count in kinds.items()])
+
+
+def _intrinsic_remedy(motion: Motion) -> str:
+    return f"fibres that see {INTRINSIC_SCENE}" if motion.travelled else INTRINSIC_DRIVE
 
 
 def _spans(indices: list[int]) -> str:

@@ -209,8 +209,9 @@ def _print_calibration(run) -> None:
 
         typer.echo(f"steps of the recorded positions: {steps_line(result.ins_steps_s)}")
     if result.verdict is not None:
+        imprecise = len(result.calibration.imprecise)
         typer.echo(f"{result.verdict}; {len(result.unobservable)} names, each with its reason, in calibration.yaml "
-                   "unobservable_reasons")
+                   "unobservable_reasons" + (f", {imprecise} in imprecise" if imprecise else ""))
     if evaluation is not None:
         typer.echo(evaluation.cloud_line())
     typer.echo(f"wrote {run.folder}: calibration.yaml, report.html, run.rrd")

@@ -183,8 +183,9 @@ def _parameters(calibration: dict, recording) -> str:
                     "'(unobservable)': the data see it, alone or in combination with others, less than ten times "
                     "better than the nominal model's stated uncertainty; it is kept at its nominal value along what "
                     "the data do not see, its sigma is the prior's, and it is not a measurement (calibration.yaml "
-                    "says why in unobservable_reasons). 'held at nominal': held by a setting or a static sensor's "
-                    "checks.")
+                    "says why in unobservable_reasons). '(imprecise)': the data determine it, to a 1-sigma above the "
+                    "accuracy required (settings accuracy); its fitted value is kept and exported. 'held at "
+                    "nominal': held by a setting or a static sensor's checks.")
 
 
 def _intrinsics_figure(calibration: dict, truth) -> bytes:

@@ -1,6 +1,6 @@
-"""Parameter tables (estimate ± 1-sigma, marked when the data cannot observe it, 'held at nominal'
-where it is held) from a calibration.yaml mapping: shared by the HTML report and the viewer's parameters
-table."""
+"""Parameter tables (estimate ± 1-sigma, marked when the data cannot observe it or determine it to the accuracy
+required, 'held at nominal' where it is held) from a calibration.yaml mapping: shared by the HTML report and the
+viewer's parameters table."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ from graphcal.recording.intrinsics import DISPLAY_FROM_FILE_UNITS
 
 UNOBSERVABLE = "held at nominal"
 WEAK = " (unobservable)"  # a value the prior decides, not the data
+IMPRECISE = " (imprecise)"  # fitted, to a sigma above the accuracy required (calibration/accuracy.py)
 # calibration.yaml intrinsic field -> (shown name, factor from the file unit)
 INTRINSIC_COLUMNS = tuple(zip(INTRINSIC_NAMES, ("d_range [cm]", "d_azimuth [deg]", "d_elevation [deg]", "Hz [cm]"),
                               DISPLAY_FROM_FILE_UNITS.tolist()))
@@ -36,7 +37,7 @@ def parameter_rows(calibration: dict) -> list[tuple[str, list[str], list[list[st
     tables = []
     extrinsic = calibration["extrinsic"]
     sigma = extrinsic.get("sigma")
-    weak = set(calibration.get("unobservable") or [])
+    weak, imprecise = set(calibration.get("unobservable") or []), set(calibration.get("imprecise") or {})
     extrinsic_names = ("roll_deg", "pitch_deg", "yaw_deg", "lever_arm_x_m", "lever_arm_y_m", "lever_arm_z_m")
     rows = [[name, with_sigma(extrinsic[key][k] if sigma is None or sigma[key][k] is not None else None,
                               None if sigma is None else sigma[key][k], factor)
@@ -50,6 +51,7 @@ def parameter_rows(calibration: dict) -> list[tuple[str, list[str], list[list[st
             sigmas = row.get("sigma")
             cells = ["0 (reference)" if sigmas is None else with_sigma(row[key], sigmas[key], factor)
                      + (WEAK if row[key] is not None and f"fibre_{row['fibre']}.{key}" in weak else "")
+                     + (IMPRECISE if f"fibre_{row['fibre']}.{key}" in imprecise else "")
                      for key, _, factor in INTRINSIC_COLUMNS]
             rows.append([str(row["fibre"])] + cells)
         tables.append(("Intrinsic offsets per fibre (from the nominal model)",

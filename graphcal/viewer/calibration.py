@@ -186,7 +186,9 @@ def calibration_summary(recording: Recording, result: CalibrationResult, residua
              (f"- the returns paired as the first iteration pairs them: J {residuals.before.energy_cm2():.3g} cm² "
               f"in the nominal cloud ({len(residuals.before.row_p):,} pairs), {residuals.after.energy_cm2():.3g} cm² "
               f"in the calibrated one ({len(residuals.after.row_p):,} pairs)"),
-             f"- unobservable (held at nominal): {', '.join(result.unobservable) or 'none'}"]
+             f"- unobservable (held at nominal or bound by the prior): {', '.join(result.unobservable) or 'none'}",
+             f"- imprecise (fitted, 1-sigma above the accuracy required): "
+             f"{', '.join(result.calibration.imprecise) or 'none'}"]
     if evaluation is not None:
         lines.append(f"- {evaluation.cloud_line()}")
     lines += ["", "## Reading the views",

@@ -1,0 +1,57 @@
+"""Intrinsic parameters determined more coarsely than required (graphcal.calibration.accuracy): named with their
+sigma, fitted values kept; against sigmas written by hand. The foreign benchmarks measure the rule on drives
+(benchmarks/results/foreign*.json: what it names and the error of what it does not)."""
+
+import numpy as np
+import pytest
+
+from graphcal.calibration.accuracy import imprecise
+from graphcal.calibration.config import AccuracySettings, CalibrationConfig
+from graphcal.calibration.verdict import Motion, verdict
+
+TURNING = Motion(travelled=True, turned=True, tilted=False)
+
+
+def _sigmas() -> np.ndarray:
+    """(4, 4) 1-sigmas in file units (m, deg, deg, m): fibre 0 within every default, fibre 1's elevation
+    0.03 deg, fibre 2's height 1 cm and range 0.4 cm, fibre 3 held (NaN)."""
+    sigma = np.array([[0.001, 0.002, 0.004, 0.002],
+                      [0.001, 0.002, 0.03, 0.002],
+                      [0.004, 0.002, 0.004, 0.01],
+                      [np.nan] * 4])
+    return sigma
+
+
+def test_each_parameter_coarser_than_its_kind_is_named_with_its_sigma():
+    reasons = imprecise(_sigmas(), AccuracySettings(), named=set())
+    assert set(reasons) == {"fibre_1.d_elevation_deg", "fibre_2.h_z_m"}
+    assert reasons["fibre_1.d_elevation_deg"].startswith("imprecise: determined to 0.03 deg (1 sigma), coarser than "
+                                                         "the 0.01 deg required (accuracy.intrinsic_angle_deg)")
+    assert "determined to 1 cm (1 sigma), coarser than the 0.5 cm required (accuracy.intrinsic_range_m)" \
+        in reasons["fibre_2.h_z_m"]
+
+
+def test_a_name_already_given_or_a_kind_not_required_is_not_named_again():
+    assert set(imprecise(_sigmas(), AccuracySettings(), named={"fibre_2.h_z_m"})) == {"fibre_1.d_elevation_deg"}
+    loose = AccuracySettings(intrinsic_angle_deg=None, intrinsic_range_m=0.003)
+    assert set(imprecise(_sigmas(), loose, named=set())) == {"fibre_2.h_z_m", "fibre_2.d_range_m"}
+
+
+def test_the_accuracy_section_reads_from_settings_and_refuses_a_non_positive_one():
+    config = CalibrationConfig.model_validate({"accuracy": {"intrinsic_angle_deg": 0.05}})
+    assert config.accuracy.required().tolist() == [0.005, 0.05, 0.05, 0.005]
+    with pytest.raises(ValueError, match="intrinsic_range_m"):
+        CalibrationConfig.model_validate({"accuracy": {"intrinsic_range_m": 0}})
+
+
+def test_the_verdict_tells_imprecise_parameters_from_those_it_cannot_observe():
+    weak = ["fibre_3.h_z_m"]
+    coarse = ["fibre_1.d_elevation_deg", "fibre_2.d_elevation_deg", "fibre_2.h_z_m"]
+    line = verdict(weak, {name: "..." for name in weak + coarse}, TURNING, coarse)
+    assert line.startswith("this drive cannot observe 1 fibre height (fibres that see surfaces at several ranges")
+    assert line.endswith("held at nominal or bound by the prior; it determines 2 fibre elevations and 1 fibre height "
+                         "more coarsely than required (fibres that see surfaces at several ranges and orientations "
+                         "(facades beside the road, not only flat ground) would sharpen them): their fitted values "
+                         "kept")
+    assert verdict([], {}, TURNING, coarse).startswith("this drive determines 2 fibre elevations and 1 fibre "
+                                                           "height more coarsely than required")
