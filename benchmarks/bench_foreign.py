@@ -6,7 +6,8 @@ intrinsic offsets within 3 cm and 0.3 deg (the factory's nominal model) and an e
 0.5 deg is simulated by the independent simulator and calibrated with graphcal.calibrate's defaults.
 Figures per case (graphcal.calibration.evaluate.scorecard): RMS error over the intrinsic parameters not
 named unobservable (cm, deg, deg, cm), the fraction of their errors within 3 reported sigmas, the
-fraction named unobservable, how each phase stopped and the verdict, the extrinsic errors, J, seconds and
+fraction named unobservable; the same over the determined ones (named neither unobservable nor imprecise:
+graphcal.calibration.accuracy) and the fraction named imprecise; how each phase stopped and the verdict, the extrinsic errors, J, seconds and
 peak memory. --from-truth starts each
 calibration at the truth (sensor.yaml and extrinsic.yaml set to the true values, the truth then zero
 offsets): the fit must stay within its sigmas. --far draws the truth within the widest errors a factory
@@ -117,9 +118,12 @@ def main() -> None:
                           flush=True)
                     continue
                 rms = ", ".join(f"{k} {v:.4g}" for k, v in row["rms_observable"].items())
+                determined = ", ".join(f"{v:.4g}" for v in row["rms_determined"].values())
                 print(f"{family}/{mount} seed {seed}: {row['returns']:,} returns, {row['calibrate_s']:.0f} s, "
                       f"{row['peak_gib']:.2f} GiB; RMS over the observable: {rms}; within 3 sigma "
-                      f"{row['within_3_sigma']:.0%}; named {row['named_fraction']:.0%}; lever arm "
+                      f"{row['within_3_sigma']:.0%}; named {row['named_fraction']:.0%}; over the determined "
+                      f"{determined}, within 3 sigma {row['within_3_sigma_determined']:.0%}, imprecise "
+                      f"{row['imprecise_fraction']:.0%}; lever arm "
                       f"{row['lever_arm_error_m'][1] * 100:.2f} cm, rotation {row['rotation_error_deg'][1]:.4f} deg; "
                       f"J {row['energy_cm2'][0]:.3g} -> {row['energy_cm2'][1]:.3g} cm2", flush=True)
     out = args.out or RESULTS / ("foreign_from_truth.json" if args.from_truth else "foreign_far.json" if args.far
