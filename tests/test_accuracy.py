@@ -55,3 +55,19 @@ def test_the_verdict_tells_imprecise_parameters_from_those_it_cannot_observe():
                          "kept")
     assert verdict([], {}, TURNING, coarse).startswith("this drive determines 2 fibre elevations and 1 fibre "
                                                            "height more coarsely than required")
+
+
+def test_the_report_marks_an_imprecise_value_apart_from_an_unobservable_and_a_held_one():
+    from graphcal.report.tables import parameter_rows
+
+    rows = [{"fibre": f, "d_range_m": 0.01, "d_azimuth_deg": 0.02, "d_elevation_deg": 0.03,
+             "h_z_m": None if f == 2 else 0.004,
+             "sigma": {"d_range_m": 0.001, "d_azimuth_deg": 0.002, "d_elevation_deg": 0.02,
+                       "h_z_m": None if f == 2 else 0.001}} for f in range(3)]
+    calibration = {"intrinsics": rows, "extrinsic": {"lever_arm_m": [0, 0, 0], "boresight_deg": [0, 0, 0]},
+                   "unobservable": ["fibre_0.d_range_m", "fibre_2.h_z_m"],
+                   "imprecise": {"fibre_1.d_elevation_deg": "imprecise: determined to 0.02 deg ..."}}
+    (_, _, intrinsics), = [table for table in parameter_rows(calibration) if table[0].startswith("Intrinsic")]
+    assert intrinsics[0][1] == "1 ± 0.1 (unobservable)"  # cm
+    assert intrinsics[1][3] == "0.03 ± 0.02 (imprecise)" and intrinsics[1][1] == "1 ± 0.1"
+    assert intrinsics[2][4] == "held at nominal"
