@@ -4,8 +4,9 @@ The weak directions (weak_directions.py) are those the data see less than ten ti
 prior: held at nominal. Between them and a determined parameter lies one the data do see, to a 1-sigma still above
 the accuracy required of it: on a level head over flat ground, a downward fibre's elevation is told from its height
 only by the few cars and facades its ring crosses (docs/reference/math.md "Weak directions"), to 0.02-0.04 deg
-against a prior of 0.2 deg. Such a parameter is named imprecise: in `unobservable`, with its sigma and the required
-one in the reason, and it keeps its fitted value (better than the nominal, and reported with its sigma).
+against a prior of 0.2 deg. Such a parameter is named imprecise (calibration.yaml `imprecise`, beside
+`unobservable`), with its sigma and the required one in the reason, and it keeps its fitted value (better than
+the nominal, and reported with its sigma).
 """
 
 from __future__ import annotations

@@ -179,8 +179,8 @@ class PriorSettings(BaseModel):
 class AccuracySettings(BaseModel):
     """The 1-sigma each intrinsic parameter must reach to count as determined (a mapping team's figures: 0.5 cm
     in range and height, 0.01 deg in azimuth and elevation). One the drive determines only more coarsely is named
-    in `unobservable` as imprecise, with its sigma in the reason; unlike the weak directions it keeps its fitted
-    value, which is exported (the data and the prior both bear on it). None: no such naming for that kind."""
+    imprecise (accuracy.py), with its sigma in the reason; unlike an unobservable one it keeps its fitted value,
+    which is exported (the data do determine it). None: no such naming for that kind."""
 
     model_config = _SECTION
     intrinsic_range_m: float | None = Field(0.005, gt=0, description="d_range and Hz")
