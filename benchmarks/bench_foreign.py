@@ -7,9 +7,8 @@ intrinsic offsets within 3 cm and 0.3 deg (the factory's nominal model) and an e
 Figures per case (graphcal.calibration.evaluate.scorecard): RMS error over the intrinsic parameters not
 named unobservable (cm, deg, deg, cm), the fraction of their errors within 3 reported sigmas, the
 fraction named unobservable; the same over the determined ones (named neither unobservable nor imprecise:
-graphcal.calibration.accuracy) and the fraction named imprecise; how each phase stopped and the verdict, the extrinsic errors, J, seconds and
-peak memory. --from-truth starts each
-calibration at the truth (sensor.yaml and extrinsic.yaml set to the true values, the truth then zero
+graphcal.calibration.accuracy) and the fraction named imprecise; how each phase stopped and the verdict,
+the extrinsic errors, J, seconds and peak memory. --from-truth starts each calibration at the truth (sensor.yaml and extrinsic.yaml set to the true values, the truth then zero
 offsets): the fit must stay within its sigmas. --far draws the truth within the widest errors a factory
 model is expected to have (5 cm and 0.5 deg per fibre, the extrinsic within 10 cm and 1 deg). --reference-error
 puts the nominal model's reference fibre off the truth in range and elevation (the simulator draws it exact; a
