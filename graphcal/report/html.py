@@ -123,7 +123,9 @@ def _header(folder: Path, calibration: dict, manifest: dict, history: list[dict]
             ["steps of the recorded positions", steps_line(calibration.get("ins_steps_s") or [])],
             ["what the drive could not observe",
              calibration.get("verdict") or "nothing beyond the drive's common motion"],
-            ["unobservable", ", ".join(calibration.get("unobservable") or []) or "none"]]
+            ["unobservable", ", ".join(calibration.get("unobservable") or []) or "none"],
+            ["imprecise (fitted, 1-sigma above the accuracy required)",
+             ", ".join(calibration.get("imprecise") or {}) or "none"]]
     return f"<h1>graphcal calibration report: {html.escape(folder.name)}</h1>" + table(["", ""], rows)
 
 
