@@ -1,19 +1,19 @@
 """Benchmark: calibrate recordings graphcal's simulator did not make (tools/foreign_sim), against truth.
 
-For each scene family (box_street, suburb, open_road, relief_street) and mounting (level, tilted), a
-drive of an HDL-32E-class head with 1 cm range noise, an INS with 5 mm / 0.005 deg white noise, true
-intrinsic offsets within 3 cm and 0.3 deg (the factory's nominal model) and an extrinsic within 5 cm and
-0.5 deg is simulated by the independent simulator and calibrated with graphcal.calibrate's defaults.
-Figures per case (graphcal.calibration.evaluate.scorecard): RMS error over the intrinsic parameters not
-named unobservable (cm, deg, deg, cm), the fraction of their errors within 3 reported sigmas, the
-fraction named unobservable; the same over the determined ones (named neither unobservable nor imprecise:
-graphcal.calibration.accuracy) and the fraction named imprecise; how each phase stopped and the verdict,
-the extrinsic errors, J, seconds and peak memory. --from-truth starts each calibration at the truth (sensor.yaml and extrinsic.yaml set to the true values, the truth then zero
-offsets): the fit must stay within its sigmas. --far draws the truth within the widest errors a factory
-model is expected to have (5 cm and 0.5 deg per fibre, the extrinsic within 10 cm and 1 deg). --reference-error
-puts the nominal model's reference fibre off the truth in range and elevation (the simulator draws it exact; a
-real head's factory model is off on it as on the others, while the calibration's gauge holds it). --range-noise-m
-and --ins-noise set the noises (to tell which one an error comes from). Writes
+For each scene family (box_street, suburb, open_road, relief_street) and mounting (level, tilted), a drive of an
+HDL-32E-class head with 1 cm range noise, an INS with 5 mm / 0.005 deg white noise, true intrinsic offsets within
+3 cm and 0.3 deg (the factory's nominal model) and an extrinsic within 5 cm and 0.5 deg is simulated by the
+independent simulator and calibrated with graphcal.calibrate's defaults. Figures per case
+(graphcal.calibration.evaluate.scorecard): RMS error over the intrinsic parameters not named unobservable (cm,
+deg, deg, cm), the fraction of their errors within 3 reported sigmas, the fraction named unobservable; the same
+over the determined ones (named neither unobservable nor imprecise: graphcal.calibration.accuracy) and the
+fraction named imprecise; how each phase stopped and the verdict, the extrinsic errors, J, seconds and peak
+memory. --from-truth starts each calibration at the truth (sensor.yaml and extrinsic.yaml set to the true values,
+the truth then zero offsets): the fit must stay within its sigmas. --far draws the truth within the widest errors
+a factory model is expected to have (5 cm and 0.5 deg per fibre, the extrinsic within 10 cm and 1 deg).
+--reference-error puts the nominal model's reference fibre off the truth in range and elevation (the simulator
+draws it exact; a real head's factory model is off on it as on the others, while the calibration's gauge holds
+it). --range-noise-m and --ins-noise set the noises (to tell which one an error comes from). Writes
 benchmarks/results/foreign.json (foreign_from_truth.json, foreign_far.json; or --out).
 """
 

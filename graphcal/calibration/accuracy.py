@@ -13,13 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from graphcal.calibration.config import AccuracySettings
+from graphcal.calibration.config import ACCURACY_FIELDS, AccuracySettings
 from graphcal.calibration.observability import INTRINSIC_NAMES
-
-SETTING = {"d_range_m": "intrinsic_range_m", "d_azimuth_deg": "intrinsic_angle_deg",
-           "d_elevation_deg": "intrinsic_angle_deg", "h_z_m": "intrinsic_range_m"}
-SHOWN = {"d_range_m": (100.0, "cm"), "d_azimuth_deg": (1.0, "deg"), "d_elevation_deg": (1.0, "deg"),
-         "h_z_m": (100.0, "cm")}
+from graphcal.recording.intrinsics import DISPLAY_FROM_FILE_UNITS, DISPLAY_NAMES
 
 
 def imprecise(sigma_intrinsics: np.ndarray, accuracy: AccuracySettings, named: set[str]) -> dict[str, str]:
@@ -32,8 +28,8 @@ def imprecise(sigma_intrinsics: np.ndarray, accuracy: AccuracySettings, named: s
         name = f"fibre_{fibre}.{kind}"
         if name in named:
             continue
-        scale, unit = SHOWN[kind]
+        scale, unit = DISPLAY_FROM_FILE_UNITS[column], DISPLAY_NAMES[column].rpartition("_")[2]
         reasons[name] = (f"imprecise: determined to {sigma_intrinsics[fibre, column] * scale:.3g} {unit} (1 sigma), "
                          f"coarser than the {required[column] * scale:g} {unit} required (accuracy."
-                         f"{SETTING[kind]}); its fitted value is kept")
+                         f"{ACCURACY_FIELDS[kind]}); its fitted value is kept")
     return reasons

@@ -251,8 +251,7 @@ class CalibrationPipeline:
                                        problem.config.trajectory.deformation, problem.config.weighting.sigma0_m)
         unobservable = named_held + [name for name in reasons if name not in held]
         self.check(final, unobservable)
-        coarse = imprecise(final.sigmas.intrinsics, config.accuracy, {*unobservable, *held, *gauges}) \
-            if estimated[0] else {}
+        coarse = imprecise(final.sigmas.intrinsics, config.accuracy, {*unobservable, *held}) if estimated[0] else {}
         reasons |= coarse
         if estimated[2]:
             unobservable += list(TRAJECTORY_GAUGE[:2 if config.trajectory.pose_corrections else 1])

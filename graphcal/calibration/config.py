@@ -176,6 +176,11 @@ class PriorSettings(BaseModel):
                                                            f"fibre_{reference_fibre}.h_z_m"]
 
 
+# the field of AccuracySettings that each intrinsic kind must meet
+ACCURACY_FIELDS = {"d_range_m": "intrinsic_range_m", "d_azimuth_deg": "intrinsic_angle_deg",
+                   "d_elevation_deg": "intrinsic_angle_deg", "h_z_m": "intrinsic_range_m"}
+
+
 class AccuracySettings(BaseModel):
     """The 1-sigma each intrinsic parameter must reach to count as determined (a mapping team's figures: 0.5 cm
     in range and height, 0.01 deg in azimuth and elevation). One the drive determines only more coarsely is named
@@ -188,8 +193,8 @@ class AccuracySettings(BaseModel):
 
     def required(self) -> np.ndarray:
         """(4,) the required 1-sigma per intrinsic kind in file units (m, deg, deg, m); inf where None."""
-        range_m, angle_deg = (np.inf if v is None else v for v in (self.intrinsic_range_m, self.intrinsic_angle_deg))
-        return np.array([range_m, angle_deg, angle_deg, range_m])
+        values = (getattr(self, ACCURACY_FIELDS[kind]) for kind in INTRINSIC_NAMES)
+        return np.array([np.inf if v is None else v for v in values])
 
 
 class TrajectorySettings(BaseModel):

@@ -147,11 +147,11 @@ class Calibration:
         if drive is not None and (not isinstance(drive, dict) or set(drive) != set(DRIVE_KEYS)):
             raise RecordingError(path, f"drive is {drive!r}", field="drive",
                                  expected=f"{', '.join(DRIVE_KEYS)} of the recording it was made on")
+        imprecise = dict(data.get("imprecise") or {})
         return cls(model, sensor.reference_fibre,
                    Estimate(offsets_from_file_units(offsets), pose_of(extrinsic), tuple(corrections)), np.asarray(times),
                    tuple(data.get("unobservable") or ()), tuple(held),
-                   dict(data.get("unobservable_reasons") or {}) | dict(data.get("imprecise") or {}), drive,
-                   tuple(data.get("imprecise") or ()))
+                   dict(data.get("unobservable_reasons") or {}) | imprecise, drive, tuple(imprecise))
 
 
 SIGMA_MARGINALS = "gtsam.Marginals at the final pairs, sigma0 the noise of one pair"
