@@ -1,5 +1,5 @@
-"""Intrinsic parameters determined more coarsely than required (graphcal.calibration.accuracy): named with their
-sigma, fitted values kept; against sigmas written by hand. The foreign benchmarks measure the rule on drives
+"""Parameters determined more coarsely than required (graphcal.calibration.accuracy): named with their sigma,
+fitted values kept; against sigmas written by hand. The foreign benchmarks measure the rule on drives
 (benchmarks/results/foreign*.json: what it names and the error of what it does not)."""
 
 import numpy as np
@@ -7,19 +7,20 @@ import pytest
 
 from graphcal.calibration.accuracy import imprecise
 from graphcal.calibration.config import AccuracySettings, CalibrationConfig
+from graphcal.calibration.observability import Uncertainty
 from graphcal.calibration.verdict import Motion, verdict
 
 TURNING = Motion(travelled=True, turned=True, tilted=False)
 
 
-def _sigmas() -> np.ndarray:
-    """(4, 4) 1-sigmas in file units (m, deg, deg, m): fibre 0 within every default, fibre 1's elevation
-    0.03 deg, fibre 2's height 1 cm and range 0.4 cm, fibre 3 held (NaN)."""
-    sigma = np.array([[0.001, 0.002, 0.004, 0.002],
-                      [0.001, 0.002, 0.03, 0.002],
-                      [0.004, 0.002, 0.004, 0.01],
-                      [np.nan] * 4])
-    return sigma
+def _sigmas(extrinsic: np.ndarray | None = None) -> Uncertainty:
+    """1-sigmas in file units (m, deg) for 4 fibres: fibre 0 within every default, fibre 1's elevation 0.03 deg,
+    fibre 2's height 1 cm and range 0.4 cm, fibre 3 held (NaN); the extrinsic's as given (None: not estimated)."""
+    intrinsics = np.array([[0.001, 0.002, 0.004, 0.002],
+                           [0.001, 0.002, 0.03, 0.002],
+                           [0.004, 0.002, 0.004, 0.01],
+                           [np.nan] * 4])
+    return Uncertainty(intrinsics, np.full((4, 4), 0.02), extrinsic, None, None, None)
 
 
 def test_each_parameter_coarser_than_its_kind_is_named_with_its_sigma():
@@ -31,6 +32,20 @@ def test_each_parameter_coarser_than_its_kind_is_named_with_its_sigma():
         in reasons["fibre_2.h_z_m"]
 
 
+def test_an_extrinsic_axis_coarser_than_required_is_named_and_a_held_one_is_not():
+    # roll, pitch, yaw [deg], lever arm x, y, z [m]: the pitch 0.03 deg, the lever arm's z 2 cm, its y held
+    sigma = np.array([0.002, 0.03, 0.004, 0.003, np.nan, 0.02])
+    reasons = imprecise(_sigmas(sigma), AccuracySettings(), named=set())
+    assert {"extrinsic.pitch_deg", "extrinsic.lever_arm_z_m"} <= set(reasons)
+    assert not {"extrinsic.roll_deg", "extrinsic.yaw_deg", "extrinsic.lever_arm_x_m", "extrinsic.lever_arm_y_m"} \
+        & set(reasons)
+    assert "determined to 2 cm (1 sigma), coarser than the 1 cm required (accuracy.extrinsic_translation_m)" \
+        in reasons["extrinsic.lever_arm_z_m"]
+    assert "(accuracy.extrinsic_angle_deg)" in reasons["extrinsic.pitch_deg"]
+    off = AccuracySettings(extrinsic_angle_deg=None, extrinsic_translation_m=0.05)
+    assert not {name for name in imprecise(_sigmas(sigma), off, named=set()) if name.startswith("extrinsic.")}
+
+
 def test_a_name_already_given_or_a_kind_not_required_is_not_named_again():
     assert set(imprecise(_sigmas(), AccuracySettings(), named={"fibre_2.h_z_m"})) == {"fibre_1.d_elevation_deg"}
     loose = AccuracySettings(intrinsic_angle_deg=None, intrinsic_range_m=0.003)
@@ -40,6 +55,7 @@ def test_a_name_already_given_or_a_kind_not_required_is_not_named_again():
 def test_the_accuracy_section_reads_from_settings_and_refuses_a_non_positive_one():
     config = CalibrationConfig.model_validate({"accuracy": {"intrinsic_angle_deg": 0.05}})
     assert config.accuracy.required().tolist() == [0.005, 0.05, 0.05, 0.005]
+    assert config.accuracy.required(("pitch_deg", "lever_arm_z_m")).tolist() == [0.01, 0.01]
     with pytest.raises(ValueError, match="intrinsic_range_m"):
         CalibrationConfig.model_validate({"accuracy": {"intrinsic_range_m": 0}})
 
@@ -50,11 +66,15 @@ def test_the_verdict_tells_imprecise_parameters_from_those_it_cannot_observe():
     line = verdict(weak, {name: "..." for name in weak + coarse}, TURNING, coarse)
     assert line.startswith("this drive cannot observe 1 fibre height (fibres that see surfaces at several ranges")
     assert line.endswith("held at nominal or bound by the prior; it determines 2 fibre elevations and 1 fibre height "
-                         "more coarsely than required (fibres that see surfaces at several ranges and orientations "
-                         "(facades beside the road, not only flat ground) would sharpen them): their fitted values "
+                         "(fibres that see surfaces at several ranges and orientations (facades beside the road, not "
+                         "only flat ground) would sharpen them) more coarsely than required: their fitted values "
                          "kept")
     assert verdict([], {}, TURNING, coarse).startswith("this drive determines 2 fibre elevations and 1 fibre "
-                                                           "height more coarsely than required")
+                                                           "height (fibres that see")
+    # an extrinsic axis: what would sharpen it follows from the drive's manoeuvres (no slope: its lever arm's z)
+    assert verdict([], {}, TURNING, ["extrinsic.lever_arm_z_m"]) == (
+        "this drive determines the lever arm z (a drive with slopes or banked turns (the vehicle rolling or "
+        "pitching) would sharpen it) more coarsely than required: its fitted value kept")
 
 
 def test_the_report_marks_an_imprecise_value_apart_from_an_unobservable_and_a_held_one():
@@ -71,3 +91,7 @@ def test_the_report_marks_an_imprecise_value_apart_from_an_unobservable_and_a_he
     assert intrinsics[0][1] == "1 ± 0.1 (unobservable)"  # cm
     assert intrinsics[1][3] == "0.03 ± 0.02 (imprecise)" and intrinsics[1][1] == "1 ± 0.1"
     assert intrinsics[2][4] == "held at nominal"
+    calibration["extrinsic"]["sigma"] = {"lever_arm_m": [0.001, 0.001, 0.02], "boresight_deg": [0.001, 0.001, 0.001]}
+    calibration["imprecise"]["extrinsic.lever_arm_z_m"] = "imprecise: determined to 2 cm ..."
+    (_, _, extrinsic), = [table for table in parameter_rows(calibration) if table[0].startswith("Extrinsic")]
+    assert [row[1].endswith(" (imprecise)") for row in extrinsic] == [False] * 5 + [True]

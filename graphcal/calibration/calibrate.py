@@ -251,8 +251,6 @@ class CalibrationPipeline:
                                        problem.config.trajectory.deformation, problem.config.weighting.sigma0_m)
         unobservable = named_held + [name for name in reasons if name not in held]
         self.check(final, unobservable)
-        coarse = imprecise(final.sigmas.intrinsics, config.accuracy, {*unobservable, *held}) if estimated[0] else {}
-        reasons |= coarse
         if estimated[2]:
             unobservable += list(TRAJECTORY_GAUGE[:2 if config.trajectory.pose_corrections else 1])
         if data.static:  # whatever the mode: the whole cloud moves rigidly with the extrinsic and the trajectory
@@ -260,6 +258,8 @@ class CalibrationPipeline:
             unobservable += rigid + [name for name in TRAJECTORY_GAUGE if name not in unobservable]
             held += rigid
             reasons |= {name: RIGID_REASON for name in rigid}
+        coarse = imprecise(final.sigmas, config.accuracy, {*unobservable, *held})
+        reasons |= coarse
         calibration = Calibration(data.sensor.model, data.sensor.reference_fibre, estimate, data.control_times_s,
                                   tuple(unobservable), tuple(held), reasons, drive_of(self.recording), tuple(coarse))
         return CalibrationResult(calibration, final.uncertainty, estimated, self.history.rows,

@@ -176,24 +176,30 @@ class PriorSettings(BaseModel):
                                                            f"fibre_{reference_fibre}.h_z_m"]
 
 
-# the field of AccuracySettings that each intrinsic kind must meet
+# the field of AccuracySettings that each intrinsic kind and each extrinsic axis must meet
 ACCURACY_FIELDS = {"d_range_m": "intrinsic_range_m", "d_azimuth_deg": "intrinsic_angle_deg",
-                   "d_elevation_deg": "intrinsic_angle_deg", "h_z_m": "intrinsic_range_m"}
+                   "d_elevation_deg": "intrinsic_angle_deg", "h_z_m": "intrinsic_range_m",
+                   **{axis: "extrinsic_angle_deg" for axis in EXTRINSIC_NAMES[:3]},
+                   **{axis: "extrinsic_translation_m" for axis in EXTRINSIC_NAMES[3:]}}
 
 
 class AccuracySettings(BaseModel):
-    """The 1-sigma each intrinsic parameter must reach to count as determined (a mapping team's figures: 0.5 cm
-    in range and height, 0.01 deg in azimuth and elevation). One the drive determines only more coarsely is named
+    """The 1-sigma each intrinsic parameter and each extrinsic axis must reach to count as determined (a mapping
+    team's figures: 0.5 cm in range and height, 0.01 deg in azimuth and elevation; 1 cm for the lever arm, 0.01 deg
+    for the boresight, which at 50 m moves a point by 0.9 cm). One the drive determines only more coarsely is named
     imprecise (accuracy.py), with its sigma in the reason; unlike an unobservable one it keeps its fitted value,
     which is exported (the data do determine it). None: no such naming for that kind."""
 
     model_config = _SECTION
     intrinsic_range_m: float | None = Field(0.005, gt=0, description="d_range and Hz")
     intrinsic_angle_deg: float | None = Field(0.01, gt=0, description="d_azimuth and d_elevation")
+    extrinsic_angle_deg: float | None = Field(0.01, gt=0, description="the boresight's roll, pitch and yaw")
+    extrinsic_translation_m: float | None = Field(0.01, gt=0, description="the lever arm's x, y and z")
 
-    def required(self) -> np.ndarray:
-        """(4,) the required 1-sigma per intrinsic kind in file units (m, deg, deg, m); inf where None."""
-        values = (getattr(self, ACCURACY_FIELDS[kind]) for kind in INTRINSIC_NAMES)
+    def required(self, names: tuple[str, ...] = INTRINSIC_NAMES) -> np.ndarray:
+        """(len(names),) the required 1-sigma per intrinsic kind or extrinsic axis in file units (m, deg); inf
+        where None."""
+        values = (getattr(self, ACCURACY_FIELDS[name]) for name in names)
         return np.array([np.inf if v is None else v for v in values])
 
 

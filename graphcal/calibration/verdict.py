@@ -73,8 +73,11 @@ def verdict(unobservable: tuple[str, ...] | list[str], reasons: dict[str, str], 
     names = [name for name in unobservable if name not in TRAJECTORY_GAUGE]
     coarse = ""
     if imprecise:
-        coarse = (f"determines {_counted(imprecise)} more coarsely than required ({_intrinsic_remedy(motion)} would "
-                  f"sharpen them): their fitted values kept")
+        intrinsic = [name for name in imprecise if name.startswith("fibre_")]
+        parts = [f"{_counted(intrinsic)} ({_intrinsic_remedy(motion)} would sharpen them)"] if intrinsic else []
+        parts += _extrinsic_parts(imprecise, motion, "sharpen")
+        kept = "its fitted value" if len(imprecise) == 1 else "their fitted values"
+        coarse = f"determines {_listed(parts)} more coarsely than required: {kept} kept"
     if not names:
         return f"this drive {coarse}" if coarse else None
     seen = _cannot_observe(names, reasons, motion)
@@ -84,16 +87,10 @@ def verdict(unobservable: tuple[str, ...] | list[str], reasons: dict[str, str], 
 def _cannot_observe(names: list[str], reasons: dict[str, str], motion: Motion) -> str:
     """What the drive cannot observe of `names` (at least one), and what would show it."""
     intrinsic = [name for name in names if name.startswith("fibre_")]
-    extrinsic = [name.removeprefix("extrinsic.") for name in names if name.startswith("extrinsic.")]
     if any(reasons.get(name) == RIGID_REASON for name in names):
         return (f"static sensor: the extrinsic and the trajectory are unobservable; {len(intrinsic)} intrinsic "
                 f"parameters held (a drive with turns past facades would show them)")
-    parts = []
-    by_remedy: dict[str, list[str]] = {}
-    for axis in extrinsic:
-        by_remedy.setdefault(motion.shows_with(axis), []).append(EXTRINSIC_WORDS[axis])
-    for remedy, axes in by_remedy.items():
-        parts.append(f"the {_listed(axes)} ({remedy} would show {'it' if len(axes) == 1 else 'them'})")
+    parts = _extrinsic_parts(names, motion, "show")
     if intrinsic:
         parts.append(f"{_counted(intrinsic)} ({_intrinsic_remedy(motion)} would show them)")
     controls = sorted({int(name.partition(".")[0].removeprefix("control_")) for name in names
@@ -105,6 +102,18 @@ def _cannot_observe(names: list[str], reasons: dict[str, str], motion: Motion) -
     if other:
         parts.append(_listed(other))
     return "this drive cannot observe " + "; ".join(parts) + ": held at nominal or bound by the prior"
+
+
+def _extrinsic_parts(names, motion: Motion, verb: str) -> list[str]:
+    """The extrinsic axes among names grouped by what would show them: ['the boresight pitch (a drive with turns
+    would <verb> it)', ...]."""
+    by_remedy: dict[str, list[str]] = {}
+    for name in names:
+        if name.startswith("extrinsic."):
+            axis = name.removeprefix("extrinsic.")
+            by_remedy.setdefault(motion.shows_with(axis), []).append(EXTRINSIC_WORDS[axis])
+    return [f"the {_listed(axes)} ({remedy} would {verb} {'it' if len(axes) == 1 else 'them'})"
+            for remedy, axes in by_remedy.items()]
 
 
 def _counted(intrinsic: list[str] | tuple[str, ...]) -> str:

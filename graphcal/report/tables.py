@@ -41,7 +41,8 @@ def parameter_rows(calibration: dict) -> list[tuple[str, list[str], list[list[st
     extrinsic_names = ("roll_deg", "pitch_deg", "yaw_deg", "lever_arm_x_m", "lever_arm_y_m", "lever_arm_z_m")
     rows = [[name, with_sigma(extrinsic[key][k] if sigma is None or sigma[key][k] is not None else None,
                               None if sigma is None else sigma[key][k], factor)
-             + (WEAK if sigma is not None and sigma[key][k] is not None and f"extrinsic.{full}" in weak else "")]
+             + (WEAK if sigma is not None and sigma[key][k] is not None and f"extrinsic.{full}" in weak else "")
+             + (IMPRECISE if f"extrinsic.{full}" in imprecise else "")]
             for (name, key, k, factor), full in zip(EXTRINSIC_ROWS, extrinsic_names)]
     title = "Extrinsic T_body_lidar" + ("" if sigma else " (not estimated: the nominal of extrinsic.yaml)")
     tables.append((title, ["parameter", "estimate"], rows))
