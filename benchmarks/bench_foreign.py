@@ -28,6 +28,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 from common import peak_gib, run_in_process
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools.foreign_sim, from the checkout
@@ -73,11 +74,21 @@ def _case(family: str, mount: str, size: float, duration_s: float, seed: int, fr
                      "outer_iterations": len(result.history), **card.to_dict(),
                      "stops": [row["stop"] for row in result.history if row["stop"]], "verdict": result.verdict,
                      "unobservable": list(result.unobservable),
+                     "extrinsic_sigma": _extrinsic_sigmas(result.sigmas.extrinsic),
+                     "extrinsic_imprecise": [name for name in result.calibration.imprecise
+                                             if name.startswith("extrinsic.")],
                      "lever_arm_error_m": list(evaluation.lever_arm_error_m),
                      "rotation_error_deg": list(evaluation.rotation_error_deg),
                      "energy_cm2": list(evaluation.energy_cm2),
                      "c2c_mean_gauge_free_cm": evaluation.cloud_after_gauge_free.mean * 100,
                      "table": evaluation.table()})
+
+
+def _extrinsic_sigmas(sigma) -> dict | None:
+    """{axis: reported 1-sigma in file units (deg, m)}, None for a held axis; None when not estimated."""
+    from graphcal.calibration.observability import EXTRINSIC_NAMES
+
+    return None if sigma is None else {axis: None if np.isnan(v) else float(v) for axis, v in zip(EXTRINSIC_NAMES, sigma)}
 
 
 def main() -> None:
@@ -122,7 +133,8 @@ def main() -> None:
                       f"{row['peak_gib']:.2f} GiB; RMS over the observable: {rms}; within 3 sigma "
                       f"{row['within_3_sigma']:.0%}; named {row['named_fraction']:.0%}; over the determined "
                       f"{determined}, within 3 sigma {row['within_3_sigma_determined']:.0%}, imprecise "
-                      f"{row['imprecise_fraction']:.0%}; lever arm "
+                      f"{row['imprecise_fraction']:.0%}, extrinsic imprecise "
+                      f"{', '.join(row['extrinsic_imprecise']) or 'none'}; lever arm "
                       f"{row['lever_arm_error_m'][1] * 100:.2f} cm, rotation {row['rotation_error_deg'][1]:.4f} deg; "
                       f"J {row['energy_cm2'][0]:.3g} -> {row['energy_cm2'][1]:.3g} cm2", flush=True)
     out = args.out or RESULTS / ("foreign_from_truth.json" if args.from_truth else "foreign_far.json" if args.far
