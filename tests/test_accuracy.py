@@ -39,10 +39,10 @@ def test_an_extrinsic_axis_coarser_than_required_is_named_and_a_held_one_is_not(
     assert {"extrinsic.pitch_deg", "extrinsic.lever_arm_z_m"} <= set(reasons)
     assert not {"extrinsic.roll_deg", "extrinsic.yaw_deg", "extrinsic.lever_arm_x_m", "extrinsic.lever_arm_y_m"} \
         & set(reasons)
-    assert "determined to 2 cm (1 sigma), coarser than the 1 cm required (accuracy.extrinsic_translation_m)" \
+    assert "determined to 2 cm (1 sigma), coarser than the 1 cm required (accuracy.extrinsic_lever_arm_m)" \
         in reasons["extrinsic.lever_arm_z_m"]
-    assert "(accuracy.extrinsic_angle_deg)" in reasons["extrinsic.pitch_deg"]
-    off = AccuracySettings(extrinsic_angle_deg=None, extrinsic_translation_m=0.05)
+    assert "(accuracy.extrinsic_boresight_deg)" in reasons["extrinsic.pitch_deg"]
+    off = AccuracySettings(extrinsic_boresight_deg=None, extrinsic_lever_arm_m=0.05)
     assert not {name for name in imprecise(_sigmas(sigma), off, named=set()) if name.startswith("extrinsic.")}
 
 
@@ -75,6 +75,12 @@ def test_the_verdict_tells_imprecise_parameters_from_those_it_cannot_observe():
     assert verdict([], {}, TURNING, ["extrinsic.lever_arm_z_m"]) == (
         "this drive determines the lever arm z (a drive with slopes or banked turns (the vehicle rolling or "
         "pitching) would sharpen it) more coarsely than required: its fitted value kept")
+    # with trajectory corrections estimated (their gauge named) they take up the lever arm: a survey decides it
+    line = verdict(["trajectory.common_translation"], {}, TURNING, ["extrinsic.lever_arm_x_m", "extrinsic.pitch_deg"])
+    assert line == ("this drive determines the lever arm x (a surveyed lever arm as the nominal, its sigma in "
+                    "priors.extrinsic_lever_arm_m, would sharpen it) and the boresight pitch (facades or poles beside "
+                    "the road, not only flat ground, would sharpen it) more coarsely than required: their fitted "
+                    "values kept")
 
 
 def test_the_report_marks_an_imprecise_value_apart_from_an_unobservable_and_a_held_one():

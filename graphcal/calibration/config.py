@@ -179,8 +179,8 @@ class PriorSettings(BaseModel):
 # the field of AccuracySettings that each intrinsic kind and each extrinsic axis must meet
 ACCURACY_FIELDS = {"d_range_m": "intrinsic_range_m", "d_azimuth_deg": "intrinsic_angle_deg",
                    "d_elevation_deg": "intrinsic_angle_deg", "h_z_m": "intrinsic_range_m",
-                   **{axis: "extrinsic_angle_deg" for axis in EXTRINSIC_NAMES[:3]},
-                   **{axis: "extrinsic_translation_m" for axis in EXTRINSIC_NAMES[3:]}}
+                   **{axis: "extrinsic_boresight_deg" for axis in EXTRINSIC_NAMES[:3]},
+                   **{axis: "extrinsic_lever_arm_m" for axis in EXTRINSIC_NAMES[3:]}}
 
 
 class AccuracySettings(BaseModel):
@@ -193,8 +193,8 @@ class AccuracySettings(BaseModel):
     model_config = _SECTION
     intrinsic_range_m: float | None = Field(0.005, gt=0, description="d_range and Hz")
     intrinsic_angle_deg: float | None = Field(0.01, gt=0, description="d_azimuth and d_elevation")
-    extrinsic_angle_deg: float | None = Field(0.01, gt=0, description="the boresight's roll, pitch and yaw")
-    extrinsic_translation_m: float | None = Field(0.01, gt=0, description="the lever arm's x, y and z")
+    extrinsic_lever_arm_m: float | None = Field(0.01, gt=0, description="each lever-arm axis")
+    extrinsic_boresight_deg: float | None = Field(0.01, gt=0, description="each boresight angle")
 
     def required(self, names: tuple[str, ...] = INTRINSIC_NAMES) -> np.ndarray:
         """(len(names),) the required 1-sigma per intrinsic kind or extrinsic axis in file units (m, deg); inf

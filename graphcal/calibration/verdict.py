@@ -35,6 +35,9 @@ EXTRINSIC_WORDS = {"roll_deg": "boresight roll", "pitch_deg": "boresight pitch",
 INTRINSIC_WORDS = {"d_range_m": "range offset", "d_azimuth_deg": "azimuth offset",
                    "d_elevation_deg": "elevation", "h_z_m": "height"}
 INTRINSIC_SCENE = "surfaces at several ranges and orientations (facades beside the road, not only flat ground)"
+# what decides the lever arm when trajectory corrections are estimated: they take up what a drive shows of it
+# (on the foreign drives at 15 s its sigmas grow from under 1 cm to 1-7 cm: docs/benchmarks.md)
+LEVER_ARM_WITH_TRAJECTORY = "a surveyed lever arm as the nominal, its sigma in priors.extrinsic_lever_arm_m,"
 # what shows a trajectory correction where the drive saw too little structure (unseen_controls.py)
 CONTROL_SCENE = "surfaces facing several ways along those stretches (facades, poles, parked cars)"
 # what shows them when the vehicle only turned on the spot
@@ -71,26 +74,28 @@ def verdict(unobservable: tuple[str, ...] | list[str], reasons: dict[str, str], 
     ({name: why}) and `imprecise` (determined more coarsely than required: accuracy.py); None when it names
     nothing beyond the drive's common motion (which no self-calibration sees)."""
     names = [name for name in unobservable if name not in TRAJECTORY_GAUGE]
+    trajectory = len(names) < len(unobservable)  # the trajectory's gauge is named when it is estimated
     coarse = ""
     if imprecise:
         intrinsic = [name for name in imprecise if name.startswith("fibre_")]
         parts = [f"{_counted(intrinsic)} ({_intrinsic_remedy(motion)} would sharpen them)"] if intrinsic else []
-        parts += _extrinsic_parts(imprecise, motion, "sharpen")
+        parts += _extrinsic_parts(imprecise, motion, "sharpen", trajectory)
         kept = "its fitted value" if len(imprecise) == 1 else "their fitted values"
         coarse = f"determines {_listed(parts)} more coarsely than required: {kept} kept"
     if not names:
         return f"this drive {coarse}" if coarse else None
-    seen = _cannot_observe(names, reasons, motion)
+    seen = _cannot_observe(names, reasons, motion, trajectory)
     return f"{seen}; it {coarse}" if coarse else seen
 
 
-def _cannot_observe(names: list[str], reasons: dict[str, str], motion: Motion) -> str:
-    """What the drive cannot observe of `names` (at least one), and what would show it."""
+def _cannot_observe(names: list[str], reasons: dict[str, str], motion: Motion, trajectory: bool) -> str:
+    """What the drive cannot observe of `names` (at least one), and what would show it (trajectory: corrections
+    estimated)."""
     intrinsic = [name for name in names if name.startswith("fibre_")]
     if any(reasons.get(name) == RIGID_REASON for name in names):
         return (f"static sensor: the extrinsic and the trajectory are unobservable; {len(intrinsic)} intrinsic "
                 f"parameters held (a drive with turns past facades would show them)")
-    parts = _extrinsic_parts(names, motion, "show")
+    parts = _extrinsic_parts(names, motion, "show", trajectory)
     if intrinsic:
         parts.append(f"{_counted(intrinsic)} ({_intrinsic_remedy(motion)} would show them)")
     controls = sorted({int(name.partition(".")[0].removeprefix("control_")) for name in names
@@ -104,14 +109,16 @@ def _cannot_observe(names: list[str], reasons: dict[str, str], motion: Motion) -
     return "this drive cannot observe " + "; ".join(parts) + ": held at nominal or bound by the prior"
 
 
-def _extrinsic_parts(names, motion: Motion, verb: str) -> list[str]:
+def _extrinsic_parts(names, motion: Motion, verb: str, trajectory: bool) -> list[str]:
     """The extrinsic axes among names grouped by what would show them: ['the boresight pitch (a drive with turns
-    would <verb> it)', ...]."""
+    would <verb> it)', ...]; with trajectory corrections estimated (trajectory) a surveyed lever arm."""
     by_remedy: dict[str, list[str]] = {}
     for name in names:
         if name.startswith("extrinsic."):
             axis = name.removeprefix("extrinsic.")
-            by_remedy.setdefault(motion.shows_with(axis), []).append(EXTRINSIC_WORDS[axis])
+            remedy = (LEVER_ARM_WITH_TRAJECTORY if trajectory and axis.startswith("lever_arm")
+                      else motion.shows_with(axis))
+            by_remedy.setdefault(remedy, []).append(EXTRINSIC_WORDS[axis])
     return [f"the {_listed(axes)} ({remedy} would {verb} {'it' if len(axes) == 1 else 'them'})"
             for remedy, axes in by_remedy.items()]
 
