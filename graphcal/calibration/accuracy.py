@@ -7,7 +7,7 @@ only by the few cars and facades its ring crosses (docs/reference/math.md "Weak 
 against a prior of 0.2 deg; over flat ground with few facades a tilted head's pitch trades with the fibres'
 elevations. Such a parameter, an intrinsic one or an extrinsic axis, is named imprecise (calibration.yaml
 `imprecise`, beside `unobservable`), with its sigma and the required one in the reason, and it keeps its fitted
-value (better than the nominal, and reported with its sigma).
+value, reported with its sigma (the data's estimate, not the nominal's).
 """
 
 from __future__ import annotations

@@ -74,7 +74,8 @@ def verdict(unobservable: tuple[str, ...] | list[str], reasons: dict[str, str], 
     ({name: why}) and `imprecise` (determined more coarsely than required: accuracy.py); None when it names
     nothing beyond the drive's common motion (which no self-calibration sees)."""
     names = [name for name in unobservable if name not in TRAJECTORY_GAUGE]
-    trajectory = len(names) < len(unobservable)  # the trajectory's gauge is named when it is estimated
+    # the trajectory's gauge is named when corrections are estimated (and for a static sensor, whose extrinsic is held)
+    trajectory = len(names) < len(unobservable)
     coarse = ""
     if imprecise:
         intrinsic = [name for name in imprecise if name.startswith("fibre_")]
