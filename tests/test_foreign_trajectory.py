@@ -1,0 +1,37 @@
+"""Trajectory corrections estimated on a recording graphcal's simulator did not make (conftest.py's
+foreign_box_street: a level head, 10 s, no second pass): the corrections take up what the drive shows of the lever
+arm, and the calibration must say so instead of reporting a lever arm it does not know. The eight drives of
+bench_foreign.py --mode joint_trajectory: benchmarks/results/foreign_joint_trajectory.json."""
+
+import numpy as np
+import pytest
+
+import graphcal
+from graphcal.calibration.config import CalibrationConfig
+from graphcal.calibration.evaluate import scorecard
+from graphcal.calibration.observability import EXTRINSIC_NAMES
+
+
+@pytest.mark.slow  # about 150 s: two calibrations
+def test_with_trajectory_corrections_the_lever_arm_is_known_worse_and_named(foreign_box_street):
+    recording = graphcal.Recording.load(foreign_box_street)
+    joint = graphcal.calibrate(recording, CalibrationConfig(mode="joint"), quiet=True)
+    with_trajectory = graphcal.calibrate(recording, CalibrationConfig(mode="joint_trajectory"), quiet=True)
+    # adding nuisance parameters (the corrections) cannot sharpen the lever arm: measured 2.7, 2.2, 5.9 cm against
+    # 0.28, 0.24, 1.4 cm (1-7 cm against under 1 cm on the 15 s drives of the benchmark)
+    lever_joint, lever_trajectory = joint.sigmas.extrinsic[3:], with_trajectory.sigmas.extrinsic[3:]
+    assert np.all(lever_trajectory > lever_joint), (lever_joint, lever_trajectory)
+    # every lever-arm axis known more coarsely than accuracy's 1 cm is named, imprecise or unobservable, and the
+    # verdict points to the survey that would decide it
+    required = with_trajectory.config.accuracy.required(EXTRINSIC_NAMES)[3:]
+    named = set(with_trajectory.calibration.imprecise) | set(with_trajectory.unobservable)
+    coarse = {f"extrinsic.{axis}" for axis, sigma, need in zip(EXTRINSIC_NAMES[3:], lever_trajectory, required)
+              if not sigma <= need}  # a held axis (NaN) is named unobservable
+    assert coarse and coarse <= named, (coarse, named)
+    assert "a surveyed lever arm as the nominal" in with_trajectory.verdict, with_trajectory.verdict
+    # the intrinsics still converge: over the determined parameters within the issue's targets (cm, deg, deg, cm) on
+    # this small recording (0.03 of the firings) but the elevation's, which the benchmark holds to 0.01 deg. Measured
+    # 0.066 cm, 0.0029 deg, 0.0090 deg, 0.13 cm, 100 % within 3 sigmas, 31 % named (6 % unobservable)
+    card = scorecard(with_trajectory, recording)
+    assert card.within_3_sigma_determined >= 0.9, card
+    assert np.all(np.asarray(card.rms_determined) <= [0.5, 0.01, 0.015, 0.5]), card
