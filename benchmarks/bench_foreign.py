@@ -88,7 +88,9 @@ def _extrinsic_sigmas(sigma) -> dict | None:
     """{axis: reported 1-sigma in file units (deg, m)}, None for a held axis; None when not estimated."""
     from graphcal.calibration.observability import EXTRINSIC_NAMES
 
-    return None if sigma is None else {axis: None if np.isnan(v) else float(v) for axis, v in zip(EXTRINSIC_NAMES, sigma)}
+    if sigma is None:
+        return None
+    return {axis: None if np.isnan(v) else float(v) for axis, v in zip(EXTRINSIC_NAMES, sigma)}
 
 
 def main() -> None:

@@ -25,8 +25,8 @@ def test_started_at_the_truth_the_fit_stays_within_its_sigmas(foreign_box_street
     assert card.rms_observable[0] < 0.5 and card.rms_observable[3] < 0.5 and card.rms_observable[2] < 0.02, card
     assert np.abs(result.calibration.estimate.offsets[:, 2]).max() < np.radians(0.05)  # no elevation slid
     # the parameters determined more coarsely than required (accuracy's defaults, 0.5 cm and 0.01 deg) are named
-    # imprecise, the others are not, and so are the extrinsic's axes (1 cm, 0.01 deg); over the rest the angles meet it (measured 26 % named imprecise, their errors
-    # 100 % within 3 sigmas; the rest 0.0025 deg, 0.0050 deg)
+    # imprecise, the others are not, and so are the extrinsic's axes (1 cm, 0.01 deg); over the rest the angles
+    # meet it (measured 26 % named imprecise, their errors 100 % within 3 sigmas; the rest 0.0025 deg, 0.0050 deg)
     sigma = result.sigmas.intrinsics
     coarse = intrinsic_mask(set(result.calibration.imprecise), len(sigma))
     over = np.isfinite(sigma) & (sigma > result.config.accuracy.required())
