@@ -4,7 +4,7 @@ viewer's parameters table."""
 
 from __future__ import annotations
 
-from graphcal.calibration.observability import INTRINSIC_NAMES
+from graphcal.calibration.observability import EXTRINSIC_NAMES, INTRINSIC_NAMES
 from graphcal.recording.intrinsics import DISPLAY_FROM_FILE_UNITS
 
 UNOBSERVABLE = "held at nominal"
@@ -38,12 +38,11 @@ def parameter_rows(calibration: dict) -> list[tuple[str, list[str], list[list[st
     extrinsic = calibration["extrinsic"]
     sigma = extrinsic.get("sigma")
     weak, imprecise = set(calibration.get("unobservable") or []), set(calibration.get("imprecise") or {})
-    extrinsic_names = ("roll_deg", "pitch_deg", "yaw_deg", "lever_arm_x_m", "lever_arm_y_m", "lever_arm_z_m")
     rows = [[name, with_sigma(extrinsic[key][k] if sigma is None or sigma[key][k] is not None else None,
                               None if sigma is None else sigma[key][k], factor)
              + (WEAK if sigma is not None and sigma[key][k] is not None and f"extrinsic.{full}" in weak else "")
              + (IMPRECISE if f"extrinsic.{full}" in imprecise else "")]
-            for (name, key, k, factor), full in zip(EXTRINSIC_ROWS, extrinsic_names)]
+            for (name, key, k, factor), full in zip(EXTRINSIC_ROWS, EXTRINSIC_NAMES)]
     title = "Extrinsic T_body_lidar" + ("" if sigma else " (not estimated: the nominal of extrinsic.yaml)")
     tables.append((title, ["parameter", "estimate"], rows))
     if intrinsics_estimated(calibration):
