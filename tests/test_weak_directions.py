@@ -1,11 +1,14 @@
 """Weak directions: found from the data's information in prior units, named basis-free, held at
 nominal by one factor whose Jacobian matches finite differences."""
 
+from dataclasses import replace
+
 import gtsam
 import numpy as np
 import pytest
 
-from graphcal.calibration.weak_directions import Layout, WeakDirections, lock_factor
+from graphcal.calibration.observability import Uncertainty
+from graphcal.calibration.weak_directions import Layout, WeakDirections, lock_factor, seen_weakly
 
 I = gtsam.symbol_shorthand.I
 E = gtsam.symbol_shorthand.E
@@ -109,3 +112,32 @@ def test_a_direction_found_again_slightly_turned_is_not_a_new_one():
     assert first.union(again).basis.shape[1] == 3
     other = np.linalg.qr(np.c_[basis, rng.normal(size=8)])[0][:, 3:]
     assert first.union(WeakDirections(layout, other, np.zeros(1))).basis.shape[1] == 4
+
+
+def test_extrinsic_axes_whose_reported_sigma_leaves_them_weak_are_named_and_held_alone():
+    """The reported sigma (file units: m, deg) against the prior's: above 1/sqrt(1 + 10) of it, the data carry
+    less than ten times the prior's information. The yaw at half its 1 deg prior and the lever arm's z at 0.7 of its
+    10 cm are weak, the lever arm's x at a quarter is not, nor an axis passed over, nor an intrinsic parameter (a
+    fibre's height at half its prior: judged imprecise instead, its fitted value kept)."""
+    layout = _layout(1, extrinsic=True)
+    prior_file = np.array([[0.0] * 4, [0.02, 0.2, 0.2, 0.02]])
+    sigma_file = np.array([[np.nan] * 4, [0.001, 0.01, 0.01, 0.01]])
+    extrinsic_prior = np.r_[np.full(3, 1.0), np.full(3, 0.1)]
+    sigmas = Uncertainty(sigma_file, prior_file, np.r_[0.01, 0.5, 0.5, 0.025, 0.01, 0.07], extrinsic_prior, None,
+                         None)
+    named = seen_weakly(sigmas, layout, passed={"extrinsic.pitch_deg"})
+    assert set(named) == {"extrinsic.yaw_deg", "extrinsic.lever_arm_z_m"}
+    assert "7 cm (1 sigma) against its prior's 10 cm" in named["extrinsic.lever_arm_z_m"]
+    assert "0.5 deg (1 sigma) against its prior's 1 deg" in named["extrinsic.yaw_deg"]
+    assert seen_weakly(replace(sigmas, extrinsic=None), replace(layout, extrinsic=False), set()) == {}
+    # held alone: the lock resets those two coordinates to the nominal's and keeps every other one
+    weak = WeakDirections.along(list(named), layout)
+    assert set(weak.named()) == set(named)
+    offsets = np.array([[0.0] * 4, [0.01, 0.001, 0.002, 0.03]])
+    nominal = gtsam.Pose3(gtsam.Rot3(), np.array([1.0, 0.0, 2.0]))  # the layout's nominal rotation: identity
+    fitted = nominal.compose(gtsam.Pose3(gtsam.Rot3.Ypr(0.004, 0.0, 0.002), np.array([0.03, 0.02, 0.06])))
+    reset, extrinsic = weak.reset_to_nominal(offsets, fitted, nominal)
+    assert reset == pytest.approx(offsets)
+    moved_m = extrinsic.translation() - nominal.translation()
+    assert moved_m == pytest.approx([0.03, 0.02, 0.0], abs=1e-4)  # the tangent's v, not exactly the translation
+    assert extrinsic.rotation().ypr() == pytest.approx([0.0, 0.0, 0.002], abs=1e-5)  # yaw to nominal, roll kept

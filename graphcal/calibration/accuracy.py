@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from graphcal.calibration.config import ACCURACY_FIELDS, AccuracySettings
-from graphcal.calibration.observability import EXTRINSIC_NAMES, INTRINSIC_NAMES, Uncertainty
+from graphcal.calibration.observability import EXTRINSIC_NAMES, INTRINSIC_NAMES, Uncertainty, shown
 
 
 def imprecise(sigmas: Uncertainty, accuracy: AccuracySettings, named: set[str]) -> dict[str, str]:
@@ -34,8 +34,6 @@ def imprecise(sigmas: Uncertainty, accuracy: AccuracySettings, named: set[str]) 
 
 
 def _reason(name: str, sigma: float, required: float) -> str:
-    """The plain words for a parameter `name` (file units: its suffix, m shown in cm) determined to `sigma` where
-    `required` is asked."""
-    scale, unit = (100.0, "cm") if name.endswith("_m") else (1.0, "deg")
-    return (f"imprecise: determined to {sigma * scale:.3g} {unit} (1 sigma), coarser than the {required * scale:g} "
-            f"{unit} required (accuracy.{ACCURACY_FIELDS[name.partition('.')[2]]}); its fitted value is kept")
+    """The plain words for a parameter `name` (file units) determined to `sigma` where `required` is asked."""
+    return (f"imprecise: determined to {shown(name, sigma)} (1 sigma), coarser than the {shown(name, required)} "
+            f"required (accuracy.{ACCURACY_FIELDS[name.partition('.')[2]]}); its fitted value is kept")

@@ -28,7 +28,7 @@ from graphcal.calibration.returns import Estimate, initial_estimate
 from graphcal.calibration.static_sensor import halves_over_draws, pair_draws, soft_over_draws
 from graphcal.calibration.unseen_controls import unseen_controls
 from graphcal.calibration.verdict import RIGID_REASON, Motion, verdict
-from graphcal.calibration.weak_directions import WeakDirections
+from graphcal.calibration.weak_directions import WeakDirections, seen_weakly
 from graphcal.common.cluster import IN_PROCESS, TaskMap, open_task_map
 from graphcal.common.errors import CalibrationError
 from graphcal.common.progress import status
@@ -129,10 +129,13 @@ class CalibrationPipeline:
         self.find_weak_directions("fine", "weak directions, fine phase")
         self.solve(last=("fine",), first=len(self.problem.stages) - 1)
         self.find_weak_directions("fine", "weak directions at the end", grow=True)
-        self.solve_again_if_more_are_weak()
-        self.estimate = self.problem.priors.hold_at_nominal(self.estimate, self.problem.nominal)
-        final = self.timed("final fit and marginals", self.problem.final, self.estimate, None, True)
-        return self.result(final)
+        self.solve_again_if_more_are_weak(self.state.grown)
+        # the sigmas reported at the end, widened where the residuals vary more than their model, can find weak what
+        # the model's information does not: held too, the fine phase again and its final fit
+        final = self.final_fit()
+        self.find_parameters_seen_weakly(final)
+        self.solve_again_if_more_are_weak(bool(self.state.seen_weakly), ", seen weakly held")
+        return self.result(self.final_fit() if self.state.seen_weakly else final)
 
     def timed(self, name: str, work, *args, spinner: bool = True):
         """work(*args), its seconds added to the step `name`'s; on a terminal a spinner names the step (spinner=False:
@@ -186,15 +189,33 @@ class CalibrationPipeline:
             found = union if self.state.grown else self.weak
         self.weak = found
 
-    def solve_again_if_more_are_weak(self) -> None:
-        """The last stage's fine phase again, the weak directions the end added held too: it goes on from the fine
+    @resumable
+    def find_parameters_seen_weakly(self, final: FinalFit) -> None:
+        """The parameters whose reported sigmas at the final fit leave them weak (weak_directions.seen_weakly), added
+        to the weak directions held; those already held or named, and a static sensor's extrinsic (its whole cloud
+        moves rigidly with it: named so by result), passed over."""
+        problem = self.problem
+        layout = problem.layout()
+        passed = {*problem.held, *self.weak.named()}
+        if problem.full.static:
+            passed |= {f"extrinsic.{name}" for name in EXTRINSIC_NAMES}
+        self.state.seen_weakly = seen_weakly(final.sigmas, layout, passed)
+        if self.state.seen_weakly:
+            self.weak = self.weak.union(WeakDirections.along(list(self.state.seen_weakly), layout))
+
+    def solve_again_if_more_are_weak(self, grown: bool, label: str = ", weak directions held") -> None:
+        """When grown: the last stage's fine phase again, the weak directions added held too: it goes on from the fine
         phase's J curve (Problem.fit's plateau_from)."""
-        if self.state.grown:
+        if grown:
             stage = self.problem.stages[-1]
             energies = tuple(row["energy_cm2"] for row in self.history.rows
                              if row["mode"] == stage and row["phase"] == "fine")
-            self.solve(last=("fine",), first=len(self.problem.stages) - 1, label=", weak directions held",
-                       plateau_from=energies)
+            self.solve(last=("fine",), first=len(self.problem.stages) - 1, label=label, plateau_from=energies)
+
+    def final_fit(self) -> FinalFit:
+        """The final fit at the estimate, what the settings hold set to nominal first (Problem.final)."""
+        self.estimate = self.problem.priors.hold_at_nominal(self.estimate, self.problem.nominal)
+        return self.timed("final fit and marginals", self.problem.final, self.estimate, None, True)
 
     @resumable
     def solve(self, last: tuple[Phase, ...], first: int = 0, label: str = "",
@@ -246,6 +267,7 @@ class CalibrationPipeline:
         named_held = [name for name in held if name not in gauges]  # held, not named: the gauge is no finding
         reasons = {name: HELD_REASON for name in named_held}
         reasons |= {name: reason for name, reason in self.weak.named().items() if name not in held}
+        reasons |= self.state.seen_weakly
         if estimated[2]:
             reasons |= unseen_controls(final.sigmas.controls, data.control_times_s,
                                        problem.config.trajectory.deformation, problem.config.weighting.sigma0_m)

@@ -4,7 +4,8 @@ calibration (a SIGKILL, a lost node, Ctrl-C) resumes where it stopped instead of
 One .npz file, written atomically (graphcal.common.atomic) after every outer iteration:
     meta        JSON: the format, what it was written for (recording, returns, settings, graphcal version),
                 the steps of CalibrationPipeline.run done, where inside the next one, the outer iterations
-                each stage has run, whether the weak directions grew at the end, the seconds so far
+                each stage has run, whether the weak directions grew at the end, the parameters the final
+                fit's sigmas found weak (with their reasons), the seconds so far
     history     JSON: the history's rows (graphcal.calibration.problem.History)
     offsets     (n_fibres, 4) in (m, rad, rad, m); extrinsic (4, 4) T_body_lidar; corrections (n, 4, 4) at the
                 control times; effect.<name>; the same prefixed features_at. for the estimate the features in
@@ -32,7 +33,7 @@ from graphcal.common.errors import ConfigError
 from graphcal.common.jsonable import plain
 from graphcal.recording.directory import Recording
 
-FORMAT = "graphcal-checkpoint/1"
+FORMAT = "graphcal-checkpoint/2"
 
 
 def written_for(recording: Recording, config: CalibrationConfig) -> dict:
@@ -50,7 +51,8 @@ class PipelineState:
     """What CalibrationPipeline carries from one step to the next: the estimate, the history's rows, the steps of
     run() done (done), inside the next one (a solve) the stage being solved and the outer iterations of it run
     (inside: None between steps), the outer iterations each stage has run (used), the weak directions held
-    ((P, k) basis and eigenvalues), whether the end's analysis added some (grown), the seconds spent (in all and
+    ((P, k) basis and eigenvalues), whether the end's analysis added some (grown), the parameters the final fit's
+    sigmas found weak with their reasons (seen_weakly: weak_directions.seen_weakly), the seconds spent (in all and
     per step) and, inside a solve, the estimate its features were computed at (features_at) and the fine phase's last
     outer iterations' estimates (window: Problem.fit)."""
 
@@ -62,6 +64,7 @@ class PipelineState:
     weak_basis: np.ndarray | None = None
     weak_eigenvalues: np.ndarray | None = None
     grown: bool = False
+    seen_weakly: dict = field(default_factory=dict)
     seconds: float = 0.0
     timings: dict = field(default_factory=dict)
     features_at: Estimate | None = None
@@ -82,7 +85,7 @@ class Checkpoint:
     def save(self, state: PipelineState) -> None:
         """Write the state, replacing the previous one whole."""
         meta = {"format": FORMAT, **self.owner, "done": state.done, "inside": state.inside, "used": state.used,
-                "grown": state.grown, "seconds": state.seconds, "timings": state.timings}
+                "grown": state.grown, "seen_weakly": state.seen_weakly, "seconds": state.seconds, "timings": state.timings}
         arrays = _arrays(state.estimate) | {"weak_basis": state.weak_basis, "weak_eigenvalues": state.weak_eigenvalues}
         if state.features_at is not None:
             arrays |= _arrays(state.features_at, "features_at.")
@@ -115,8 +118,8 @@ class Checkpoint:
         window = tuple(_estimate(arrays, f"window.{k}.") for k in range(len(arrays))
                        if f"window.{k}.offsets" in arrays)
         return PipelineState(_estimate(arrays), rows, meta["done"], inside, meta["used"], arrays.get("weak_basis"),
-                             arrays.get("weak_eigenvalues"), meta["grown"], meta["seconds"], meta["timings"],
-                             features_at, window)
+                             arrays.get("weak_eigenvalues"), meta["grown"], meta["seen_weakly"], meta["seconds"],
+                             meta["timings"], features_at, window)
 
     def of_another(self, differences: list[str]) -> ConfigError:
         """The error of a checkpoint written for another calibration: what differs ("<what> <then> (now <now>)")."""

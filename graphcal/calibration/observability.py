@@ -40,6 +40,12 @@ def parameter_at(name: str) -> tuple[str, int, int]:
     return "controls", int(owner.split("_")[1]), CONTROL_NAMES.index(parameter)
 
 
+def shown(name: str, value: float) -> str:
+    """A value of the parameter `name` (in its file unit, the name's suffix: _m or _deg) as a user reads it: metres in
+    cm, degrees as they are."""
+    return f"{value * 100:.3g} cm" if name.endswith("_m") else f"{value:.3g} deg"
+
+
 def intrinsic_mask(names, n_fibres: int) -> np.ndarray:
     """(n_fibres, 4) True where fibre_i.<intrinsic> is among the names (any other name is passed over)."""
     mask = np.zeros((n_fibres, 4), bool)

@@ -17,6 +17,8 @@ elevation and height) is fitted. Whether a parameter is named unobservable is ba
 of the projector onto the weak directions, its share of prior variance left to the weak directions
 (1: the data see nothing of it; 1/2: it trades one-for-one with one other parameter; 1/31: it shares
 a common mode with thirty others, which the priors together bound to 1/sqrt(31) of one prior sigma).
+After the final fit the extrinsic's axes are judged once more by the sigmas the calibration reports (seen_weakly):
+one they leave weak is held alone, a direction of its own.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from functools import partial
 import gtsam
 import numpy as np
 
-from graphcal.calibration.observability import EXTRINSIC_NAMES, INTRINSIC_NAMES, tangent_to_axes
+from graphcal.calibration.observability import EXTRINSIC_NAMES, INTRINSIC_NAMES, Uncertainty, shown, tangent_to_axes
 
 # eigenvalue of the prior-whitened data information below which a direction is weak: the data carry
 # less than this many times the prior's information along it (posterior sigma above 1/sqrt(1 + 10) ~
@@ -92,6 +94,12 @@ class WeakDirections:
         weak = eigenvalues < threshold
         return cls(layout, vectors[:, weak], eigenvalues[weak])
 
+    @classmethod
+    def along(cls, names: list[str], layout: Layout) -> WeakDirections:
+        """The named parameters of the layout, each one weak direction of its own (eigenvalues unknown: NaN)."""
+        columns = [layout.names.index(name) for name in names]
+        return cls(layout, np.eye(layout.size)[:, columns], np.full(len(columns), np.nan))
+
     def union(self, other: WeakDirections) -> WeakDirections:
         """The span of both sets of weak directions (same layout); a direction of other within
         UNION_ANGLE_DEG of self's span is the same direction found again (the information changes a little
@@ -155,6 +163,30 @@ class WeakDirections:
         if self.layout.extrinsic:
             extrinsic = nominal_extrinsic.retract(x[4 * len(fibres):])
         return offsets, extrinsic
+
+
+def seen_weakly(sigmas: Uncertainty, layout: Layout, passed: set[str]) -> dict[str, str]:
+    """{name: reason} for the extrinsic axes of the layout, but those passed, whose reported 1-sigma (sigmas, in file
+    units: observability.reported, widened where the residuals vary more than their model) is above the prior's over
+    sqrt(1 + WEAK_INFORMATION): by the sigma the calibration reports, the data carry less than WEAK_INFORMATION
+    times the prior's information on it, though the model's information (WeakDirections.of) may see it better. With
+    trajectory corrections estimated the lever arm is such an axis: the model's information, the corrections
+    marginalised out, sees it more than ten times its prior, the widened sigmas 1-10 cm against a prior of 10 cm,
+    and a fit that keeps it ended further from the truth than the nominal on six of eight foreign drives
+    (docs/benchmarks.md); held, the corrections take up what it holds. The intrinsics are not judged so: a fibre's
+    parameter held leaves in its ring's residuals what its data do see of it (judged so, a clean foreign
+    recording's diagnosis found +0.8 cm on one fibre's pairs), where its fitted value lies within its sigma
+    (accuracy.py names it imprecise)."""
+    if not layout.extrinsic or sigmas.extrinsic is None:
+        return {}
+    names = layout.names[-len(EXTRINSIC_NAMES):]
+    with np.errstate(invalid="ignore"):  # NaN (not estimated): not weak
+        weak = sigmas.extrinsic > sigmas.extrinsic_prior / np.sqrt(1.0 + WEAK_INFORMATION)
+    return {name: (f"seen weakly: the data determine it to {shown(name, sigma)} (1 sigma) against its prior's "
+                   f"{shown(name, prior)}, less than {WEAK_INFORMATION:g} times the prior's information; held at its "
+                   "nominal value")
+            for name, sigma, prior, w in zip(names, sigmas.extrinsic, sigmas.extrinsic_prior, weak)
+            if w and name not in passed}
 
 
 def tangent_about_nominal(layout: Layout, offsets: np.ndarray, extrinsic: gtsam.Pose3, nominal_extrinsic: gtsam.Pose3) -> np.ndarray:
