@@ -179,8 +179,8 @@ def prepare(recording: Recording, control_interval_s: float, max_points: int | N
     rows, spans_s = subset_rows(recording.points, max_points, rng or np.random.default_rng(0), points_per_s)
     columns = recording.points.take(["time", "fibre", "range", "azimuth"], rows) | {"rows": rows}
     if range_noise_m is None:  # firing order: the first row group's returns
-        first = next(recording.points.iter_batches(["fibre", "range"]))
-        range_noise_m = measured_range_noise_m(first["fibre"], first["range"])
+        first = next(recording.points.iter_batches(["fibre", "range", "azimuth"]))
+        range_noise_m = measured_range_noise_m(first["fibre"], first["range"], first["azimuth"])
     time = columns["time"]
     position, rotation = recording.world.poses.interpolate(time)
     origin = np.round(position.mean(axis=0))
