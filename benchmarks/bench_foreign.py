@@ -147,7 +147,8 @@ def main() -> None:
                       f"{row['imprecise_fraction']:.0%}, extrinsic imprecise "
                       f"{', '.join(row['extrinsic_imprecise']) or 'none'}; lever arm (all axes) "
                       f"{row['lever_arm_error_all_axes_m'][0] * 100:.2f} -> "
-                      f"{row['lever_arm_error_all_axes_m'][1] * 100:.2f} cm, rotation {row['rotation_error_deg'][1]:.4f} deg; "
+                      f"{row['lever_arm_error_all_axes_m'][1] * 100:.2f} cm, "
+                      f"rotation {row['rotation_error_deg'][1]:.4f} deg; "
                       f"J {row['energy_cm2'][0]:.3g} -> {row['energy_cm2'][1]:.3g} cm2", flush=True)
     out = args.out or RESULTS / ("foreign_from_truth.json" if args.from_truth else "foreign_far.json" if args.far
                                  else "foreign.json")

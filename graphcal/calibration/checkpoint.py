@@ -85,7 +85,8 @@ class Checkpoint:
     def save(self, state: PipelineState) -> None:
         """Write the state, replacing the previous one whole."""
         meta = {"format": FORMAT, **self.owner, "done": state.done, "inside": state.inside, "used": state.used,
-                "grown": state.grown, "seen_weakly": state.seen_weakly, "seconds": state.seconds, "timings": state.timings}
+                "grown": state.grown, "seen_weakly": state.seen_weakly, "seconds": state.seconds,
+                "timings": state.timings}
         arrays = _arrays(state.estimate) | {"weak_basis": state.weak_basis, "weak_eigenvalues": state.weak_eigenvalues}
         if state.features_at is not None:
             arrays |= _arrays(state.features_at, "features_at.")

@@ -16,7 +16,7 @@ MIN_DIFFERENCES = 100
 # whitened by the noise along their lines of sight, features from voxels. Without noise the nearest return
 # pairs better (sim2_street noise-free, full size: d_elevation 5.3e-4 / 8.0e-4 deg, Hz 0.0113 cm against
 # 7.9e-4 / 1.0e-3 deg, 0.0153 / 0.0145 cm with stand-ins, seeds 0 / 1), and the nearest's own bias grows with
-# the noise (1 cm: -2.4 mm a pair). Real heads: 5 mm and more (monterey's HDL-32E 7.4 mm); a noise-free
+# the noise (1 cm: -2.4 mm a pair). Real heads: 5 mm and more (monterey's HDL-32E 7.2 mm); a noise-free
 # simulation decimated to every 20th firing measures 0.7 mm (its surfaces are not cubic over five firings 3.3
 # deg apart)
 NOISY_ABOVE_M = 1e-3
@@ -33,10 +33,11 @@ def measured_range_noise_m(fibre: np.ndarray, range_m: np.ndarray, azimuth_rad: 
     at unit gain on white noise, scaled to a Gaussian's sigma (x 1.4826). Over five firings a surface's range is a
     cubic in azimuth to far below a millimetre; edges and gaps are the outliers the median ignores. The divided
     difference, unlike the plain fourth difference, holds where firings are dropped unevenly (a recording thinned
-    to a fraction of its firing blocks: measured 12.2 / 2.6 / 1.5 / 1.04 cm at 0.03 / 0.1 / 0.4 / 1 of the foreign
-    box street's blocks for a 1 cm head by the plain difference). Measured: sim2_street without noise 4e-7 m
-    (float32 ranges), with 1 mm / 1 cm of noise 1.1 / 10.7 mm; the real HDL-32E of monterey 7.4 mm. NaN when fewer
-    than MIN_DIFFERENCES differences exist (five ranges at one azimuth, a dual return's, make none)."""
+    to a fraction of its firing blocks; a 1 cm head in the foreign box street with 0.03 / 0.1 / 0.4 / all of its
+    blocks kept at random: 1.82 / 1.27 / 1.08 / 1.04 cm, the plain difference 12.2 / 2.6 / 1.5 / 1.04 cm).
+    Measured: sim2_street without noise 4e-7 m (float32 ranges), with 1 mm / 1 cm of noise 1.1 / 10.7 mm; the real
+    HDL-32E of monterey 7.2 mm (7.4 by the plain difference). NaN when fewer than MIN_DIFFERENCES differences exist
+    (five ranges at one azimuth, a dual return's, make none)."""
     fibre = np.asarray(fibre)[:SAMPLE_ROWS]
     range_m = np.asarray(range_m, dtype=np.float64)[:SAMPLE_ROWS]
     azimuth_rad = np.asarray(azimuth_rad, dtype=np.float64)[:SAMPLE_ROWS]
