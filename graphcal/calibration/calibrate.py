@@ -130,8 +130,8 @@ class CalibrationPipeline:
         self.solve(last=("fine",), first=len(self.problem.stages) - 1)
         self.find_weak_directions("fine", "weak directions at the end", grow=True)
         self.solve_again_if_more_are_weak(self.state.grown)
-        # the sigmas reported at the end, widened where the residuals vary more than their model, can find weak what
-        # the model's information does not: held too, the fine phase again and its final fit
+        # the final fit's sigmas that count each return's noise once can find weak what the model's information does
+        # not: held too, the fine phase again and its final fit
         final = self.final_fit()
         self.find_parameters_seen_weakly(final)
         self.solve_again_if_more_are_weak(bool(self.state.seen_weakly), ", seen weakly held")
@@ -191,15 +191,17 @@ class CalibrationPipeline:
 
     @resumable
     def find_parameters_seen_weakly(self, final: FinalFit) -> None:
-        """The parameters whose reported sigmas at the final fit leave them weak (weak_directions.seen_weakly), added
-        to the weak directions held; those already held or named, and a static sensor's extrinsic (its whole cloud
-        moves rigidly with it: named so by result), passed over."""
+        """The parameters whose sigmas at the final fit, each return's noise counted once, leave them weak
+        (weak_directions.seen_weakly; none without those sigmas), added to the weak directions held; those already
+        held or named, and a static sensor's extrinsic (its whole cloud moves rigidly with it: named so by result),
+        passed over."""
         problem = self.problem
         layout = problem.layout()
         passed = {*problem.held, *self.weak.named()}
         if problem.full.static:
             passed |= {f"extrinsic.{name}" for name in EXTRINSIC_NAMES}
-        self.state.seen_weakly = seen_weakly(final.sigmas, layout, passed)
+        self.state.seen_weakly = ({} if final.shared_returns is None
+                                  else seen_weakly(final.shared_returns, layout, passed))
         if self.state.seen_weakly:
             self.weak = self.weak.union(WeakDirections.along(list(self.state.seen_weakly), layout))
 

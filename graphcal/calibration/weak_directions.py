@@ -17,8 +17,8 @@ elevation and height) is fitted. Whether a parameter is named unobservable is ba
 of the projector onto the weak directions, its share of prior variance left to the weak directions
 (1: the data see nothing of it; 1/2: it trades one-for-one with one other parameter; 1/31: it shares
 a common mode with thirty others, which the priors together bound to 1/sqrt(31) of one prior sigma).
-After the final fit the extrinsic's axes are judged once more by the sigmas the calibration reports (seen_weakly):
-one they leave weak is held alone, a direction of its own.
+After the final fit the extrinsic's axes are judged once more by the sigmas that count each return's noise once
+(seen_weakly): one they leave weak is held alone, a direction of its own.
 """
 
 from __future__ import annotations
@@ -166,15 +166,17 @@ class WeakDirections:
 
 
 def seen_weakly(sigmas: Uncertainty, layout: Layout, passed: set[str]) -> dict[str, str]:
-    """{name: reason} for the extrinsic axes of the layout, but those passed, whose reported 1-sigma (sigmas, in file
-    units: observability.reported, widened where the residuals vary more than their model) is above the prior's over
-    sqrt(1 + WEAK_INFORMATION): by the sigma the calibration reports, the data carry less than WEAK_INFORMATION
-    times the prior's information on it, though the model's information (WeakDirections.of) may see it better. With
-    trajectory corrections estimated the lever arm is such an axis: the model's information, the corrections
-    marginalised out, sees it more than ten times its prior, the widened sigmas 1-10 cm against a prior of 10 cm,
-    and a fit that keeps it ended further from the truth than the nominal on six of eight foreign drives
-    (docs/benchmarks.md); held, the corrections take up what it holds. The intrinsics are not judged so: a fibre's
-    parameter held leaves in its ring's residuals what its data do see of it (judged so, a clean foreign
+    """{name: reason} for the extrinsic axes of the layout, but those passed, whose 1-sigma counting each return's
+    noise once (sigmas, in file units: the final fit's shared_returns.py sigmas) is above the prior's over
+    sqrt(1 + WEAK_INFORMATION): the data carry less than WEAK_INFORMATION times the prior's information on it once a
+    return shared by many pairs counts once, though the model's information (WeakDirections.of) may see it better.
+    With trajectory corrections estimated on a drive that does not revisit its track the lever arm is such an axis:
+    the model's information, the corrections marginalised out, sees it more than ten times its prior, these sigmas
+    several centimetres against a prior of 10 cm, and a fit that keeps it ended further from the truth than the
+    nominal on six of eight foreign drives (docs/benchmarks.md); held, the corrections take up what it holds. Not
+    the cluster-robust sigma, whose clusters of time are the corrections' own stretches: on a revisiting city loop
+    it gave the lever arm's x 59 cm where these gave 1.7 mm and the fit was 1 mm off. Not the intrinsics either: a
+    fibre's parameter held leaves in its ring's residuals what its data do see of it (judged so, a clean foreign
     recording's diagnosis found +0.8 cm on one fibre's pairs), where its fitted value lies within its sigma
     (accuracy.py names it imprecise)."""
     if not layout.extrinsic or sigmas.extrinsic is None:
@@ -182,9 +184,9 @@ def seen_weakly(sigmas: Uncertainty, layout: Layout, passed: set[str]) -> dict[s
     names = layout.names[-len(EXTRINSIC_NAMES):]
     with np.errstate(invalid="ignore"):  # NaN (not estimated): not weak
         weak = sigmas.extrinsic > sigmas.extrinsic_prior / np.sqrt(1.0 + WEAK_INFORMATION)
-    return {name: (f"seen weakly: the data determine it to {shown(name, sigma)} (1 sigma) against its prior's "
-                   f"{shown(name, prior)}, less than {WEAK_INFORMATION:g} times the prior's information; held at its "
-                   "nominal value")
+    return {name: (f"seen weakly: the data determine it to {shown(name, sigma)} (1 sigma, each return's noise "
+                   f"counted once) against its prior's {shown(name, prior)}, less than {WEAK_INFORMATION:g} times the "
+                   "prior's information; held at its nominal value")
             for name, sigma, prior, w in zip(names, sigmas.extrinsic, sigmas.extrinsic_prior, weak)
             if w and name not in passed}
 
