@@ -1,8 +1,7 @@
 """Trajectory corrections estimated on a recording graphcal's simulator did not make (conftest.py's
 foreign_box_street: a level head, 10 s, no second pass): the corrections take up what the drive shows of the lever
 arm, and the calibration must say so, and hold an axis it sees only weakly, instead of reporting a lever arm it does
-not know. The eight drives of
-bench_foreign.py --mode joint_trajectory: benchmarks/results/foreign_joint_trajectory.json."""
+not know. The eight drives of bench_foreign.py --mode joint_trajectory: foreign_joint_trajectory.json."""
 
 import numpy as np
 import pytest
