@@ -152,7 +152,7 @@ class FactorisedMarginals:
         self._information = information
         self.solve = ScaledSolver(information)
         self._meat = None  # a sandwich's Meat: its covariance is H^-1 meat H^-1
-        self._added = {}  # {key: variance added to its tangent coordinates' diagonal} (widened)
+        self._added = {}  # {key: covariance added to its tangent block} (widened)
         self._marginals = {}  # {key: its marginal block}, made a chunk of keys at a time
         self._span = {key: slice(start, start + widths[key]) for key, start in first_columns(widths).items()}
 
@@ -160,7 +160,7 @@ class FactorisedMarginals:
         if key not in self._marginals:
             self._marginals = self._chunk_from(key)
         block = self._marginals[key]
-        return block + np.diag(self._added[key]) if key in self._added else block
+        return block + self._added[key] if key in self._added else block
 
     @property
     def width(self) -> int:
@@ -198,10 +198,10 @@ class FactorisedMarginals:
         """H, the sparse information matrix (the priors' included), in the columns of columns()."""
         return self._information
 
-    def widened(self, variance: dict[int, np.ndarray]) -> FactorisedMarginals:
-        """These marginals with variance[key] added to the diagonal of each given key's block."""
+    def widened(self, added: dict[int, np.ndarray]) -> FactorisedMarginals:
+        """These marginals with added[key] (width x width) added to each given key's block."""
         out = copy.copy(self)
-        out._added = {**self._added, **{key: self._added.get(key, 0.0) + v for key, v in variance.items()}}
+        out._added = {**self._added, **{key: self._added.get(key, 0.0) + v for key, v in added.items()}}
         return out
 
     def sandwich(self, meat: Meat) -> FactorisedMarginals:

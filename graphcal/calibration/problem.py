@@ -34,6 +34,7 @@ from graphcal.calibration.observability import (
     pose_sigmas,
     reported,
     schur_complement,
+    tangent_to_axes,
     tangent_widths,
 )
 from graphcal.calibration.pairing import Association, FeatureCache
@@ -556,6 +557,12 @@ class Problem:
         layout = self.layout()
         return [I(f) for f in layout.fibres] + ([E(0)] if layout.extrinsic else [])
 
+    def reported_axes(self, estimate: Estimate) -> dict[int, np.ndarray]:
+        """{calibration key: the map of its tangent into the axes uncertainty() reports it in}: the identity for
+        an intrinsic, the extrinsic's rotation for its pose (observability.tangent_to_axes)."""
+        return {key: (tangent_to_axes(estimate.extrinsic.rotation().matrix()) if key == E(0) else np.eye(4))
+                for key in self.calibration_keys()}
+
     def weak_directions(self, estimate: Estimate) -> WeakDirections:
         """The weak directions of the data's information at the estimate, on this phase's pairs there."""
         layout = self.layout()
@@ -633,7 +640,7 @@ class Problem:
         if with_robust:
             classes = cluster_robust.surface_classes(pairs.normal, np.linalg.norm(apart_m, axis=1))
             robust = problem.uncertainty(cluster_robust.cluster_robust_covariance(
-                linearised, time_s, classes, problem.calibration_keys()), estimate, control_sigma)
+                linearised, time_s, classes, problem.reported_axes(estimate)), estimate, control_sigma)
         # the sandwiches' bread is this graph's information, factorised: the model's marginals too
         model = Marginals(graph, values) if linearised is None else linearised.bread
         return FinalFit(pairs, residual, problem.uncertainty(model, estimate, control_sigma), shared, robust, expected)
