@@ -29,7 +29,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from common import peak_gib, run_in_process
+from common import extrinsic_sigmas, peak_gib, run_in_process
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tools.foreign_sim, from the checkout
 
@@ -74,7 +74,7 @@ def _case(family: str, mount: str, size: float, duration_s: float, seed: int, fr
                      "outer_iterations": len(result.history), **card.to_dict(),
                      "stops": [row["stop"] for row in result.history if row["stop"]], "verdict": result.verdict,
                      "unobservable": list(result.unobservable),
-                     "extrinsic_sigma": _extrinsic_sigmas(result.sigmas.extrinsic),
+                     "extrinsic_sigma": extrinsic_sigmas(result.sigmas.extrinsic),
                      "extrinsic_imprecise": [name for name in result.calibration.imprecise
                                              if name.startswith("extrinsic.")],
                      "lever_arm_error_m": list(evaluation.lever_arm_error_m),
@@ -92,14 +92,6 @@ def _lever_arm_error(lever_arm_m, recording) -> float:
     """|lever arm - truth| [m] over the three axes, a held one's (its nominal's error) included."""
     return float(np.linalg.norm(np.asarray(lever_arm_m) - np.asarray(recording.truth.extrinsic.lever_arm_m)))
 
-
-def _extrinsic_sigmas(sigma) -> dict | None:
-    """{axis: reported 1-sigma in file units (deg, m)}, None for a held axis; None when not estimated."""
-    from graphcal.calibration.observability import EXTRINSIC_NAMES
-
-    if sigma is None:
-        return None
-    return {axis: None if np.isnan(v) else float(v) for axis, v in zip(EXTRINSIC_NAMES, sigma)}
 
 
 def main() -> None:

@@ -9,7 +9,9 @@ noisy_steps finding nothing (one spline over the whole drive spreads each step o
 left for the controls: what graphcal did before). Figures per case: the steps found, seconds, peak memory, the
 trajectory's error against the truth at the control times (bench_long_drive's) and over every INS sample (the
 smoothed poses plus the corrections interpolated between controls, the common translation removed), the intrinsic
-and extrinsic errors, the gauge-free cloud-to-cloud distance. Writes benchmarks/results/ins_steps.json.
+and extrinsic errors, the extrinsic's 1-sigmas (reported, and each of the model's, the shared returns' and the
+cluster-robust ones), the parameters named unobservable, the gauge-free cloud-to-cloud distance. Writes
+benchmarks/results/ins_steps.json.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import time
 from pathlib import Path
 
 from bench_long_drive import _trajectory_errors_cm
-from common import machine, peak_gib, report, run_in_process
+from common import extrinsic_sigmas, machine, peak_gib, report, run_in_process
 
 RESULTS = Path(__file__).resolve().parent / "results"
 CASES = ("steps kept", "steps smoothed over")
@@ -70,6 +72,12 @@ def _case(folder: str, case: str, queue) -> None:
                                               "p99": round(float(np.percentile(error_cm, 99)), 3)},
                "intrinsic_rms_after (cm, deg, deg, cm)": [round(float(v), 5) for v in evaluation.intrinsic_rms_after],
                "lever_arm_error_cm": round(float(evaluation.lever_arm_error_m[1]) * 100, 3),
+               "extrinsic_sigma": {name: extrinsic_sigmas(getattr(result, field).extrinsic) for name, field in
+                                   (("reported", "sigmas"), ("model", "uncertainty"),
+                                    ("shared_returns", "shared_returns_uncertainty"),
+                                    ("cluster_robust", "cluster_robust_uncertainty"))
+                                   if getattr(result, field) is not None},
+               "unobservable": list(result.calibration.unobservable),
                "rotation_error_deg": round(float(evaluation.rotation_error_deg[1]), 4),
                "c2c_mean_gauge_free_cm": round(evaluation.cloud_after_gauge_free.mean * 100, 3)})
 

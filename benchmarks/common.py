@@ -72,6 +72,16 @@ def city_loop_drive(folder: str | Path, minutes: float, size: float) -> tuple[Pa
     return drive, round(time.perf_counter() - started, 1)
 
 
+def extrinsic_sigmas(sigma) -> dict | None:
+    """{axis: 1-sigma in file units (deg, m)} of an Uncertainty's extrinsic row, None for a held axis; None when not
+    estimated."""
+    from graphcal.calibration.observability import EXTRINSIC_NAMES
+
+    if sigma is None:
+        return None
+    return {axis: None if v != v else float(v) for axis, v in zip(EXTRINSIC_NAMES, sigma)}
+
+
 def report(figures: dict, path: Path) -> None:
     """Print the figures (a dict value as a titled group) and write them to `path` as JSON, atomically."""
     from graphcal.common.atomic import atomic_path
