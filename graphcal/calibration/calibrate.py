@@ -131,7 +131,8 @@ class CalibrationPipeline:
         self.find_weak_directions("fine", "weak directions at the end", grow=True)
         self.solve_again_if_more_are_weak(self.state.grown)
         # the final fit's sigmas that count each return's noise once can find weak what the model's information does
-        # not: held too, the fine phase again and its final fit
+        # not: held too, the fine phase again and its final fit. Made even where a resumed run skips the step: its
+        # features are those the fine phase after it starts from (skipped, a resumed run's last J moved by 7e-4)
         final = self.final_fit()
         self.find_parameters_seen_weakly(final)
         self.solve_again_if_more_are_weak(bool(self.state.seen_weakly), ", seen weakly held")

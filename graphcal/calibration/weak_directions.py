@@ -173,9 +173,10 @@ def seen_weakly(sigmas: Uncertainty, layout: Layout, passed: set[str]) -> dict[s
     With trajectory corrections estimated on a drive that does not revisit its track the lever arm is such an axis:
     the model's information, the corrections marginalised out, sees it more than ten times its prior, these sigmas
     several centimetres against a prior of 10 cm, and a fit that keeps it ended further from the truth than the
-    nominal on six of eight foreign drives (docs/benchmarks.md); held, the corrections take up what it holds. Not
-    the cluster-robust sigma, whose clusters of time are the corrections' own stretches: on a revisiting city loop
-    it gave the lever arm's x 59 cm where these gave 1.7 mm and the fit was 1 mm off. Not the intrinsics either: a
+    nominal on six of eight foreign drives (docs/benchmarks.md); held, the corrections take up what it holds. The
+    reported sigmas (the larger of these and the cluster-robust ones) hold the same axes on those drives and on a
+    revisiting city loop; these judge because they do not rest on the residuals' own scatter, whose variance from
+    the 30 time blocks of a 15 s drive is itself uncertain by a quarter (sqrt(2/29)). Not the intrinsics: a
     fibre's parameter held leaves in its ring's residuals what its data do see of it (judged so, a clean foreign
     recording's diagnosis found +0.8 cm on one fibre's pairs), where its fitted value lies within its sigma
     (accuracy.py names it imprecise)."""
