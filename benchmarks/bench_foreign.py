@@ -93,7 +93,6 @@ def _lever_arm_error(lever_arm_m, recording) -> float:
     return float(np.linalg.norm(np.asarray(lever_arm_m) - np.asarray(recording.truth.extrinsic.lever_arm_m)))
 
 
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--families", nargs="*", default=list(FAMILIES), choices=FAMILIES)
