@@ -29,8 +29,8 @@ reported in (a vector's own coordinate; for the extrinsic pose, its tangent turn
 observability.tangent_to_axes). It widens the parameters the classes disagree on, and none where they agree
 within their noise. Each reported axis is widened on its own, so that a weak axis's widening does not leak into
 a determined one: widened in the tangent's coordinates instead, the extrinsic's translation (in the head's axes,
-pitched and turned against the body's) spread a named lever arm z's 1.2 m into the body's x, reported to 59 cm
-where the sandwich itself gives 2 mm (a revisiting city loop). Classes that share one bias do not show it, and a
+pitched and turned against the body's) would spread a named lever arm z's 1.2 m into the body's x: 59 cm where
+the sandwich itself gives 2 mm (a revisiting city loop). Classes that share one bias do not show it, and a
 biased class that holds most of a parameter's information takes the estimate with it: the others then disagree
 little.
 """
