@@ -142,3 +142,46 @@ def test_extrinsic_axes_whose_sigma_leaves_them_weak_are_named_and_held_alone():
     moved_m = extrinsic.translation() - nominal.translation()
     assert moved_m == pytest.approx([0.03, 0.02, 0.0], abs=1e-4)  # the tangent's v, not exactly the translation
     assert extrinsic.rotation().ypr() == pytest.approx([0.0, 0.0, 0.002], abs=1e-5)  # yaw to nominal, roll kept
+
+
+def test_a_value_held_in_part_at_nominal_reports_the_nominal_s_error_along_what_is_held():
+    """One fibre whose elevation and height the data see only as their sum to 3 times the prior's information (a
+    weak direction: held at nominal), range and azimuth and the difference well. Over 4000 draws of the truth
+    (from the prior, the nominal zero) and of the data, the locked fit's errors: the elevation and height carry
+    half the nominal's error (share 1/2), which the unlocked fit's marginals, the data's sigma along the weak
+    direction (1/2 of the prior's there), miss; the bounded sigmas cover them. With noise 20 times the model's
+    variance, the sandwich of the unlocked fit exceeds the prior, the locked fit's errors do not: bounded by it."""
+    layout = _layout(1)
+    prior_file = np.array([0.02, 0.2, 0.2, 0.02])  # m, deg: the layout's priors in file units
+    q = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1], [0, 0, 1, -1]]) / np.sqrt([1, 1, 2, 2])[:, None]
+    W = q.T @ np.diag([1e3, 500.0, 3.0, 200.0]) @ q  # whitened information: the third row of q is weak
+    weak = WeakDirections.of(_information(layout, [np.sqrt(e) * r for e, r in zip([1e3, 500.0, 3.0, 200.0], q)],
+                                          strength=1.0), layout)
+    assert weak.basis.shape[1] == 1
+    shares = weak.held_shares()
+    np.testing.assert_allclose([shares.get(f"fibre_1.{n}", 0.0) for n in ("d_range_m", "d_azimuth_deg",
+                                                                          "d_elevation_deg", "h_z_m")],
+                               [0, 0, 0.5, 0.5], atol=1e-9)
+    rng = np.random.default_rng(3)
+    keep = np.eye(4) - weak.basis @ weak.basis.T  # whitened: the locked fit moves only off the weak direction
+    N = np.linalg.svd(keep)[0][:, :3]
+    H = W + np.eye(4)
+    for inflation in (1.0, 20.0):
+        truth = rng.standard_normal((4000, 4))
+        # the data's own estimate of the truth: information W, noise `inflation` times its model's variance
+        data = truth + rng.standard_normal((4000, 4)) @ np.linalg.cholesky(inflation * np.linalg.inv(W)).T
+        locked = (data @ W @ N) @ np.linalg.inv(N.T @ H @ N) @ N.T
+        empirical = np.sqrt(np.mean((locked - truth) ** 2, axis=0)) * prior_file
+        unlocked = np.linalg.inv(H) @ (inflation * W + np.eye(4)) @ np.linalg.inv(H)  # its sandwich
+        sigma = np.sqrt(np.diag(unlocked)) * prior_file
+        uncertainty = Uncertainty(sigma[None].copy(), prior_file[None], None, None, None, None)
+        bounded = uncertainty.with_nominal_held({f"fibre_0.{n}": s for n, s in zip(
+            ("d_range_m", "d_azimuth_deg", "d_elevation_deg", "h_z_m"), [0, 0, 0.5, 0.5])}, 0.25).intrinsics[0]
+        if inflation == 1.0:  # the unlocked marginals miss half the held error; bounded: within 5 %
+            assert np.all(sigma[2:] < 0.8 * empirical[2:]), (sigma, empirical)
+            np.testing.assert_allclose(bounded[2:], empirical[2:], rtol=0.05)
+        else:  # the sandwich above the prior: bounded by it, and still covering the errors
+            assert np.all(sigma[2:] > prior_file[2:]), sigma
+            np.testing.assert_allclose(bounded[2:], prior_file[2:])
+            assert np.all(bounded[2:] >= empirical[2:]), (bounded, empirical)
+        np.testing.assert_array_equal(bounded[:2], sigma[:2])  # nothing of them held: as they were

@@ -28,7 +28,7 @@ from graphcal.calibration.returns import Estimate, initial_estimate
 from graphcal.calibration.static_sensor import halves_over_draws, pair_draws, soft_over_draws
 from graphcal.calibration.unseen_controls import unseen_controls
 from graphcal.calibration.verdict import RIGID_REASON, Motion, verdict
-from graphcal.calibration.weak_directions import WeakDirections, seen_weakly
+from graphcal.calibration.weak_directions import NAMED_SHARE, WeakDirections, seen_weakly
 from graphcal.common.cluster import IN_PROCESS, TaskMap, open_task_map
 from graphcal.common.errors import CalibrationError
 from graphcal.common.progress import status
@@ -283,7 +283,9 @@ class CalibrationPipeline:
             unobservable += rigid + [name for name in TRAJECTORY_GAUGE if name not in unobservable]
             held += rigid
             reasons |= {name: RIGID_REASON for name in rigid}
-        coarse = imprecise(final.sigmas, config.accuracy, {*unobservable, *held})
+        shares = self.weak.held_shares()
+        coarse = imprecise(final.sigmas.with_nominal_held(shares, NAMED_SHARE), config.accuracy,
+                           {*unobservable, *held})
         reasons |= coarse
         calibration = Calibration(data.sensor.model, data.sensor.reference_fibre, estimate, data.control_times_s,
                                   tuple(unobservable), tuple(held), reasons, drive_of(self.recording), tuple(coarse))
@@ -292,7 +294,7 @@ class CalibrationPipeline:
                                  self.state.seconds + time.perf_counter() - self.started, self.timings,
                                  halves=None if self.halves is None else self.halves.to_yaml_dict(),
                                  shared_returns_uncertainty=final.shared_returns,
-                                 cluster_robust_uncertainty=final.cluster_robust,
+                                 cluster_robust_uncertainty=final.cluster_robust, held_shares=shares,
                                  verdict=verdict(unobservable, reasons, Motion.of(data.R_nav, data.X_nav),
                                                  tuple(coarse)),
                                  trajectory_noise=self.recording.world.white_noise,

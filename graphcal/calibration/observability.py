@@ -78,6 +78,29 @@ class Uncertainty:
         return replace(self, intrinsics=wider(self.intrinsics, other.intrinsics),
                        extrinsic=wider(self.extrinsic, other.extrinsic), controls=wider(self.controls, other.controls))
 
+    def with_nominal_held(self, shares: dict[str, float], named_share: float) -> Uncertainty:
+        """These sigmas where a part of a parameter's prior variance is held at its nominal value (shares: {name: s},
+        s in [0, 1] its share of prior variance in the directions held, WeakDirections.held_shares): at least sqrt(s)
+        times its prior sigma, since along those directions its value is the nominal's, whose error is the prior's
+        whatever the data add along the rest, where the final fit's marginals (the lock left out) give the data's
+        sigma along them, down to a third of the prior's; and, once named (s above named_share), at most its prior
+        sigma, since along the rest the data see it at least ten times better than the prior, where a sandwich's
+        scatter pushed through H^-1 along the held directions can exceed the prior's. A held axis alone (s = 1) has
+        its prior's sigma."""
+        intrinsics = self.intrinsics.copy()
+        extrinsic = None if self.extrinsic is None else self.extrinsic.copy()
+        for name, share in shares.items():
+            group, row, column = parameter_at(name)
+            if group == "intrinsics":
+                sigmas, at, prior = intrinsics, (row, column), self.intrinsics_prior[row, column]
+            elif group == "extrinsic" and extrinsic is not None:
+                sigmas, at, prior = extrinsic, column, self.extrinsic_prior[column]
+            else:
+                continue
+            upper = prior if share > named_share else np.inf
+            sigmas[at] = np.clip(sigmas[at], np.sqrt(share) * prior, upper)  # NaN (not estimated) stays NaN
+        return replace(self, intrinsics=intrinsics, extrinsic=extrinsic)
+
     def without(self, held: set[str]) -> Uncertainty:
         """These sigmas with NaN for the named parameters (held at nominal: not estimated, no sigma to report)."""
         intrinsics = self.intrinsics.copy()

@@ -26,6 +26,7 @@ from graphcal.calibration.observability import (
     reported,
 )
 from graphcal.calibration.returns import Estimate, pose_of
+from graphcal.calibration.weak_directions import NAMED_SHARE
 from graphcal.common.errors import RecordingError, finite_number
 from graphcal.recording.extrinsic import Extrinsic
 from graphcal.recording.intrinsics import offsets_from_file_units, offsets_to_file_units
@@ -77,7 +78,8 @@ class Calibration:
     data cannot observe (unobservable), of those held at their nominal value (held: calibration.yaml
     writes them null), and why each unobservable one is (reasons: {name: plain words}). An unobservable
     parameter that is not held keeps the value the fit gave it along what the data see of it in
-    combination with others (weak_directions.py): its sigma is then close to its prior's. imprecise: the
+    combination with others (weak_directions.py): its sigma is then close to its prior's
+    (Uncertainty.with_nominal_held). imprecise: the
     intrinsic parameters the data do determine, more coarsely than required (accuracy.py), their reasons in
     reasons too: fitted, exported as fitted. drive: the recording it was made on (drive_of; None: not known),
     which its trajectory corrections belong to."""
@@ -180,7 +182,8 @@ class CalibrationResult:
     beyond the trajectory's common motion); trajectory_noise: the white noise smoothed out of the recorded poses
     before the calibration used them (recording.world.white_noise); ins_steps_s (S, 2): the times [s] of the
     recorded poses on either side of each step of the recorded positions, with a control at each
-    (ReturnData.steps_s)."""
+    (ReturnData.steps_s); held_shares: {parameter name: its share of prior variance in the weak directions held at
+    nominal} (WeakDirections.held_shares), which bound its reported sigma (sigmas)."""
 
     calibration: Calibration
     uncertainty: Uncertainty
@@ -199,6 +202,7 @@ class CalibrationResult:
     verdict: str | None = None
     trajectory_noise: PoseNoise = field(default_factory=PoseNoise.none)
     ins_steps_s: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    held_shares: dict[str, float] = field(default_factory=dict)
 
     @property
     def energy_cm2(self) -> tuple[float, float]:
@@ -207,9 +211,10 @@ class CalibrationResult:
 
     @property
     def sigmas(self) -> Uncertainty:
-        """The 1-sigmas to report (observability.reported), NaN for the parameters held at nominal."""
+        """The 1-sigmas to report (observability.reported), bounded where the weak directions hold a part of a
+        parameter at its nominal value (Uncertainty.with_nominal_held), NaN for the parameters held at nominal."""
         sigmas = reported(self.uncertainty, self.shared_returns_uncertainty, self.cluster_robust_uncertainty)
-        return sigmas.without(set(self.calibration.held))
+        return sigmas.with_nominal_held(self.held_shares, NAMED_SHARE).without(set(self.calibration.held))
 
     @property
     def unobservable(self) -> tuple[str, ...]:

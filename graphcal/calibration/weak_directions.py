@@ -133,6 +133,11 @@ class WeakDirections:
         """(P,) each parameter's share of prior variance in the weak directions (projector diagonal)."""
         return np.einsum("pk,pk->p", self.basis, self.basis)
 
+    def held_shares(self) -> dict[str, float]:
+        """{parameter name: share} for every parameter with a share of its prior variance in the weak directions
+        (their values there are the nominal's: Uncertainty.with_nominal_held)."""
+        return {name: float(min(share, 1.0)) for name, share in zip(self.layout.names, self.share) if share > 1e-9}
+
     def named(self) -> dict[str, str]:
         """{parameter name: reason} for every parameter whose share exceeds NAMED_SHARE."""
         names, share = self.layout.names, self.share
