@@ -44,6 +44,8 @@ def test_with_trajectory_corrections_the_lever_arm_is_known_worse_named_and_held
     lever_arm_m = with_trajectory.calibration.estimate.extrinsic.translation()
     held = [EXTRINSIC_NAMES.index(name.removeprefix("extrinsic.")) - 3 for name in weak]
     np.testing.assert_allclose(lever_arm_m[held], np.asarray(recording.extrinsic.lever_arm_m)[held], atol=1e-4)
+    # its value is the nominal's: its sigma is the nominal's error, its prior's (the data's is in the reason)
+    np.testing.assert_allclose(with_trajectory.sigmas.extrinsic[3:][held], once.extrinsic_prior[3:][held])
     # interrupted right after the step that found them, and resumed: the uninterrupted calibration
     save = Checkpoint.save
 
