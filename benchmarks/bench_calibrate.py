@@ -20,7 +20,9 @@ Cases (each in its own process, so each has its own peak memory):
 - sim6_joint_trajectory: intrinsics, extrinsic and trajectory at once, from the section 4.5.2 start
   (pitched head) with the piecewise INS error: with the level head of sim6_turn's nominal start,
   the fibres that see only the flat ground can all move their rings up or down together, a
-  direction the energy barely sees, and the run slides into the fibres' collapse (docs/reference/math.md).
+  direction the energy barely sees, and the run slides into the fibres' collapse (docs/reference/math.md);
+- sim6_level_joint_trajectory: the same with sim6_turn's nominal start (level head, the nominal model exact,
+  the factory priors): does the calibration converge, or refuse with the cause.
 Prints the figures, writes benchmarks/results/calibrate.json and, when the three turn
 cases ran, benchmarks/results/joint_vs_successive.png (J per outer iteration).
 """
@@ -61,7 +63,8 @@ CASES = {"sim2_intrinsic": ("sim2_street", {}, {"mode": "intrinsic", **FAR}),
          "sim6_trajectory_pose": ("sim6_turn", {}, {"mode": "trajectory", "trajectory": {"pose_corrections": True}}),
          "sim6_heading_translation": ("sim6_turn", HEADING, {"mode": "trajectory"}),
          "sim6_heading_pose": ("sim6_turn", HEADING, {"mode": "trajectory", "trajectory": {"pose_corrections": True}}),
-         "sim6_joint_trajectory": ("sim6_turn", SECTION_4_5_2, {"mode": "joint_trajectory", **FAR})}
+         "sim6_joint_trajectory": ("sim6_turn", SECTION_4_5_2, {"mode": "joint_trajectory", **FAR}),
+         "sim6_level_joint_trajectory": ("sim6_turn", {}, {"mode": "joint_trajectory"})}
 JOINT_VS_SUCCESSIVE = ("turn_extrinsic_then_intrinsic", "turn_intrinsic_then_extrinsic", "turn_joint")
 
 

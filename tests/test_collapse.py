@@ -95,6 +95,14 @@ def test_crossed_rings_a_cap_and_a_slide_are_refused_with_what_slid():
         check_converged([{"phase": "coarse", "max_step": 0.02, "stop": "cap"}], "rec")
     with pytest.raises(CalibrationError, match="did not converge: .* coarse phase"):  # the cap left no fine step
         check_converged([{"phase": "coarse", "max_step": 0.002, "stop": "coarse done"}], "rec")
+    # a stage whose coarse phase stopped on the cap, though the fine phase run again (weak directions grown)
+    # converged from there: refused, the cap named; an earlier stage's cap (a successive mode) is that stage's
+    capped = {"mode": "joint", "phase": "coarse", "max_step": 0.03, "stop": "cap", "energy_after_cm2": 0.34}
+    again = {"mode": "joint, weak directions held", "phase": "fine", "max_step": 1e-6, "stop": "converged"}
+    with pytest.raises(CalibrationError, match=r"did not converge: its coarse phase stopped on the cap after outer "
+                                               r"iteration 1 \(J 0.34 cm²"):
+        check_converged([capped, again], "rec")
+    check_converged([capped | {"mode": "extrinsic"}, again], "rec")
     layout = Layout((1, 2), False, np.tile([0.02, np.radians(0.2), np.radians(0.2), 0.02], 2), np.eye(3))
     offsets = np.zeros((3, 4))
     offsets[2, 3] = 0.12  # 6 prior sigmas

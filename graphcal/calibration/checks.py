@@ -60,13 +60,32 @@ ENERGY_EXCESS = 4.0
 def check_converged(history: list[dict], where: str) -> None:
     """Raise when the last stage did not end converged in its fine phase: it stopped on the cap of outer
     iterations (stopping.max_outer_iterations) in the coarse phase (it never reached the basin) or in the
-    fine phase (the estimate was still moving), or the cap left the fine phase no iteration."""
+    fine phase (the estimate was still moving), or the cap left the fine phase no iteration; or when any of its
+    phases stopped on the cap, though a later solve of it converged (the weak directions grown, the fine phase run
+    again): that solve started from where the capped phase was left, outside the basin (measured: sim6_turn at full
+    size with trajectory corrections, its coarse phase capped at J 0.34 cm², then converged fine with four upward
+    rings collapsed on the horizon)."""
     last = history[-1]
     if last.get("stop") != "converged":
         raise CalibrationError(
             f"{where}: the calibration did not converge: it stopped after {len(history)} outer iterations still "
             f"in the {last['phase']} phase (last step {last['max_step']:.2g}); allow more (stopping.max_outer_iterations), "
             "or start from a nominal model closer to the truth")
+    stage = _stage(last)
+    capped = [k for k, row in enumerate(history) if _stage(row) == stage and row.get("stop") == "cap"]
+    if capped:
+        row = history[capped[0]]
+        raise CalibrationError(
+            f"{where}: the calibration did not converge: its {row['phase']} phase stopped on the cap after outer "
+            f"iteration {capped[0] + 1} (J {row['energy_after_cm2']:.3g} cm², last step {row['max_step']:.2g}), and "
+            "the fit that went on from there started outside the basin; allow more (stopping.max_outer_iterations), "
+            "or start from a nominal model, and recorded poses, closer to the truth")
+
+
+def _stage(row: dict) -> str:
+    """The stage (a mode) an outer iteration of the history belongs to: its `mode` without the label of a solve
+    made again (", weak directions held")."""
+    return str(row.get("mode", "")).split(",")[0]
 
 
 def check_rings_in_order(elevation_deg: np.ndarray, d_elevation_rad: np.ndarray, prior_sigma_deg: float,
