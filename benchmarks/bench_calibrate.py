@@ -30,6 +30,7 @@ cases ran, benchmarks/results/joint_vs_successive.png (J per outer iteration).
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
 import platform
 import time
@@ -179,7 +180,8 @@ def main() -> None:
         if summary:
             print(f"{name} over {args.seeds} seeds: {summary}", flush=True)
     with atomic_path(args.out) as tmp:
-        tmp.write_text(json.dumps({"machine": platform.platform(), "size": args.size, "cases": figures,
+        tmp.write_text(json.dumps({"machine": platform.platform(), "date": datetime.datetime.now(datetime.timezone.utc)
+                                   .isoformat(timespec="seconds"), "size": args.size, "cases": figures,
                                    "over_seeds": over_seeds}, indent=2))
     print(f"wrote {args.out}")
     if all(any(row["case"] == case for row in figures) for case in JOINT_VS_SUCCESSIVE):
