@@ -96,13 +96,17 @@ def test_crossed_rings_a_cap_and_a_slide_are_refused_with_what_slid():
     with pytest.raises(CalibrationError, match="did not converge: .* coarse phase"):  # the cap left no fine step
         check_converged([{"phase": "coarse", "max_step": 0.002, "stop": "coarse done"}], "rec")
     # a stage whose coarse phase stopped on the cap, though the fine phase run again (weak directions grown)
-    # converged from there: refused, the cap named; an earlier stage's cap (a successive mode) is that stage's
+    # converged from there: refused, the cap named; an earlier stage's cap (a successive mode) is that stage's, and a
+    # fine phase capped then run again to convergence had reached the basin
     capped = {"mode": "joint", "phase": "coarse", "max_step": 0.03, "stop": "cap", "energy_after_cm2": 0.34}
     again = {"mode": "joint, weak directions held", "phase": "fine", "max_step": 1e-6, "stop": "converged"}
     with pytest.raises(CalibrationError, match=r"did not converge: its coarse phase stopped on the cap after outer "
                                                r"iteration 1 \(J 0.34 cm²"):
         check_converged([capped, again], "rec")
     check_converged([capped | {"mode": "extrinsic"}, again], "rec")
+    check_converged([capped | {"phase": "fine"}, again], "rec")  # a fine phase capped was in the basin: run again
+    done = capped | {"mode": "joint, intrinsics held", "stop": "coarse done"}  # the coarse phase run again, done
+    check_converged([capped, done, again], "rec")
     layout = Layout((1, 2), False, np.tile([0.02, np.radians(0.2), np.radians(0.2), 0.02], 2), np.eye(3))
     offsets = np.zeros((3, 4))
     offsets[2, 3] = 0.12  # 6 prior sigmas
@@ -166,3 +170,17 @@ def test_the_coarse_plane_distance_gate_is_lifted_where_the_trajectory_is_estima
     assert resolved.fine.max_plane_distance_m == 0.05
     with pytest.raises(ValueError, match="association.fine.max_plane_distance_m: expected a distance in m"):
         CalibrationConfig(association={"fine": {"max_plane_distance_m": None}})
+
+
+def test_a_coarse_phase_capped_with_the_trajectory_estimated_runs_again_with_the_intrinsics_held():
+    """Trajectory corrections estimated beside the intrinsics, the coarse phase stopped on its cap: it runs again
+    from the start with the intrinsics held at nominal (CalibrationPipeline), and the refusal judges that run's end.
+    sim6_turn at size 0.02 with a cap of 2 outer iterations: both coarse runs capped (outer iterations 1-2, then
+    3-4, the cap leaving the fine phase none): one coarse run alone would be refused after 2."""
+    import graphcal
+    from graphcal.simulation.script import load_scenario_builder
+
+    recording = graphcal.simulate(load_scenario_builder("sim6_turn")(size=0.02, seed=0), quiet=True)
+    stopping = {"max_outer_iterations": 2}
+    with pytest.raises(CalibrationError, match=r"stopped after 4 outer iterations still in the coarse phase"):
+        graphcal.calibrate(recording, CalibrationConfig(mode="joint_trajectory", stopping=stopping), quiet=True)
