@@ -184,3 +184,39 @@ def test_a_coarse_phase_capped_with_the_trajectory_estimated_runs_again_with_the
     stopping = {"max_outer_iterations": 2}
     with pytest.raises(CalibrationError, match=r"stopped after 4 outer iterations still in the coarse phase"):
         graphcal.calibrate(recording, CalibrationConfig(mode="joint_trajectory", stopping=stopping), quiet=True)
+
+
+def test_a_calibration_interrupted_inside_the_coarse_phase_run_again_resumes_to_the_uninterrupted_one(tmp_path,
+                                                                                                     monkeypatch):
+    """The coarse phase run again with the intrinsics held (above), interrupted inside it and resumed from the
+    checkpoint: the same outer iterations as the uninterrupted calibration (sim6_turn at size 0.02, a cap of 3)."""
+    import graphcal
+    from graphcal.calibration.checkpoint import Checkpoint
+    from graphcal.simulation.script import load_scenario_builder
+
+    recording = graphcal.simulate(load_scenario_builder("sim6_turn")(size=0.02, seed=0), quiet=True)
+    config = CalibrationConfig(mode="joint_trajectory",
+                               stopping={"max_outer_iterations": 3, "refuse_unconverged": False})
+    uninterrupted = graphcal.calibrate(recording, config, quiet=True)
+    assert any(row["mode"].endswith(", intrinsics held") for row in uninterrupted.history)
+    save = Checkpoint.save
+
+    def stopped_inside_the_run_again(self, state):
+        save(self, state)
+        if state.inside is not None and any(row["mode"].endswith(", intrinsics held") for row in state.rows):
+            raise KeyboardInterrupt
+
+    path = tmp_path / "checkpoint.npz"
+    monkeypatch.setattr(Checkpoint, "save", stopped_inside_the_run_again)
+    with pytest.raises(KeyboardInterrupt):
+        graphcal.calibrate(recording, config, quiet=True, checkpoint=path)
+    monkeypatch.setattr(Checkpoint, "save", save)
+    resumed = graphcal.calibrate(recording, config, quiet=True, checkpoint=path)
+    # the same steps (before the history's first coarse rows were read, it skipped the run again: 4 rows of 6);
+    # the same figures to the checkpoint's round-off (the coarse phase's resume, test_trajectory_calibration.py)
+    assert ([(row["mode"], row["phase"], row["stop"]) for row in resumed.history]
+            == [(row["mode"], row["phase"], row["stop"]) for row in uninterrupted.history])
+    np.testing.assert_allclose([row["energy_cm2"] for row in resumed.history],
+                               [row["energy_cm2"] for row in uninterrupted.history], rtol=1e-6)
+    for a, b in zip(resumed.calibration.estimate.corrections, uninterrupted.calibration.estimate.corrections):
+        assert a.equals(b, 1e-7)

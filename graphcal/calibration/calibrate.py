@@ -229,24 +229,28 @@ class CalibrationPipeline:
         fine phase then converged with four rings collapsed on the horizon). The coarse phase runs again from the
         start with every intrinsic held at nominal (there: done in 6 outer iterations, and the fine phase, the
         intrinsics freed, converges at J's floor). Only then: from the start a drive that converges is better off
-        with them free (dev/open-questions.md). Deterministic on a resumed run: the capped rows are in its history."""
-        problem, rows = self.problem, self.history.rows
-        if not (problem.estimated[0] and problem.estimated[2] and rows and rows[-1]["phase"] == "coarse"
-                and rows[-1]["stop"] == "cap"):
+        with them free (dev/open-questions.md). Decided from the history's rows of the first coarse phase (labelled
+        with the stage alone), which a resumed run has whether it stopped inside the coarse phase run again or after it:
+        the same steps run in the same order."""
+        problem, stage = self.problem, self.problem.stages[-1]
+        capped = any(row["mode"] == stage and row["phase"] == "coarse" and row["stop"] == "cap"
+                     for row in self.history.rows)  # the first coarse phase's rows; a resumed run has them too
+        if not (problem.estimated[0] and problem.estimated[2] and capped):
             return
-        if self.state.inside is None and self.state.done < self.entered + 1:  # not resumed past this step
-            self.estimate = initial_estimate(self.recording, problem.full)
         intrinsics = tuple(f"fibre_{fibre}.{name}" for fibre in range(problem.full.sensor.n_fibres)
                            for name in INTRINSIC_NAMES)
-        self.solve(last=("coarse",), label=", intrinsics held", hold=intrinsics)
+        self.solve(last=("coarse",), label=", intrinsics held", hold=intrinsics, from_start=True)
 
     @resumable
     def solve(self, last: tuple[Phase, ...], first: int = 0, label: str = "",
-              plateau_from: tuple[float, ...] = (), hold: tuple[str, ...] = ()) -> None:
+              plateau_from: tuple[float, ...] = (), hold: tuple[str, ...] = (), from_start: bool = False) -> None:
         """The stages from `first` one by one (successive modes stay successive), the last one's phases `last`
         only, the weak directions set back to and held at nominal, the parameters named in `hold` held at nominal
-        too; plateau_from: the last stage's J curve this solve goes on from (Problem.fit). Resumed (state.inside):
-        from the stage and outer iteration the checkpoint stopped at."""
+        too; plateau_from: the last stage's J curve this solve goes on from (Problem.fit); from_start: from the
+        initial estimate, not the current one. Resumed (state.inside): from the stage and outer iteration the
+        checkpoint stopped at."""
+        if from_start and self.state.inside is None:  # resumed inside it, the checkpoint's estimate goes on
+            self.estimate = initial_estimate(self.recording, self.problem.full)
         self.estimate = self.back_to_nominal(self.estimate)
         stages, cap, used = self.problem.stages, self.problem.settings.stopping.max_outer_iterations, self.state.used
         start, done = self.state.inside or (first, 0)
