@@ -176,7 +176,7 @@ def test_a_value_held_in_part_at_nominal_reports_the_nominal_s_error_along_what_
         sigma = np.sqrt(np.diag(unlocked)) * prior_file
         uncertainty = Uncertainty(sigma[None].copy(), prior_file[None], None, None, None, None)
         bounded = uncertainty.with_nominal_held({f"fibre_0.{n}": s for n, s in zip(
-            ("d_range_m", "d_azimuth_deg", "d_elevation_deg", "h_z_m"), [0, 0, 0.5, 0.5])}, 0.25).intrinsics[0]
+            ("d_range_m", "d_azimuth_deg", "d_elevation_deg", "h_z_m"), [0, 0, 0.5, 0.5])}).intrinsics[0]
         if inflation == 1.0:  # the unlocked marginals miss half the held error; bounded: within 5 %
             assert np.all(sigma[2:] < 0.8 * empirical[2:]), (sigma, empirical)
             np.testing.assert_allclose(bounded[2:], empirical[2:], rtol=0.05)

@@ -28,7 +28,7 @@ from graphcal.calibration.returns import Estimate, initial_estimate
 from graphcal.calibration.static_sensor import halves_over_draws, pair_draws, soft_over_draws
 from graphcal.calibration.unseen_controls import unseen_controls
 from graphcal.calibration.verdict import RIGID_REASON, Motion, verdict
-from graphcal.calibration.weak_directions import NAMED_SHARE, WeakDirections, seen_weakly
+from graphcal.calibration.weak_directions import WeakDirections, seen_weakly
 from graphcal.common.cluster import IN_PROCESS, TaskMap, open_task_map
 from graphcal.common.errors import CalibrationError
 from graphcal.common.progress import status
@@ -296,7 +296,7 @@ class CalibrationPipeline:
         reasons |= {name: reason for name, reason in self.weak.named().items() if name not in held}
         reasons |= self.state.seen_weakly
         if estimated[2]:
-            reasons |= unseen_controls(final.sigmas.controls, data.control_times_s,
+            reasons |= unseen_controls(final.sigmas().controls, data.control_times_s,
                                        problem.config.trajectory.deformation, problem.config.weighting.sigma0_m)
         unobservable = named_held + [name for name in reasons if name not in held]
         self.check(final, unobservable)
@@ -308,7 +308,7 @@ class CalibrationPipeline:
             held += rigid
             reasons |= {name: RIGID_REASON for name in rigid}
         shares = self.weak.held_shares()
-        coarse = imprecise(final.sigmas.with_nominal_held(shares, NAMED_SHARE), config.accuracy,
+        coarse = imprecise(final.sigmas(shares), config.accuracy,
                            {*unobservable, *held})
         reasons |= coarse
         calibration = Calibration(data.sensor.model, data.sensor.reference_fibre, estimate, data.control_times_s,

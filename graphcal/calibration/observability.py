@@ -26,6 +26,9 @@ INTRINSIC_NAMES = ("d_range_m", "d_azimuth_deg", "d_elevation_deg", "h_z_m")
 EXTRINSIC_NAMES = ("roll_deg", "pitch_deg", "yaw_deg", "lever_arm_x_m", "lever_arm_y_m", "lever_arm_z_m")
 TRAJECTORY_GAUGE = ("trajectory.common_translation", "trajectory.common_rotation")
 CONTROL_NAMES = ("rotation_x_deg", "rotation_y_deg", "rotation_z_deg", "x_m", "y_m", "z_m")
+# share of a parameter's prior variance in the weak directions held at nominal above which it is named unobservable
+# (weak_directions.py)
+NAMED_SHARE = 0.25
 
 
 def parameter_at(name: str) -> tuple[str, int, int]:
@@ -78,12 +81,12 @@ class Uncertainty:
         return replace(self, intrinsics=wider(self.intrinsics, other.intrinsics),
                        extrinsic=wider(self.extrinsic, other.extrinsic), controls=wider(self.controls, other.controls))
 
-    def with_nominal_held(self, shares: dict[str, float], named_share: float) -> Uncertainty:
+    def with_nominal_held(self, shares: dict[str, float]) -> Uncertainty:
         """These sigmas where a part of a parameter's prior variance is held at its nominal value (shares: {name: s},
         s in [0, 1] its share of prior variance in the directions held, WeakDirections.held_shares): at least sqrt(s)
         times its prior sigma, since along those directions its value is the nominal's, whose error is the prior's
         whatever the data add along the rest, where the final fit's marginals (the lock left out) give the data's
-        sigma along them, down to a third of the prior's; and, once named (s above named_share), at most its prior
+        sigma along them, down to a third of the prior's; and, once named (s above NAMED_SHARE), at most its prior
         sigma, since along the rest the data see it at least ten times better than the prior, where a sandwich's
         scatter pushed through H^-1 along the held directions can exceed the prior's. A held axis alone (s = 1) has
         its prior's sigma."""
@@ -97,7 +100,7 @@ class Uncertainty:
                 sigmas, at, prior = extrinsic, column, self.extrinsic_prior[column]
             else:
                 continue
-            upper = prior if share > named_share else np.inf
+            upper = prior if share > NAMED_SHARE else np.inf
             sigmas[at] = np.clip(sigmas[at], np.sqrt(share) * prior, upper)  # NaN (not estimated) stays NaN
         return replace(self, intrinsics=intrinsics, extrinsic=extrinsic)
 
@@ -117,12 +120,15 @@ class Uncertainty:
         return replace(self, intrinsics=intrinsics, extrinsic=extrinsic, controls=controls)
 
 
-def reported(model: Uncertainty, shared_returns: Uncertainty | None, cluster_robust: Uncertainty | None) -> Uncertainty:
+def reported(model: Uncertainty, shared_returns: Uncertainty | None, cluster_robust: Uncertainty | None,
+             held_shares: dict[str, float] | None = None) -> Uncertainty:
     """The 1-sigmas a calibration reports: with each return's noise counted once when computed (shared_returns), else
     the model's, each widened to the cluster-robust sigma where that is larger (the residuals vary more than their
-    model)."""
+    model), and bounded where the weak directions hold a share of a parameter at its nominal value (held_shares:
+    {name: share}, WeakDirections.held_shares; Uncertainty.with_nominal_held)."""
     modelled = model if shared_returns is None else shared_returns
-    return modelled if cluster_robust is None else modelled.widest(cluster_robust)
+    widest = modelled if cluster_robust is None else modelled.widest(cluster_robust)
+    return widest.with_nominal_held(held_shares or {})
 
 
 class Meat:

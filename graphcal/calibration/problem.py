@@ -94,10 +94,9 @@ class FinalFit:
     cluster_robust: Uncertainty | None
     expected_energy_cm2: float | None
 
-    @property
-    def sigmas(self) -> Uncertainty:
-        """The 1-sigmas the calibration reports (observability.reported)."""
-        return reported(self.uncertainty, self.shared_returns, self.cluster_robust)
+    def sigmas(self, held_shares: dict[str, float] | None = None) -> Uncertainty:
+        """The 1-sigmas the calibration reports (observability.reported), bounded by the shares held at nominal."""
+        return reported(self.uncertainty, self.shared_returns, self.cluster_robust, held_shares)
 
 
 @dataclass(frozen=True)

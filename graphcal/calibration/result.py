@@ -26,7 +26,6 @@ from graphcal.calibration.observability import (
     reported,
 )
 from graphcal.calibration.returns import Estimate, pose_of
-from graphcal.calibration.weak_directions import NAMED_SHARE
 from graphcal.common.errors import RecordingError, finite_number
 from graphcal.recording.extrinsic import Extrinsic
 from graphcal.recording.intrinsics import offsets_from_file_units, offsets_to_file_units
@@ -213,8 +212,8 @@ class CalibrationResult:
     def sigmas(self) -> Uncertainty:
         """The 1-sigmas to report (observability.reported), bounded where the weak directions hold a part of a
         parameter at its nominal value (Uncertainty.with_nominal_held), NaN for the parameters held at nominal."""
-        sigmas = reported(self.uncertainty, self.shared_returns_uncertainty, self.cluster_robust_uncertainty)
-        return sigmas.with_nominal_held(self.held_shares, NAMED_SHARE).without(set(self.calibration.held))
+        return reported(self.uncertainty, self.shared_returns_uncertainty, self.cluster_robust_uncertainty,
+                        self.held_shares).without(set(self.calibration.held))
 
     @property
     def unobservable(self) -> tuple[str, ...]:

@@ -29,14 +29,13 @@ from functools import partial
 import gtsam
 import numpy as np
 
-from graphcal.calibration.observability import EXTRINSIC_NAMES, INTRINSIC_NAMES, Uncertainty, shown, tangent_to_axes
+from graphcal.calibration.observability import (EXTRINSIC_NAMES, INTRINSIC_NAMES, NAMED_SHARE, Uncertainty, shown,
+                                                tangent_to_axes)
 
 # eigenvalue of the prior-whitened data information below which a direction is weak: the data carry
 # less than this many times the prior's information along it (posterior sigma above 1/sqrt(1 + 10) ~
 # 0.3 of the prior's)
 WEAK_INFORMATION = 10.0
-# share of a parameter's prior variance in the weak directions above which it is named unobservable
-NAMED_SHARE = 0.25
 LOCK_SIGMA = 1e-4  # in prior sigmas: how tightly the lock factor holds a weak coordinate
 UNION_ANGLE_DEG = 20.0  # a weak direction found again this close to one already held is the same one
 COMPONENT_SHOWN = 0.3  # |component| of a weak direction for a parameter to be listed in another's reason
