@@ -107,6 +107,9 @@ def test_crossed_rings_a_cap_and_a_slide_are_refused_with_what_slid():
     check_converged([capped | {"phase": "fine"}, again], "rec")  # a fine phase capped was in the basin: run again
     done = capped | {"mode": "joint, intrinsics held", "stop": "coarse done"}  # the coarse phase run again, done
     check_converged([capped, done, again], "rec")
+    with pytest.raises(CalibrationError, match=r"coarse phase stopped stalled \(J no longer falling"):
+        check_converged([capped | {"stop": "stalled"}, again], "rec")  # stalled, not run again: as the cap
+    check_converged([capped | {"stop": "stalled"}, done, again], "rec")
     layout = Layout((1, 2), False, np.tile([0.02, np.radians(0.2), np.radians(0.2), 0.02], 2), np.eye(3))
     offsets = np.zeros((3, 4))
     offsets[2, 3] = 0.12  # 6 prior sigmas
@@ -118,6 +121,25 @@ def test_crossed_rings_a_cap_and_a_slide_are_refused_with_what_slid():
     far = outside_priors(estimate, gtsam.Pose3(), layout, [])
     assert [name for name, _ in far] == ["fibre_1.d_elevation_deg", "fibre_2.h_z_m"]
     assert np.allclose([z for _, z in far], [7.0, 6.0])
+
+
+def test_a_coarse_phase_stalls_when_j_makes_no_new_low_at_its_full_gate():
+    """The gate opening 0.3 m -> 1 m by 1.2 a step lets J rise with the pairs it admits: no stall while it opens,
+    however J moves; at the full gate, six outer iterations without a low 1 % below the lowest before them stall the
+    phase, a new low restarts the count, and the fine phase's rows are not counted."""
+    from graphcal.calibration.problem import coarse_stalled
+
+    gates = [min(0.3 * 1.2 ** k, 1.0) for k in range(30)]
+    rows = lambda energies, phase="coarse": [{"phase": phase, "gate_m": g, "energy_cm2": e}  # noqa: E731
+                                            for g, e in zip(gates, energies)]
+    opening = [5.0, 4.0] + [4.5] * 5  # J rising while the gate opens (seven rows below 1 m)
+    assert not coarse_stalled(rows(opening), 1.0, 6, 0.01)
+    wandering = opening + [0.40, 0.36, 0.39, 0.37, 0.54, 0.44, 0.46, 0.38]  # a low at the second full-gate row
+    assert not coarse_stalled(rows(wandering[:-1]), 1.0, 6, 0.01)  # five without a new low
+    assert coarse_stalled(rows(wandering), 1.0, 6, 0.01)
+    assert not coarse_stalled(rows(wandering[:-1] + [0.35]), 1.0, 6, 0.01)  # 0.35 < 0.99 x 0.36: a new low
+    assert coarse_stalled(rows(wandering[:-1] + [0.357]), 1.0, 6, 0.01)  # 0.357: not 1 % below 0.36, stalled
+    assert not coarse_stalled(rows(wandering, "fine"), 1.0, 6, 0.01)
 
 
 def test_an_energy_the_noise_does_not_explain_is_refused():

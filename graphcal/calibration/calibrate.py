@@ -125,7 +125,7 @@ class CalibrationPipeline:
         # phase), at the switch to the fine phase (held from there on) and at the end (if it adds some,
         # they are held and the fine phase runs again): held at nominal wherever it is found
         self.find_weak_directions("coarse", "weak directions at the start")
-        self.solve(last=("coarse",))
+        self.solve(last=("coarse",), stall=self.can_start_again())
         self.start_again_holding_the_intrinsics_if_the_coarse_phase_capped()
         self.find_weak_directions("fine", "weak directions, fine phase")
         self.solve(last=("fine",), first=len(self.problem.stages) - 1)
@@ -221,8 +221,14 @@ class CalibrationPipeline:
         self.estimate = self.problem.priors.hold_at_nominal(self.estimate, self.problem.nominal)
         return self.timed("final fit and marginals", self.problem.final, self.estimate, None, True)
 
+    def can_start_again(self) -> bool:
+        """Whether a coarse phase that stops on its cap or stalls has a remedy: the trajectory and the intrinsics
+        estimated (start_again_holding_the_intrinsics_if_the_coarse_phase_capped)."""
+        return bool(self.problem.estimated[0] and self.problem.estimated[2])
+
     def start_again_holding_the_intrinsics_if_the_coarse_phase_capped(self) -> None:
-        """When the trajectory is estimated beside the intrinsics and the coarse phase stopped on its cap, its pairs,
+        """When the trajectory is estimated beside the intrinsics and the coarse phase stopped on its cap or stalled
+        (Problem.fit's stall: its J flat at its full gate for stopping.plateau_iterations outer iterations), its pairs,
         made with gates up to a metre about returns an INS still off by its error placed, let the intrinsics' weak
         directions take up what the corrections had not yet (measured: sim6_turn at full size, level head, 0.35 m
         piecewise INS error, 1 M returns: capped at 60 outer iterations with the upward rings slid by 2-3 deg, the
@@ -233,9 +239,9 @@ class CalibrationPipeline:
         with the stage alone), which a resumed run has whether it stopped inside the coarse phase run again or after it:
         the same steps run in the same order."""
         problem, stage = self.problem, self.problem.stages[-1]
-        capped = any(row["mode"] == stage and row["phase"] == "coarse" and row["stop"] == "cap"
+        capped = any(row["mode"] == stage and row["phase"] == "coarse" and row["stop"] in ("cap", "stalled")
                      for row in self.history.rows)  # the first coarse phase's rows; a resumed run has them too
-        if not (problem.estimated[0] and problem.estimated[2] and capped):
+        if not (self.can_start_again() and capped):
             return
         intrinsics = tuple(f"fibre_{fibre}.{name}" for fibre in range(problem.full.sensor.n_fibres)
                            for name in INTRINSIC_NAMES)
@@ -243,11 +249,13 @@ class CalibrationPipeline:
 
     @resumable
     def solve(self, last: tuple[Phase, ...], first: int = 0, label: str = "",
-              plateau_from: tuple[float, ...] = (), hold: tuple[str, ...] = (), from_start: bool = False) -> None:
+              plateau_from: tuple[float, ...] = (), hold: tuple[str, ...] = (), from_start: bool = False,
+              stall: bool = False) -> None:
         """The stages from `first` one by one (successive modes stay successive), the last one's phases `last`
         only, the weak directions set back to and held at nominal, the parameters named in `hold` held at nominal
         too; plateau_from: the last stage's J curve this solve goes on from (Problem.fit); from_start: from the
-        initial estimate, not the current one. Resumed (state.inside): from the stage and outer iteration the
+        initial estimate, not the current one; stall: the last stage's coarse phase stops once it stalls
+        (Problem.fit). Resumed (state.inside): from the stage and outer iteration the
         checkpoint stopped at."""
         if from_start and self.state.inside is None:  # resumed inside it, the checkpoint's estimate goes on
             self.estimate = initial_estimate(self.recording, self.problem.full)
@@ -276,7 +284,7 @@ class CalibrationPipeline:
                                        self.quiet, saved_each_iteration if self.checkpoint else None, ran,
                                        self.state.features_at if ran else None,
                                        plateau_from if k == len(stages) - 1 else (), self.state.window if ran else (),
-                                       spinner=False)
+                                       stall and k == len(stages) - 1, spinner=False)
             used[stage] = len(self.history.rows) - before
 
     def back_to_nominal(self, estimate: Estimate) -> Estimate:

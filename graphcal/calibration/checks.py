@@ -61,10 +61,10 @@ def check_converged(history: list[dict], where: str) -> None:
     """Raise when the last stage did not end converged in its fine phase: it stopped on the cap of outer
     iterations (stopping.max_outer_iterations) in the coarse phase (it never reached the basin) or in the
     fine phase (the estimate was still moving), or the cap left the fine phase no iteration; or when its last coarse
-    phase (one run again, CalibrationPipeline's intrinsics held, is judged, not the one before) stopped on the cap,
-    though a later solve of the stage converged (the weak directions grown, the fine phase run again): that solve
-    started from where the coarse phase was left, outside the basin (measured: sim6_turn at
-    full size with trajectory corrections, its coarse phase capped at J 0.34 cm², then converged fine with four
+    phase (one run again, CalibrationPipeline's intrinsics held, is judged, not the one before) stopped on the cap
+    or stalled (Problem.fit's stall), though a later solve of the stage converged (the weak directions grown, the
+    fine phase run again): that solve started from where the coarse phase was left, outside the basin (measured:
+    sim6_turn at full size with trajectory corrections, its coarse phase capped at J 0.34 cm², then converged fine with four
     upward rings collapsed on the horizon). A fine phase capped and then run again to convergence is accepted: it
     had reached the basin and was still moving."""
     last = history[-1]
@@ -75,10 +75,11 @@ def check_converged(history: list[dict], where: str) -> None:
             "or start from a nominal model closer to the truth")
     stage = _stage(last)
     coarse = [k for k, row in enumerate(history) if _stage(row) == stage and row.get("phase") == "coarse"]
-    if coarse and history[coarse[-1]].get("stop") == "cap":
+    if coarse and history[coarse[-1]].get("stop") in ("cap", "stalled"):
         row = history[coarse[-1]]
+        how = "on the cap" if row["stop"] == "cap" else "stalled (J no longer falling, its step above the fine phase's)"
         raise CalibrationError(
-            f"{where}: the calibration did not converge: its coarse phase stopped on the cap after outer iteration "
+            f"{where}: the calibration did not converge: its coarse phase stopped {how} after outer iteration "
             f"{coarse[-1] + 1} (J {row['energy_after_cm2']:.3g} cm², last step {row['max_step']:.2g}), and the fit "
             "that went on from there started outside the basin; allow more (stopping.max_outer_iterations), or "
             "start from a nominal model, and recorded poses, closer to the truth")

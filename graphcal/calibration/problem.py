@@ -426,7 +426,7 @@ class Problem:
             max_iterations: int | None = None, quiet: bool = True,
             after_each: Callable[[Estimate, Estimate | None, tuple], None] | None = None, ran: int = 0,
             features_at: Estimate | None = None, plateau_from: tuple[float, ...] = (),
-            window: tuple[Estimate, ...] = ()) -> Estimate:
+            window: tuple[Estimate, ...] = (), stall: bool = False) -> Estimate:
         """Outer iterations of one stage from this problem: the coarse phase (its subsample, the gate opening
         by gate_growth) until its step (step_size) falls below stopping.fine_below_m, then the fine phase until it
         falls below stopping.tolerance_m, J plateaus, or n_max (max_iterations, else stopping.max_outer_iterations,
@@ -446,10 +446,14 @@ class Problem:
         outer iterations whatever it moves). J's plateau counts only once the window no longer drifts (drifting):
         along a weak direction J is flat while the outer iterations still converge, each a fraction of the way
         (a tilted head over an open road: elevations 0.14 -> 0.010 deg RMS over eight fine iterations, with J flat
-        from the third)."""
+        from the third). stall: the coarse phase also stops (stop "stalled") once its J has made no new low for
+        stopping.plateau_iterations outer iterations at its full gate (coarse_stalled), its step still above
+        stopping.fine_below_m: it wanders instead of settling, and the caller has a remedy (CalibrationPipeline's
+        coarse phase run again with the intrinsics held)."""
         stopping, refresh_every = self.settings.stopping, self.settings.features.refresh_every
         n_max = stopping.max_outer_iterations if max_iterations is None else max_iterations
-        done = history.rows[len(history.rows) - ran:]
+        first_row = len(history.rows) - ran
+        done = history.rows[first_row:]
         fine = (self.fixed_pairs is not None or phases[0] == "fine"
                 or any(row["phase"] == "fine" or row["max_step"] < stopping.fine_below_m for row in done))
         if (fine and "fine" not in phases) or n_max <= ran:
@@ -506,6 +510,9 @@ class Problem:
                     estimate, problem = problem.at_every_control(estimate), self.in_phase("fine")
                     gate, association = problem.gates.gate_start_m, problem.association()
                     since_refresh, features, points = refresh_every, None, None
+            elif stall and coarse_stalled(history.rows[first_row:], problem.gates.gate_max_m,
+                                          stopping.plateau_iterations, stopping.plateau_improvement):
+                history.rows[-1]["stop"] = "stalled"
             else:
                 gate = min(gate * problem.gates.gate_growth, problem.gates.gate_max_m)
             if after_each is not None:
@@ -696,6 +703,16 @@ def step_size(a: Estimate, b: Estimate, phase: Phase = "fine") -> float:
     if not len(controls):
         return float(calibration)
     return float(max(calibration, np.median(controls) if phase == "coarse" else controls.max()))
+
+
+def coarse_stalled(rows: list[dict], gate_max_m: float, iterations: int, improvement: float) -> bool:
+    """True when the coarse phase's J (rows: a fit's history rows) at its full gate (gate_m at gate_max_m: a gate
+    still opening lets J rise with the pairs it admits) has made no new low for `iterations` outer iterations
+    (on_plateau). Measured: sim6_turn's level head with trajectory corrections, 1 M returns: its J reached 0.33 cm² at
+    the seventh outer iteration and wandered between 0.33 and 1.5 cm² until the cap of 60, its step never below
+    1 cm, while the upward fibres' elevations slid 2-3 deg."""
+    energies = [row["energy_cm2"] for row in rows if row["phase"] == "coarse" and row["gate_m"] >= gate_max_m]
+    return on_plateau(energies, iterations, improvement)
 
 
 def on_plateau(energies: list[float], iterations: int, improvement: float) -> bool:
