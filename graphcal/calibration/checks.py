@@ -64,9 +64,9 @@ def check_converged(history: list[dict], where: str) -> None:
     phase (one run again, CalibrationPipeline's intrinsics held, is judged, not the one before) stopped on the cap
     or stalled (Problem.fit's stall), though a later solve of the stage converged (the weak directions grown, the
     fine phase run again): that solve started from where the coarse phase was left, outside the basin (measured:
-    sim6_turn at full size with trajectory corrections, its coarse phase capped at J 0.34 cm², then converged fine with four
-    upward rings collapsed on the horizon). A fine phase capped and then run again to convergence is accepted: it
-    had reached the basin and was still moving."""
+    sim6_turn at full size with trajectory corrections, its coarse phase capped at J 0.34 cm², then converged fine
+    with four upward rings collapsed on the horizon). A fine phase capped and then run again to convergence is
+    accepted: it had reached the basin and was still moving."""
     last = history[-1]
     if last.get("stop") != "converged":
         raise CalibrationError(
