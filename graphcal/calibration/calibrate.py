@@ -126,7 +126,7 @@ class CalibrationPipeline:
         # they are held and the fine phase runs again): held at nominal wherever it is found
         self.find_weak_directions("coarse", "weak directions at the start")
         self.solve(last=("coarse",), stall=self.can_start_again())
-        self.start_again_holding_the_intrinsics_if_the_coarse_phase_capped()
+        self.start_again_holding_the_intrinsics_if_the_coarse_phase_stuck()
         self.find_weak_directions("fine", "weak directions, fine phase")
         self.solve(last=("fine",), first=len(self.problem.stages) - 1)
         self.find_weak_directions("fine", "weak directions at the end", grow=True)
@@ -223,10 +223,10 @@ class CalibrationPipeline:
 
     def can_start_again(self) -> bool:
         """Whether a coarse phase that stops on its cap or stalls has a remedy: the trajectory and the intrinsics
-        estimated (start_again_holding_the_intrinsics_if_the_coarse_phase_capped)."""
+        estimated (start_again_holding_the_intrinsics_if_the_coarse_phase_stuck)."""
         return bool(self.problem.estimated[0] and self.problem.estimated[2])
 
-    def start_again_holding_the_intrinsics_if_the_coarse_phase_capped(self) -> None:
+    def start_again_holding_the_intrinsics_if_the_coarse_phase_stuck(self) -> None:
         """When the trajectory is estimated beside the intrinsics and the coarse phase stopped on its cap or stalled
         (Problem.fit's stall: its J flat at its full gate for stopping.plateau_iterations outer iterations), its pairs,
         made with gates up to a metre about returns an INS still off by its error placed, let the intrinsics' weak
@@ -239,9 +239,9 @@ class CalibrationPipeline:
         with the stage alone), which a resumed run has whether it stopped inside the coarse phase run again or after it:
         the same steps run in the same order."""
         problem, stage = self.problem, self.problem.stages[-1]
-        capped = any(row["mode"] == stage and row["phase"] == "coarse" and row["stop"] in ("cap", "stalled")
-                     for row in self.history.rows)  # the first coarse phase's rows; a resumed run has them too
-        if not (self.can_start_again() and capped):
+        stuck = any(row["mode"] == stage and row["phase"] == "coarse" and row["stop"] in ("cap", "stalled")
+                    for row in self.history.rows)  # the first coarse phase's rows; a resumed run has them too
+        if not (self.can_start_again() and stuck):
             return
         intrinsics = tuple(f"fibre_{fibre}.{name}" for fibre in range(problem.full.sensor.n_fibres)
                            for name in INTRINSIC_NAMES)
