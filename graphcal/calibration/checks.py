@@ -77,9 +77,10 @@ def check_converged(history: list[dict], where: str) -> None:
     coarse = [k for k, row in enumerate(history) if _stage(row) == stage and row.get("phase") == "coarse"]
     if coarse and history[coarse[-1]].get("stop") in ("cap", "stalled"):
         row = history[coarse[-1]]
-        how = "on the cap" if row["stop"] == "cap" else "stalled (J no longer falling, its step above the fine phase's)"
+        how = ("stopped on the cap" if row["stop"] == "cap"
+               else "stalled (J no longer falling, its step above the fine phase's)")
         raise CalibrationError(
-            f"{where}: the calibration did not converge: its coarse phase stopped {how} after outer iteration "
+            f"{where}: the calibration did not converge: its coarse phase {how} after outer iteration "
             f"{coarse[-1] + 1} (J {row['energy_after_cm2']:.3g} cm², last step {row['max_step']:.2g}), and the fit "
             "that went on from there started outside the basin; allow more (stopping.max_outer_iterations), or "
             "start from a nominal model, and recorded poses, closer to the truth")
