@@ -13,7 +13,8 @@ the truth then zero offsets): the fit must stay within its sigmas. --far draws t
 a factory model is expected to have (5 cm and 0.5 deg per fibre, the extrinsic within 10 cm and 1 deg).
 --reference-error puts the nominal model's reference fibre off the truth in range and elevation (the simulator
 draws it exact; a real head's factory model is off on it as on the others, while the calibration's gauge holds
-it). --range-noise-m and --ins-noise set the noises (to tell which one an error comes from). Writes
+it). --range-noise-m and --ins-noise set the noises (to tell which one an error comes from); --fine-pairs the fine
+phase's pairs per fibre pair. Writes
 benchmarks/results/foreign.json (foreign_from_truth.json, foreign_far.json; or --out).
 """
 
@@ -107,6 +108,8 @@ def main() -> None:
                         help="the nominal model's reference fibre off the truth by these (the gauge holds it exact)")
     parser.add_argument("--reference-fibre", choices=("fixed", "range_elevation"), default=None,
                         help="priors.reference_fibre (default: calibrate's)")
+    parser.add_argument("--fine-pairs", type=int, default=None,
+                        help="association.fine.pairs_per_fibre_pair (default: calibrate's)")
     parser.add_argument("--range-noise-m", type=float, default=0.01, help="the head's range noise [m]")
     parser.add_argument("--ins-noise", type=float, nargs=2, default=(0.005, 0.005), metavar=("M", "DEG"),
                         help="the INS's white noise per sample: position [m] and attitude [deg]")
@@ -118,6 +121,8 @@ def main() -> None:
     settings = {} if args.mode is None else {"mode": args.mode}
     if args.reference_fibre is not None:
         settings["priors"] = {"reference_fibre": args.reference_fibre}
+    if args.fine_pairs is not None:
+        settings["association"] = {"fine": {"pairs_per_fibre_pair": args.fine_pairs}}
     rows = []
     for family in args.families:
         for mount in args.mounts:
