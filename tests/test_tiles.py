@@ -48,6 +48,32 @@ def test_features_and_pairs_tile_by_tile_equal_those_of_the_whole_cloud():
         zip(at_once.index_p.tolist(), at_once.index_m.tolist()))
 
 
+def test_features_from_voxels_tile_by_tile_equal_those_of_the_whole_cloud():
+    """A tile's halo averages the voxels of its core on the whole cloud's grid, as the whole cloud does: features
+    from voxels (a noisy head's, a static sensor's) do not depend on the tiling."""
+    points, _ = _street(np.random.default_rng(2))
+    points = points + np.random.default_rng(3).normal(0, 0.01, points.shape)  # a noisy head's 1 cm
+    settings = CalibrationConfig().features.model_copy(update={"radius_m": 0.5, "neighbours": 20, "voxel_m": 0.1})
+    whole = local_features(points, 0.5, 20, voxel_m=0.1)
+    tiled = Tiling(20.0, 2.5).features(points, settings)
+    np.testing.assert_allclose(tiled.planarity, whole.planarity, atol=1e-9)
+    np.testing.assert_allclose(np.abs(np.einsum("ni,ni->n", tiled.normal, whole.normal)), 1.0, atol=1e-9)
+
+
+def test_voxel_means_are_open3d_voxel_down_sample_s():
+    """On the grid open3d's voxel_down_sample uses (a corner half a voxel below the points' least coordinates), the
+    same means."""
+    import open3d as o3d
+
+    from graphcal.calibration.association import voxel_means
+
+    points = np.random.default_rng(4).uniform(-3.5, 3.5, (20000, 3))
+    means = voxel_means(points, 0.1)
+    sampled = np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points)).voxel_down_sample(0.1).points)
+    assert len(means) == len(sampled) > 10000
+    np.testing.assert_allclose(means[np.lexsort(means.T)], sampled[np.lexsort(sampled.T)], atol=1e-12)
+
+
 def test_a_tile_that_pairs_nothing_leaves_the_others_pairs_unchanged():
     """A lone return 500 m away makes a tile of its own with no pair; with lines of sight (Sight) as well."""
     from graphcal.calibration.association import Sight, stand_in_shifts

@@ -27,6 +27,7 @@ from graphcal.calibration.association import (
     PairGates,
     associate,
     local_features,
+    voxel_corner,
 )
 from graphcal.calibration.config import AssociationSettings, FeatureSettings
 from graphcal.common.cluster import IN_PROCESS, TaskMap
@@ -87,9 +88,10 @@ class Tiling:
         return out
 
     def features(self, points_m: np.ndarray, settings: FeatureSettings) -> Features:
-        """local_features of every point, tile by tile."""
+        """local_features of every point, tile by tile (voxels on the whole cloud's grid)."""
         tiles = self.tiles(points_m)
-        jobs = [(points_m[t.halo], t.core_in_halo, settings.radius_m, settings.neighbours, settings.voxel_m)
+        corner_m = voxel_corner(points_m, settings.voxel_m)
+        jobs = [(points_m[t.halo], t.core_in_halo, settings.radius_m, settings.neighbours, settings.voxel_m, corner_m)
                 for t in tiles]
         parts = self.task_map(features_of_core, jobs, [len(t.halo) for t in tiles])
         arrays = {f.name: np.zeros((len(points_m), 3) if f.name == "normal" else len(points_m)) for f in fields(Features)}
@@ -131,8 +133,8 @@ class Tiling:
 
 def features_of_core(job: tuple) -> Features:
     """One tile's job (a worker's): the features of its core rows from its halo's points [m]."""
-    points_m, core_in_halo, radius_m, neighbours, voxel_m = job
-    return local_features(points_m, radius_m, neighbours, voxel_m).take(core_in_halo)
+    points_m, core_in_halo, radius_m, neighbours, voxel_m, corner_m = job
+    return local_features(points_m, radius_m, neighbours, voxel_m, corner_m).take(core_in_halo)
 
 
 def pairs_of_core(job: tuple) -> Correspondences:
