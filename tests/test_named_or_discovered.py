@@ -130,3 +130,28 @@ def test_a_curve_gets_its_channel_s_constant_beside_it_once_and_the_range_s_only
     assert solved_beside("time~fibre/31/0:31", ("time_offset",), estimated) == ()
     assert solved_beside("elevation~azimuth/8/0:360", (), fixed) == ()
     assert solved_beside("range_scale", (), fixed) == ()
+
+
+def test_a_refit_is_compared_with_its_control_on_both_fits_pairs():
+    """Fit.compared_with: each fit's J is the mean of its J on its own pairs and on the other's (eq. 4.4 with the
+    pairs' fixed normals and weights, summed here pair by pair): pairs made at one fit's estimate do not decide."""
+    from graphcal.calibration.association import Correspondences
+    from graphcal.diagnosis.fit import Fit
+
+    rng = np.random.default_rng(0)
+    points = [rng.normal(0.0, 0.3, (50, 3)), rng.normal(0.0, 0.3, (50, 3))]  # two fits' placements of 50 returns
+    pairs = []
+    for _ in range(2):
+        normal = rng.normal(size=(40, 3))
+        pairs.append(Correspondences(rng.integers(0, 50, 40), rng.integers(0, 50, 40),
+                                     normal / np.linalg.norm(normal, axis=1, keepdims=True), rng.uniform(0.2, 1, 40)))
+    control, refit = (Fit(None, None, None, None, p, None, q) for p, q in zip(points, pairs))
+
+    def energy_cm2(placed, on):  # sum w d^2 / sum w, d the distance along the normal at p [m], in cm2
+        total = sum(w * float(n @ (placed[i] - placed[j])) ** 2
+                    for i, j, n, w in zip(on.index_p, on.index_m, on.normal, on.weight))
+        return total / on.weight.sum() * 1e4
+
+    without, with_it = control.compared_with(refit)
+    assert np.isclose(without, 0.5 * (energy_cm2(points[0], pairs[0]) + energy_cm2(points[0], pairs[1])))
+    assert np.isclose(with_it, 0.5 * (energy_cm2(points[1], pairs[0]) + energy_cm2(points[1], pairs[1])))

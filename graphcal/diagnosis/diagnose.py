@@ -441,7 +441,7 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
             statistic, p_value = wald_at_refit(fit.model.values[winner.name], at_refit)
             # not significant once re-solved, or, modelled, it does not lower J by its floor: withdrawn, back to
             # the fit without it
-            compared = None if control is None else (control.energy_cm2, fit.energy_on(control.pairs))
+            compared = None if control is None else control.compared_with(fit)
             floor_cm2 = None if compared is None else refit_floor_cm2(winner, len(previous[1]))
             unlowered = compared is not None and compared[0] - compared[1] < floor_cm2
             if hypothesis is None and (p_value >= ALPHA / (len(names) + 1) or unlowered):
@@ -494,10 +494,9 @@ def diagnose(recording: Recording, config: CalibrationConfig | None = None, cand
                                           frozenset(pair), DEFAULT_SEPARATING_DATA)})
         before, previous = fit.energy_cm2, (fit, names, tests, modelled, lin)
         # the refit is compared with the fit without it re-solved as long (the refit also goes on converging
-        # what the baseline left, which lowers J whatever the effect does), on that fit's pairs: a named effect
-        # too (the independent simulator's clean level street, 8000 fine pairs per fibre pair: an
-        # incidence_range_bias of 1.65 +- 0.26 cm passed both significance tests, and J on the same pairs rose
-        # from 1.125 to 1.139 cm2 with it)
+        # what the baseline left, which lowers J whatever the effect does), on both fits' pairs (Fit.compared_with):
+        # a named effect too (the independent simulator's clean level street once named an incidence_range_bias of
+        # 1.65 +- 0.26 cm that passed both significance tests and raised J on the control's pairs 1.125 -> 1.139 cm2)
         control = _refit_with(fit, winner, refit_iterations, added=False)
         fit, added = _refit_with(fit, winner, refit_iterations), (winner, before, None, control)
     energy["after"] = fit.energy_cm2
@@ -600,7 +599,8 @@ def _finding(test: CandidateTest, fit: Fit, energy_before: float, at_refit: Cand
     absorbed it (its score test at the fit before it was added, fit_before) and the evidence: the score test's, with its
     held-out J, or for a candidate tested at its known size that test's (truncated cost, no held-out J).
     energy_before: J [cm^2] of the fit before it was added; compared: J of that fit re-solved as long without it
-    and J with it, both on the pairs of the former (the J its statement gives; None for a known size's test).
+    and J with it, each the mean over both fits' pairs (Fit.compared_with; the J its statement gives; None for a
+    known size's test).
     A discrepancy's is `discovered` (RECORDING.md "Discovered effects")."""
     sigma = at_refit.sigma
     value = fit.model.values[test.name]
@@ -699,18 +699,18 @@ def _withdrawn(test: CandidateTest, fit: Fit, sigma: float, statistic: float, p_
                compared: tuple[float, float] | None = None, floor_cm2: float | None = None) -> dict:
     """An effect significant by its score test but not at its refit (fit): its size there, both tests; or one
     whose refit does not lower J by its floor (compared, given only then: J of the fit without it
-    re-solved as long, and J with it, both on the former's pairs; floor_cm2, the fall refit_floor_cm2 asks
+    re-solved as long, and J with it, each the mean over both fits' pairs; floor_cm2, the fall refit_floor_cm2 asks
     [cm^2]). The linear test predicts the fall of J; a curve that fits misfit the model makes (the independent
     simulator's clean street, suspected: pairs across the edges of near cars; 1.1 deg of elevation at 2 m,
     held-out J predicted 1.10 -> 1.07 cm²) does not place the returns better once re-solved with it: it does not
-    sharpen the cloud, and a discovery must. The same pairs for both: on each fit's own, a curve that lets more
-    pairs through the gates raises J without placing any return worse."""
+    sharpen the cloud, and a discovery must. The same pairs for both (each fit on each fit's pairs): on each fit's
+    own alone, a curve that lets more pairs through the gates raises J without placing any return worse."""
     magnitude = candidate(test.name).magnitude_of(fit.model.values[test.name])
     resolved = f"{display(test.name, magnitude)} ± {display(test.name, sigma)}, chi2 {statistic:.3g}, p {p_value:.2g}"
     if compared is None:
         reason = f"it is not significant once re-solved with it ({resolved})"
     else:
-        reason = (f"it does not lower J by its floor once re-solved with it ({resolved}; on the same pairs J "
+        reason = (f"it does not lower J by its floor once re-solved with it ({resolved}; on both fits' pairs J "
                   f"{compared[0]:.4g} cm² without it, {compared[1]:.4g} cm² with it, where the floor asks "
                   f"{floor_cm2:.2g} cm² lower)")
     if is_discrepancy(test.name):
