@@ -90,7 +90,7 @@ class Tiling:
     def features(self, points_m: np.ndarray, settings: FeatureSettings) -> Features:
         """local_features of every point, tile by tile (voxels on the whole cloud's grid)."""
         tiles = self.tiles(points_m)
-        corner_m = voxel_corner(points_m, settings.voxel_m)
+        corner_m = voxel_corner(points_m, settings.voxel_m) if settings.voxel_m else None  # no voxels: no grid
         jobs = [(points_m[t.halo], t.core_in_halo, settings.radius_m, settings.neighbours, settings.voxel_m, corner_m)
                 for t in tiles]
         parts = self.task_map(features_of_core, jobs, [len(t.halo) for t in tiles])
