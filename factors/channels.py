@@ -189,8 +189,7 @@ def channel_jacobians(placed: Placed, motion: Motion, channels: Channels,
     M = J.extrinsic[:, :, 3:6]  # d p_w / d t_E in lidar axes = R_w R_nav' R_E
     a = returns.azimuth_rad + offsets[:, 1] + returns.factory.azimuth_offset_rad
     sideways = np.stack([np.sin(a), np.cos(a), np.zeros_like(a)], axis=-1)
-    alpha = returns.alpha[:, None]
-    q = p_w - returns.X_nav - (1 - alpha) * corrections.translation_lo - alpha * corrections.translation_hi
+    q = p_w - returns.X_nav - corrections.translation(returns.alpha)
     omega = turn.apply(motion.omega)
     z = turn.apply(np.einsum("nij,j->ni", motion.turn(channels.time), Z_AXIS))
     body = M @ R_E.T

@@ -165,6 +165,20 @@ class Block:
         starts = np.cumsum([0] + list(self.widths.values()))
         return dict(zip(self.widths, starts[:-1].tolist()))
 
+    def entries(self, slot: str, width: int) -> tuple[np.ndarray | slice, np.ndarray]:
+        """The rows that have a key in a row slot (a slice when all do) and, for each, the flat indices (rows x
+        width) of its key's columns in the block's Jacobian (N x sum of widths, C order), computed once."""
+        if (slot, width) not in self._entries:
+            start = self.keys.column(slot, self.offsets)
+            has = np.flatnonzero(start != NO_KEY)
+            flat = (has * sum(self.widths.values()) + start[has])[:, None] + np.arange(width)
+            self._entries[slot, width] = (slice(None) if len(has) == len(start) else has, flat)
+        return self._entries[slot, width]
+
+    @cached_property
+    def _entries(self) -> dict:
+        return {}
+
 
 INCIDENCE_FLOOR = 0.1  # of the range noise: a pair's sigma for normal errors
 
@@ -207,6 +221,8 @@ def _intrinsics(values: gtsam.Values, keys: BlockKeys, slot: str, fixed: np.ndar
     distinct, inverse = keys.distinct(slot)
     table = np.array([values.atVector(int(k)) if k != NO_KEY else np.zeros(4) for k in distinct])
     none = (getattr(keys, slot) == NO_KEY)[:, None]
+    if not none.any():
+        return table[inverse]
     return np.where(none, np.broadcast_to(fixed, (len(keys), 4)), table[inverse])
 
 
@@ -262,12 +278,11 @@ def residuals(block: Block, values: gtsam.Values, jacobians: bool = True):
         A[:, block.offsets[keys.extrinsic]:block.offsets[keys.extrinsic] + 6] = extrinsic
     for key, J in effects.jacobians(placed_p, placed_m, n_w, sn, sd):
         A[:, block.offsets[key]:block.offsets[key] + J.shape[1]] = J
-    rows = np.arange(n)
+    flat = A.reshape(-1)  # a view
     for slot, J in terms:
-        start = keys.column(slot, block.offsets)
-        has = start != NO_KEY
-        if has.any():  # one key per row and slot: no (row, column) repeats within one assignment
-            A[rows[has, None], start[has, None] + np.arange(J.shape[1])] += J[has]
+        has, entries = block.entries(slot, J.shape[1])
+        if len(entries):  # one key per row and slot: no (row, column) repeats within one assignment
+            flat[entries] += J[has]
     return r, A
 
 
@@ -328,22 +343,24 @@ def compress(r: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(z, R) with R^T R = A^T A, R^T z = A^T r and ||z||^2 = ||r||^2 (the last entry of z holds
     the norm of the rest of r), R with one row per column of A plus a zero row.
 
-    From the column-scaled Gram matrix B^T B (B = A D^-1, D the column norms): one N x K matrix product
-    (BLAS-3) instead of a Householder QR, about 10x cheaper for the tall blocks here. Its Cholesky factor with
+    From the column-scaled Gram matrix B^T B = D^-1 A^T A D^-1 (B = A D^-1, D the column norms, read off A^T A's
+    diagonal): one N x K matrix product (BLAS-3) instead of a Householder QR, about 10x cheaper for the tall blocks here. Its Cholesky factor with
     complete pivoting (LAPACK pstrf), P^T B^T B P = U^T U, stops at the rank of A (the remaining pivots below
     RANK_TOLERANCE times K, a bound of B^T B's largest eigenvalue): R = U P^T D, exact for rank-deficient A
     (a block's rows seldom see every direction of its keys; directions with no information get zero rows);
     the factorisation is about 10x faster than an eigen-decomposition of the same matrix."""
     k = A.shape[1]
-    scale = np.linalg.norm(A, axis=0)
+    gram = A.T @ A
+    scale = np.sqrt(np.diagonal(gram))  # the column norms
     scale[scale == 0] = 1.0
-    B = A / scale
-    factor, pivots, rank, _ = scipy.linalg.lapack.dpstrf(B.T @ B, tol=RANK_TOLERANCE * k, lower=0)
+    factor, pivots, rank, _ = scipy.linalg.lapack.dpstrf(gram / np.outer(scale, scale), tol=RANK_TOLERANCE * k,
+                                                         lower=0)  # B^T B
     order = pivots - 1  # the columns in pivoted order
     U = np.triu(factor[:rank])  # rank x K
     z, R = np.zeros(k + 1), np.zeros((k + 1, k))
     if rank:
-        z[:rank] = scipy.linalg.solve_triangular(U[:, :rank], (B.T @ r)[order[:rank]], trans="T", check_finite=False)
+        Btr = (A.T @ r) / scale
+        z[:rank] = scipy.linalg.solve_triangular(U[:, :rank], Btr[order[:rank]], trans="T", check_finite=False)
         R[:rank, order] = U * scale[order]
     z[k] = np.sqrt(max(float(r @ r - z @ z), 0.0))
     return z, R

@@ -91,9 +91,19 @@ def to_xyz_with_jacobian(range_m, azimuth_rad, factory: FactoryTerms, offsets, j
     V, H = factory.vertical_offset_m, factory.horizontal_offset_m
     ca, sa = np.cos(a), np.sin(a)
     ce, se = elevation_trig if elevation_trig is not None else (np.cos(e), np.sin(e))
-    h = r * ce - V * se
-    xyz = np.stack([h * ca + H * sa, -h * sa + H * ca, r * se + V * ce + factory.height_offset_m + offsets[..., 3]],
-                   axis=-1)
+    h = r * ce - V * se if np.any(V) else r * ce  # the terms of a zero factory offset are skipped, not added
+    xyz = np.empty(np.broadcast_shapes(np.shape(h), np.shape(ca), np.shape(offsets)[:-1]) + (3,))
+    np.multiply(h, ca, out=xyz[..., 0])
+    np.multiply(-h, sa, out=xyz[..., 1])
+    np.multiply(r, se, out=xyz[..., 2])
+    if np.any(H):
+        xyz[..., 0] += H * sa
+        xyz[..., 1] += H * ca
+    if np.any(V):
+        xyz[..., 2] += V * ce
+    xyz[..., 2] += offsets[..., 3]
+    if np.any(factory.height_offset_m):
+        xyz[..., 2] += factory.height_offset_m
     if np.any(factory.beam_origin_m):
         xyz = xyz + _beam_origin(azimuth_rad, factory)
     if not jacobian:
@@ -122,12 +132,13 @@ def beam_rays(azimuth_rad, factory: FactoryTerms, offsets) -> tuple[np.ndarray, 
     return to_xyz(range_at_origin, azimuth_rad, factory, offsets), beam_directions(azimuth_rad, factory, offsets)
 
 
-def beam_directions(azimuth_rad, factory: FactoryTerms, offsets) -> np.ndarray:
+def beam_directions(azimuth_rad, factory: FactoryTerms, offsets,
+                    elevation_trig: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Unit direction (..., 3) of each beam in the sensor frame, d xyz / d r of eq. 4.2 (eq. 4.3, p'_2): the same at
-    every range, so no point is placed for it."""
+    every range, so no point is placed for it. elevation_trig: as to_xyz_with_jacobian's."""
     a, e, _ = _angles(0.0, np.asarray(azimuth_rad, dtype=np.float64), factory, np.asarray(offsets, dtype=np.float64))
-    ce = np.cos(e)
-    return np.stack(np.broadcast_arrays(ce * np.cos(a), -ce * np.sin(a), np.sin(e)), axis=-1)
+    ce, se = elevation_trig if elevation_trig is not None else (np.cos(e), np.sin(e))
+    return np.stack(np.broadcast_arrays(ce * np.cos(a), -ce * np.sin(a), se), axis=-1)
 
 
 def from_xyz(xyz, factory: FactoryTerms, offsets) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

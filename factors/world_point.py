@@ -54,6 +54,10 @@ class Corrections:
     rotvec_lo: np.ndarray | None = None
     rotvec_hi: np.ndarray | None = None
 
+    def translation(self, alpha: np.ndarray) -> np.ndarray:
+        """(N,3) [m] the translation interpolated at each return's weight alpha (N,) between its lo and hi control."""
+        return self.translation_lo + alpha[:, None] * (self.translation_hi - self.translation_lo)
+
     def rotvecs(self) -> tuple[np.ndarray, np.ndarray]:
         """Log of the lo/hi rotations (N,3) [rad]: the given ones (callers that know them per
         control pass them, a Log per return is the costliest step of a block), else computed."""
@@ -99,9 +103,11 @@ class Turn:
     def apply(self, u: np.ndarray) -> np.ndarray:
         return u if self.R_w is None else np.einsum("nij,nj->ni", self.R_w, u)
 
-    def after(self, R_nav: np.ndarray) -> np.ndarray:
-        """R_w R_nav (N,3,3): body axes -> world axes once corrected."""
-        return R_nav if self.R_w is None else self.R_w @ R_nav
+    def after(self, R_nav: np.ndarray, R_E: np.ndarray) -> np.ndarray:
+        """R_w R_nav R_E (N,3,3): lidar axes -> world axes once corrected (R_nav R_E as one matrix product over
+        every return's rows)."""
+        R_nav_E = (R_nav.reshape(-1, 3) @ R_E).reshape(-1, 3, 3)
+        return R_nav_E if self.R_w is None else self.R_w @ R_nav_E
 
     def d_rotation(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """d(R_w u)/d(rotation of the lo, hi control), (N, 3, 3) each."""
@@ -150,16 +156,15 @@ def world_points(returns: Returns, offsets: np.ndarray, R_E: np.ndarray, t_E: np
         p_l = p_l + held_lidar
     p_b = p_l @ R_E.T + t_E
     q = np.einsum("nij,nj->ni", returns.R_nav, p_b)
-    a = returns.alpha[:, None]
     turn = turn or Turn.of(corrections, returns.alpha, jacobians)
-    p_w = returns.X_nav + (1 - a) * corrections.translation_lo + a * corrections.translation_hi + turn.apply(q)
+    p_w = returns.X_nav + corrections.translation(returns.alpha) + turn.apply(q)
     if not jacobians:
         return p_w, None
 
-    MR_E = turn.after(returns.R_nav) @ R_E  # d p_w / d p_l
+    MR_E = turn.after(returns.R_nav, R_E)  # d p_w / d p_l
     intrinsic = MR_E @ J_intrinsic
-    extrinsic = np.concatenate([-MR_E @ so3.skew(p_l), np.broadcast_to(MR_E, MR_E.shape)], axis=2)
-    aa = a[:, :, None]
+    extrinsic = np.concatenate([-MR_E @ so3.skew(p_l), MR_E], axis=2)
+    aa = returns.alpha[:, None, None]
     if turn.R_w is None:
         eye = np.broadcast_to(np.eye(3), (len(p_w), 3, 3))
         return p_w, WorldJacobians(intrinsic, extrinsic, (1 - aa) * eye, aa * eye)
@@ -182,7 +187,7 @@ def world_normals(returns: Returns, R_E: np.ndarray, corrections: Corrections, n
     if not jacobians:
         return n_w, None
     zeros = np.zeros((len(n_w), 3, 3))
-    extrinsic = np.concatenate([-(turn.after(returns.R_nav) @ R_E) @ so3.skew(normal_lidar), zeros], axis=2)
+    extrinsic = np.concatenate([-turn.after(returns.R_nav, R_E) @ so3.skew(normal_lidar), zeros], axis=2)
     if turn.R_w is None:
         return n_w, WorldJacobians(np.zeros((len(n_w), 3, 4)), extrinsic, zeros, zeros)
     d_lo, d_hi = turn.d_rotation(u)

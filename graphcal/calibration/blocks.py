@@ -121,11 +121,14 @@ def m_buckets(window_p: np.ndarray, window_m: np.ndarray, min_rows: int, most: i
     returns of every pass that saw its surfaces (on a city loop most pairs join passes seconds to minutes apart):
     one block over all of them would tie the controls of every pass in one dense factor, whose width, and the
     elimination's cost, grow with the drive."""
-    groups, group_of, counts = np.unique(np.c_[window_p, window_m], axis=0, return_inverse=True, return_counts=True)
+    span = int(window_m.max()) + 1
+    groups, group_of, counts = np.unique(window_p.astype(np.int64) * span + window_m, return_inverse=True,
+                                         return_counts=True)  # (p's window, m's) in lexicographic order
+    group_p = (groups // span).tolist()
     bucket_of_group = np.zeros(len(groups), np.int64)
     bucket, rows, windows = -1, 0, 0
-    for g, (p, count) in enumerate(zip(groups[:, 0].tolist(), counts.tolist())):
-        if g == 0 or p != groups[g - 1, 0] or rows >= min_rows or windows >= most:
+    for g, (p, count) in enumerate(zip(group_p, counts.tolist())):
+        if g == 0 or p != group_p[g - 1] or rows >= min_rows or windows >= most:
             bucket, rows, windows = bucket + 1, 0, 0
         bucket_of_group[g] = bucket
         rows, windows = rows + count, windows + 1

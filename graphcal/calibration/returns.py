@@ -309,7 +309,7 @@ def corrections_at(estimate: Estimate, control: np.ndarray, pose: bool) -> Corre
     """Per-return corrections at the controls before/after each return."""
     translation = np.array([c.translation() for c in estimate.corrections])
     if not pose:
-        return Corrections(translation[control], translation[control + 1])
+        return Corrections(np.take(translation, control, axis=0), np.take(translation, control + 1, axis=0))
     rotation = np.array([c.rotation().matrix() for c in estimate.corrections])
     rotvec = np.array([gtsam.Rot3.Logmap(c.rotation()) for c in estimate.corrections])
     return Corrections(translation[control], translation[control + 1], rotation[control], rotation[control + 1],
@@ -332,7 +332,9 @@ def rays_at(data: ReturnData, estimate: Estimate, rows: np.ndarray | None = None
     compare these lines with surfaces)."""
     rows = slice(None) if rows is None else rows
     fibre = data.fibre[rows]
-    direction_lidar = beam_directions(data.azimuth_rad[rows], data.sensor.factory_terms(fibre), estimate.offsets[fibre])
+    elevation_rad = np.radians(data.sensor.elevation_deg) + estimate.offsets[:, 2]  # one per fibre
+    direction_lidar = beam_directions(data.azimuth_rad[rows], data.sensor.factory_terms(fibre), estimate.offsets[fibre],
+                                      (np.cos(elevation_rad)[fibre], np.sin(elevation_rad)[fibre]))
     return np.einsum("nij,nj->ni", data.R_nav[rows], direction_lidar @ estimate.extrinsic.rotation().matrix().T)
 
 

@@ -51,14 +51,19 @@ class SensorModel:
         return len(self.elevation_deg)
 
     def factory_terms(self, fibre: np.ndarray) -> FactoryTerms:
-        """Factory terms gathered per return (fibre: int array of fibre ids)."""
+        """Factory terms gathered per return (fibre: int array of fibre ids); a term that is zero on every fibre
+        is the scalar 0 (most heads have no vertical or horizontal offset: eq. 4.2 then skips them per return)."""
+
+        def gathered(per_fibre: np.ndarray) -> np.ndarray | float:
+            return per_fibre[fibre] if np.any(per_fibre) else 0.0
+
         return FactoryTerms(
             elevation_rad=np.radians(self.elevation_deg)[fibre],
-            azimuth_offset_rad=np.radians(self.azimuth_offset_deg)[fibre],
-            range_offset_m=self.range_offset_m[fibre],
-            vertical_offset_m=self.vertical_offset_m[fibre],
-            horizontal_offset_m=self.horizontal_offset_m[fibre],
-            height_offset_m=self.height_offset_m[fibre],
+            azimuth_offset_rad=gathered(np.radians(self.azimuth_offset_deg)),
+            range_offset_m=gathered(self.range_offset_m),
+            vertical_offset_m=gathered(self.vertical_offset_m),
+            horizontal_offset_m=gathered(self.horizontal_offset_m),
+            height_offset_m=gathered(self.height_offset_m),
             beam_origin_m=self.beam_origin_m,
         )
 
