@@ -344,9 +344,10 @@ def compress(r: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     the norm of the rest of r), R with one row per column of A plus a zero row.
 
     From the column-scaled Gram matrix B^T B = D^-1 A^T A D^-1 (B = A D^-1, D the column norms, read off A^T A's
-    diagonal): one N x K matrix product (BLAS-3) instead of a Householder QR, about 10x cheaper for the tall blocks here. Its Cholesky factor with
-    complete pivoting (LAPACK pstrf), P^T B^T B P = U^T U, stops at the rank of A (the remaining pivots below
-    RANK_TOLERANCE times K, a bound of B^T B's largest eigenvalue): R = U P^T D, exact for rank-deficient A
+    diagonal): one N x K matrix product (BLAS-3) instead of a Householder QR, about 10x cheaper for the tall
+    blocks here. Its Cholesky factor with complete pivoting (LAPACK pstrf), P^T B^T B P = U^T U, stops at the
+    rank of A (the remaining pivots below RANK_TOLERANCE times K, a bound of B^T B's largest eigenvalue):
+    R = U P^T D, exact for rank-deficient A
     (a block's rows seldom see every direction of its keys; directions with no information get zero rows);
     the factorisation is about 10x faster than an eigen-decomposition of the same matrix."""
     k = A.shape[1]

@@ -91,15 +91,16 @@ def to_xyz_with_jacobian(range_m, azimuth_rad, factory: FactoryTerms, offsets, j
     V, H = factory.vertical_offset_m, factory.horizontal_offset_m
     ca, sa = np.cos(a), np.sin(a)
     ce, se = elevation_trig if elevation_trig is not None else (np.cos(e), np.sin(e))
-    h = r * ce - V * se if np.any(V) else r * ce  # the terms of a zero factory offset are skipped, not added
+    vertical, horizontal = np.any(V), np.any(H)  # the terms of a zero factory offset are skipped, not added
+    h = r * ce - V * se if vertical else r * ce
     xyz = np.empty(np.broadcast_shapes(np.shape(h), np.shape(ca), np.shape(offsets)[:-1]) + (3,))
     np.multiply(h, ca, out=xyz[..., 0])
     np.multiply(-h, sa, out=xyz[..., 1])
     np.multiply(r, se, out=xyz[..., 2])
-    if np.any(H):
+    if horizontal:
         xyz[..., 0] += H * sa
         xyz[..., 1] += H * ca
-    if np.any(V):
+    if vertical:
         xyz[..., 2] += V * ce
     xyz[..., 2] += offsets[..., 3]
     if np.any(factory.height_offset_m):
