@@ -308,11 +308,12 @@ def initial_estimate(recording: Recording, data: ReturnData) -> Estimate:
 def corrections_at(estimate: Estimate, control: np.ndarray, pose: bool) -> Corrections:
     """Per-return corrections at the controls before/after each return."""
     translation = np.array([c.translation() for c in estimate.corrections])
+    lo, hi = np.take(translation, control, axis=0), np.take(translation, control + 1, axis=0)
     if not pose:
-        return Corrections(np.take(translation, control, axis=0), np.take(translation, control + 1, axis=0))
+        return Corrections(lo, hi)
     rotation = np.array([c.rotation().matrix() for c in estimate.corrections])
     rotvec = np.array([gtsam.Rot3.Logmap(c.rotation()) for c in estimate.corrections])
-    return Corrections(translation[control], translation[control + 1], rotation[control], rotation[control + 1],
+    return Corrections(lo, hi, rotation[control], rotation[control + 1],
                        rotvec[control], rotvec[control + 1])
 
 
@@ -332,9 +333,8 @@ def rays_at(data: ReturnData, estimate: Estimate, rows: np.ndarray | None = None
     compare these lines with surfaces)."""
     rows = slice(None) if rows is None else rows
     fibre = data.fibre[rows]
-    elevation_rad = np.radians(data.sensor.elevation_deg) + estimate.offsets[:, 2]  # one per fibre
     direction_lidar = beam_directions(data.azimuth_rad[rows], data.sensor.factory_terms(fibre), estimate.offsets[fibre],
-                                      (np.cos(elevation_rad)[fibre], np.sin(elevation_rad)[fibre]))
+                                      data.sensor.elevation_trig(fibre, estimate.offsets))
     return np.einsum("nij,nj->ni", data.R_nav[rows], direction_lidar @ estimate.extrinsic.rotation().matrix().T)
 
 

@@ -69,11 +69,16 @@ class SensorModel:
 
     def to_xyz(self, fibre, range_m, azimuth_rad, offsets=None) -> np.ndarray:
         """Raw returns -> sensor-frame xyz [m] (eq. 4.2). offsets: (n_fibres, 4) per fibre."""
-        elevation = np.radians(self.elevation_deg) + (0.0 if offsets is None else np.asarray(offsets)[:, 2])
         xyz, _ = to_xyz_with_jacobian(range_m, azimuth_rad, self.factory_terms(fibre),
                                       self._per_return(fibre, offsets), jacobian=False,
-                                      elevation_trig=(np.cos(elevation)[fibre], np.sin(elevation)[fibre]))
+                                      elevation_trig=self.elevation_trig(fibre, offsets))
         return xyz
+
+    def elevation_trig(self, fibre, offsets=None) -> tuple[np.ndarray, np.ndarray]:
+        """(cos e, sin e) of each return's elevation e = phi_i + d_phi (eq. 4.2), taken once per fibre and gathered
+        (offsets: (n_fibres, 4) per fibre, None: zero)."""
+        elevation = np.radians(self.elevation_deg) + (0.0 if offsets is None else np.asarray(offsets)[:, 2])
+        return np.cos(elevation)[fibre], np.sin(elevation)[fibre]
 
     def to_xyz_with_jacobian(self, fibre, range_m, azimuth_rad, offsets=None):
         """xyz and d xyz / d (d_rho, d_theta, d_phi, Hz) per return, shapes (N,3), (N,3,4)."""
