@@ -13,6 +13,7 @@ from graphcal.calibration.association import (
     local_features,
     neighbour_fibres,
     stand_in_shifts,
+    voxel_means,
 )
 from graphcal.recording.sensor import sensor_from_catalog
 
@@ -86,6 +87,33 @@ def test_static_rings_need_voxel_features():
     features = local_features(points, 0.5, 20, voxel_m=0.1)
     assert np.mean(np.abs(features.normal[:, 0]) > np.cos(np.radians(10))) > 0.99
     assert np.median(features.planarity) > 0.5
+
+
+def test_voxel_features_near_a_crease_take_the_plane_of_their_own_face():
+    """A flat verge meeting a 20 deg slope (a ditch's edge), 100 returns per m2 with 1 cm of noise, as a noisy
+    head's sparse drive sees it: the neighbourhood of a voxel mean within its reach of the crease straddles it,
+    and its normal turns towards the other face. Against each face's true normal: the plane least_bent chooses
+    turns less than half as far there, and as little as the nearest mean's on the faces away from the crease."""
+    rng = np.random.default_rng(5)
+    slope = np.radians(20.0)
+    x, y = rng.uniform(-2, 2, 16_000), rng.uniform(-20, 20, 16_000)
+    points = np.column_stack([x, y, np.where(x > 0, np.tan(slope) * x, 0.0)]) + rng.normal(0, 0.01, (16_000, 3))
+    means = voxel_means(points, 0.1)
+    nearest_mean = local_features(means, 0.5, 20).take(cKDTree(means).query(points)[1])
+    least_bent = local_features(points, 0.5, 20, voxel_m=0.1)
+
+    def turned_to_the_other_face_deg(features):
+        normal = features.normal * np.sign(features.normal[:, 2])[:, None]
+        tilt_deg = np.degrees(np.arctan2(-normal[:, 0], normal[:, 2]))  # about y; the slope's own is 20 deg
+        return np.where(x > 0, np.degrees(slope) - tilt_deg, tilt_deg)
+
+    near = (np.abs(x) > 0.1) & (np.abs(x) < 0.2) & (np.abs(y) < 19)
+    away = (np.abs(x) > 0.5) & (np.abs(y) < 19)
+    before, after = turned_to_the_other_face_deg(nearest_mean), turned_to_the_other_face_deg(least_bent)
+    assert np.median(before[near]) > 2.0  # the straddling neighbourhoods' bend
+    assert np.median(after[near]) < 0.5 * np.median(before[near])
+    assert abs(np.median(after[away])) < 0.1 and abs(np.median(before[away])) < 0.1
+    assert np.quantile(np.abs(after[away]), 0.9) < 1.1 * np.quantile(np.abs(before[away]), 0.9)
 
 
 def test_neighbour_fibres_follow_elevation_order():

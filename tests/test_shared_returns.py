@@ -57,7 +57,7 @@ def test_the_plane_model_term_takes_the_edges_bias_out_of_the_step_at_the_truth(
     """A noise-free cloud with a noisy head's settings: the Gauss-Newton step at the true calibration is
     what the pair model alone gets wrong. Voxel normals tilt near edges and the pairs there pull the
     offsets (docs/reference/math.md "Observability"); with each pair's out-of-plane scatter in its sigma the step
-    is several times smaller for every parameter type (measured: 4x to 10x)."""
+    is several times smaller for every parameter type (measured: 6x to 13x)."""
     problem, truth, pairs = at_truth
     sensor = problem.data.sensor
 
@@ -162,7 +162,7 @@ def test_calibrate_reports_the_shared_returns_sigmas_for_a_noisy_head(tmp_path):
     recording = graphcal.simulate(load_scenario_builder("sim2_street")(size=0.05, seed=1, range_noise_m=0.01),
                                   quiet=True)
     result = graphcal.calibrate(recording, CalibrationConfig(mode="intrinsic", priors=FAR_START_PRIORS, stopping={
-        "max_outer_iterations": 6, "refuse_unconverged": False}),
+        "max_outer_iterations": 8, "refuse_unconverged": False}),
                                 quiet=True)
     assert result.config.weighting.pair_noise == "incidence"
     shared, marginal = result.shared_returns_uncertainty.intrinsics, result.uncertainty.intrinsics

@@ -8,7 +8,7 @@ graph stays on the driver. Points are world coordinates minus a local origin [m]
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from functools import cached_property
 
 import numpy as np
@@ -17,6 +17,8 @@ from scipy.spatial import cKDTree
 
 from graphcal.calibration.config import PhaseGates
 from graphcal.common.cluster import usable_cores
+
+LEAST_BENT_CANDIDATES = 6  # voxel means nearest a mean among which least_bent chooses the plane it takes
 
 
 def rows_of(table, rows: np.ndarray):
@@ -164,16 +166,20 @@ def local_features(points_m: np.ndarray, radius_m: float = 0.5, max_nn: int = 20
     (fewer than 3 points, or a line) get planarity 0.
 
     voxel_m > 0: the features are computed on the cloud averaged in voxels of that size (voxel_means, on a
-    grid with its corner at voxel_corner_m) and each point takes those of the voxel whose mean is nearest it
-    (taking its own voxel's instead, the static halves check passed the real static recording with one half's
+    grid with its corner at voxel_corner_m) and each point takes those of the voxel mean nearest it, with the normal
+    of the plane least_bent chooses for that mean (not bent across a crease); the planarity and the out-of-plane
+    scatter stay the mean's own neighbourhood's, how far the surface there departs from one plane, which a pair's
+    sigma counts (taking its own voxel's instead, the static halves check passed the real static recording with one half's
     ground lowered by up to 15 cm: held-out J fell by a fifth where it rises). A static sensor needs it: it sees
     the same spots every revolution, so a point's nearest neighbours are itself seen again, a blob of range noise
     whose "normal" is meaningless (measured on the real HDL-32E recording: J 256 cm2 at the nominal calibration,
     15 cm2 with 0.1 m voxels); voxels coarse enough let the neighbourhood span rings."""
     if voxel_m > 0:
         means_m = voxel_means(points_m, voxel_m, voxel_corner_m)
-        nearest = cKDTree(means_m).query(points_m, workers=-1)[1]
-        return local_features(means_m, radius_m, max_nn).take(nearest)
+        tree = cKDTree(means_m)
+        nearest = tree.query(points_m, workers=-1)[1]
+        own = local_features(means_m, radius_m, max_nn)
+        return replace(own, normal=own.normal[least_bent(tree, own, radius_m)]).take(nearest)
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points_m, dtype=np.float64)))
     search = o3d.geometry.KDTreeSearchParamHybrid(radius=radius_m, max_nn=max_nn)
     cloud.estimate_covariances(search)
@@ -183,6 +189,25 @@ def local_features(points_m: np.ndarray, radius_m: float = 0.5, max_nn: int = 20
     s1 = np.where(s[:, 0] > 0, s[:, 0], 1.0)
     valid = s[:, 1] > 0
     return Features(normal=normal, planarity=np.where(valid, (s[:, 1] - s[:, 2]) / s1, 0.0), out_of_plane_m=s[:, 2])
+
+
+def least_bent(tree: cKDTree, features: Features, radius_m: float, candidates: int = LEAST_BENT_CANDIDATES) -> np.ndarray:
+    """(V,) for each voxel mean (tree: a KD-tree of the means [m]) the mean, among its `candidates` nearest within
+    radius_m (itself included), whose neighbourhood's plane (features: the means' own) fits it best: the least
+    s3^2 + d^2, s3 that neighbourhood's out-of-plane scatter and d this mean's distance from its plane. Within a
+    neighbourhood's reach of a crease (a kerb, a ditch's edge) a mean's own neighbourhood straddles it, its normal
+    bent towards the other face; one further in on the mean's own face is not, and the mean lies on its plane.
+    A pair's residual carries its normal's error times the pair's separation, of one sign along a crease
+    (docs/reference/math.md "Features and their refresh")."""
+    means_m, scatter = tree.data, features.out_of_plane_m
+    itself = np.arange(len(means_m))
+    _, nearest = tree.query(means_m, k=candidates, distance_upper_bound=radius_m, workers=-1)
+    nearest = np.where(nearest < len(means_m), nearest, itself[:, None])  # itself: always found
+    plane_offset_m = np.einsum("ni,ni->n", features.normal, means_m)
+    off_plane = np.einsum("nki,ni->nk", features.normal[nearest], means_m) - plane_offset_m[nearest]
+    misfit = np.where(features.planarity[nearest] > 0, scatter[nearest] ** 2 + off_plane ** 2, np.inf)
+    chosen = nearest[itself, np.argmin(misfit, axis=1)]
+    return np.where(np.isfinite(misfit).any(axis=1), chosen, itself)
 
 
 def voxel_means(points_m: np.ndarray, voxel_m: float, corner_m: np.ndarray | None = None) -> np.ndarray:

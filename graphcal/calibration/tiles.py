@@ -4,8 +4,9 @@ stays on the driver.
 
 The cloud's plan (x, y in the world frame minus the local origin [m]) is cut into squares of tile_m; a tile's
 core are the returns inside its square, its halo the core and every return within margin_m of the square.
-Each tile computes the features of its core from its halo (exact when margin_m covers the features' radius:
-a neighbourhood never leaves the halo) and pairs its core's candidate p's with returns of its halo (every m
+Each tile computes the features of its core from its halo (exact when margin_m covers twice the features'
+radius: a neighbourhood never leaves the halo, nor does that of a neighbour whose plane a voxel mean takes,
+association.least_bent) and pairs its core's candidate p's with returns of its halo (every m
 within the gate is in the halo when margin_m covers the gate and the stand-ins' reach). Passes of the same
 street at different times fall in the same tile: their pairs tie the trajectory corrections of both passes.
 A tile's random draws come from the seed and the tile's own position: the result does not depend on where,
@@ -60,11 +61,11 @@ class Tiling:
 
     @classmethod
     def of(cls, association: AssociationSettings, features: FeatureSettings, task_map: TaskMap = IN_PROCESS):
-        """The tiling association.tile_m asks for (None: none), with a margin covering the features' radius,
-        the widest gate of either phase and a stand-in's reach on both sides of a pair."""
+        """The tiling association.tile_m asks for (None: none), with a margin covering twice the features'
+        radius, the widest gate of either phase and a stand-in's reach on both sides of a pair."""
         if association.tile_m is None:
             return None
-        reach_m = max(features.radius_m, association.coarse.gate_max_m, association.fine.gate_max_m)
+        reach_m = max(2 * features.radius_m, association.coarse.gate_max_m, association.fine.gate_max_m)
         return cls(association.tile_m, reach_m + 2 * PROXY_REACH_M, task_map)
 
     def tiles(self, points_m: np.ndarray) -> list[Tile]:
